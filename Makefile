@@ -1,0 +1,23 @@
+# The two set-up commands of the README: `make demo` and `make test`.
+# Each creates .venv (if missing), installs bsjax into it, then runs.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+
+.PHONY: demo test bench
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+
+demo: $(PY)
+	$(PY) -m pip install -q -e .
+	$(VENV)/bin/bsjax demo
+
+test: $(PY)
+	$(PY) -m pip install -q -e ".[test,haptics,notebooks]"
+	$(PY) -m pytest -q -n 2
+
+bench: $(PY)
+	$(PY) -m pip install -q -e ".[bench,haptics]"
+	for b in benchmarks/*.py; do $(PY) $$b || exit 1; done

@@ -1,0 +1,83 @@
+"""Tensor-product contraction, rational (NURBS) derivatives and safe unit normals.
+
+Shared by `BSplineSurface` (arbitrary (u, v)) and `Blending` (grids), so the two agree exactly.
+"""
+
+from __future__ import annotations
+
+from math import comb
+
+import jax.numpy as jnp
+
+
+def homogeneous(ctrl, weights):
+    """`(r, s, 3)` control net → `(r, s, 4)` homogeneous net `[w P, w]` (or `ctrl` if no weights)."""
+    if weights is None:
+        return ctrl
+    return jnp.concatenate([ctrl * weights[..., None], weights[..., None]], axis=-1)
+
+
+def grid(a_u, ctrl, a_v):
+    """`M = A_u P A_v^T` per coordinate (thesis eq. 3.6): `(m, r) (r, s, d) (n, s) → (m, n, d)`."""
+    return jnp.einsum("ai,ijc,bj->abc", a_u, ctrl, a_v)
+
+
+def pointwise(rows_u, ctrl, rows_v):
+    """Row-wise contraction for scattered parameters: `(k, r) (r, s, d) (k, s) → (k, d)`."""
+    return jnp.einsum("ki,ijc,kj->kc", rows_u, ctrl, rows_v)
+
+
+def rational_derivatives(h, nu: int, nv: int):
+    """Derivatives of `S = H / w` from those of the homogeneous map (NURBS Book A4.4).
+
+    **Arguments:** `h[(k, l)]` the (k, l)-th partial derivative of `[w S, w]`, `(..., 4)`, for
+    all `k ≤ nu`, `l ≤ nv`.
+    **Returns:** `s[(k, l)]`, `(..., 3)`, the partial derivatives of the rational surface.
+    """
+    w = {kl: v[..., 3:] for kl, v in h.items()}
+    s = {}
+    for k in range(nu + 1):
+        for l in range(nv + 1):
+            value = h[(k, l)][..., :3]
+            for i in range(k + 1):
+                for j in range(l + 1):
+                    if i or j:
+                        value = value - comb(k, i) * comb(l, j) * w[(i, j)] * s[(k - i, l - j)]
+            s[(k, l)] = value / w[(0, 0)]
+    return s
+
+
+def safe_norm(x, axis=-1, keepdims=False):
+    """Euclidean norm with a finite gradient at 0 (double where)."""
+    sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
+    ok = sq > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1)), 0)
+
+
+def unit(x, axis=-1):
+    """`x / |x|`, and 0 where `|x| = 0`; finite gradients everywhere."""
+    n = safe_norm(x, axis=axis, keepdims=True)
+    ok = n > 0
+    return jnp.where(ok, x / jnp.where(ok, n, 1), 0)
+
+
+def unit_normal(t_u, t_v, t_uv, u, v):
+    """Unit normal `T_u × T_v / |T_u × T_v|`, with the limit normal at degenerate points.
+
+    Where a row collapses to a pole (`T_v = 0`, e.g. the tip of the teardrop) the normal is the
+    limit `±T_u × T_uv` (first-order expansion `T_v ≈ (u − u₀) T_uv`), its sign set by which end
+    of the domain the pole is at; likewise `±T_uv × T_v` where `T_u = 0`. Never NaN.
+
+    **Arguments:** `(..., 3)` derivatives; `u`, `v` broadcastable parameters in [0, 1].
+    """
+    n = jnp.cross(t_u, t_v)
+    scale = jnp.sum(t_u * t_u, -1) + jnp.sum(t_v * t_v, -1)
+    tol = jnp.sqrt(jnp.finfo(n.dtype).eps) * scale
+    degenerate = safe_norm(n) <= tol
+    pole_in_v = jnp.sum(t_v * t_v, -1) <= jnp.sum(t_u * t_u, -1)
+    sign_u = jnp.where(u < 0.5, 1.0, -1.0)[..., None]
+    sign_v = jnp.where(v < 0.5, 1.0, -1.0)[..., None]
+    limit = jnp.where(
+        pole_in_v[..., None], sign_u * jnp.cross(t_u, t_uv), sign_v * jnp.cross(t_uv, t_v)
+    )
+    return unit(jnp.where(degenerate[..., None], limit, n))

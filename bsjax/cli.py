@@ -1,0 +1,47 @@
+"""The `bsjax` command: `bsjax demo`, `bsjax haptics …`, and batch subcommands.
+
+Each subcommand lives in the module that owns the work and exposes `main(argv) -> int`;
+this file only dispatches, so importing it stays cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+# name → (module with a `main(argv)`, one-line help)
+COMMANDS = {
+    "demo": ("bsjax.demo", "the spoon case study: shapes, collision, merging, physics, optimisation"),
+    "haptics": ("bsjax.device.cli", "haptic sculpting loop (--simulated, --serial PORT, --hid VID:PID)"),
+    "merge": ("bsjax.merge_cli", "merge patches from .json/.3dm files into one surface"),
+    "collide": ("bsjax.collide_cli", "collision query of a surface file against a tool"),
+    "simulate": ("bsjax.mss_cli", "mass-spring simulation of a surface file"),
+    "convert": ("bsjax.io", "convert a surface between .json, .3dm, .obj, .stl, .glb"),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: bsjax COMMAND [options]", "", "commands:"]
+    lines += [f"  {name:<10} {text}" for name, (_, text) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"bsjax: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    try:
+        module = importlib.import_module(COMMANDS[name][0])
+    except ModuleNotFoundError as err:
+        print(f"bsjax {name}: not available in this installation ({err})", file=sys.stderr)
+        return 2
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
