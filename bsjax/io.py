@@ -1,0 +1,236 @@
+"""Surface files: lossless JSON, Rhino `.3dm` (rhino3dm), and tessellated meshes (trimesh).
+
+* `save(surface_or_list, path)` / `load(path)` / `load_all(path)` pick the format by extension:
+  `.json` and `.3dm` keep the exact B-spline (degrees, knots, control points, weights,
+  periodicity); `.obj`, `.stl`, `.ply`, `.glb` write the tessellated sample grid.
+* `.3dm`: a periodic direction is written as Rhino writes a periodic NURBS — uniform unclamped
+  knots with the first `degree` control columns repeated at the end — and read back as periodic,
+  so the round trip is exact and Rhino shows a closed surface.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bsjax import _checks
+from bsjax.basis import BSplineSurface, periodic_knots
+
+__all__ = ["save", "load", "load_all", "to_dict", "from_dict", "tessellate", "MESH_FORMATS"]
+
+MESH_FORMATS = (".obj", ".stl", ".ply", ".glb")
+_FORMAT = "bsjax.surface"
+
+
+# --- JSON ---------------------------------------------------------------------------------
+def to_dict(surface: BSplineSurface) -> dict:
+    """A JSON-ready dict holding every field of `surface` exactly (floats round-trip by repr)."""
+    def listed(x):
+        return None if x is None else np.asarray(x).tolist()
+
+    return {
+        "format": _FORMAT, "version": 1, "dtype": str(surface.ctrl.dtype),
+        "degree_u": surface.degree_u, "degree_v": surface.degree_v,
+        "periodic_u": surface.periodic_u, "periodic_v": surface.periodic_v,
+        "knots_u": listed(surface.knots_u), "knots_v": listed(surface.knots_v),
+        "ctrl": listed(surface.ctrl), "weights": listed(surface.weights),
+    }
+
+
+def from_dict(data: dict, source: str = "data") -> BSplineSurface:
+    """Inverse of `to_dict`; errors name `source` and the field at fault."""
+    if not isinstance(data, dict) or data.get("format") != _FORMAT:
+        _checks.fail(source, f"a JSON object with format {_FORMAT!r}", type(data).__name__ if not isinstance(data, dict) else data.get("format"))
+    missing = [k for k in ("degree_u", "degree_v", "ctrl", "knots_u", "knots_v") if k not in data]
+    if missing:
+        _checks.fail(source, "the fields degree_u, degree_v, ctrl, knots_u, knots_v", f"missing {missing}")
+    dtype = np.dtype(data.get("dtype", "float64"))
+
+    def arr(key):
+        return None if data.get(key) is None else np.asarray(data[key], dtype=dtype)
+
+    try:
+        return BSplineSurface(
+            arr("ctrl"), arr("knots_u"), arr("knots_v"), int(data["degree_u"]), int(data["degree_v"]),
+            bool(data.get("periodic_u", False)), bool(data.get("periodic_v", False)), arr("weights"),
+        )
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{source}: {err}") from err
+
+
+# --- Rhino .3dm -----------------------------------------------------------------------------
+def _to_rhino(surface: BSplineSurface):
+    import rhino3dm
+
+    ctrl = np.asarray(surface.ctrl, dtype=np.float64)
+    w = np.ones(ctrl.shape[:2]) if surface.weights is None else np.asarray(surface.weights, dtype=np.float64)
+    knots = []
+    for axis, d in enumerate("uv"):
+        degree, periodic = getattr(surface, f"degree_{d}"), getattr(surface, f"periodic_{d}")
+        if periodic:  # wrap: n + p control points over the unclamped uniform knots
+            wrap = np.arange(ctrl.shape[axis] + degree) % ctrl.shape[axis]
+            ctrl, w = np.take(ctrl, wrap, axis=axis), np.take(w, wrap, axis=axis)
+            full = np.asarray(periodic_knots(surface.shape[axis], degree), dtype=np.float64)
+        else:
+            full = np.asarray(getattr(surface, f"knots_{d}"), dtype=np.float64)
+        knots.append(full[1:-1])  # Rhino omits the two superfluous end knots
+    r, s = ctrl.shape[:2]
+    srf = rhino3dm.NurbsSurface.Create(3, surface.weights is not None, surface.degree_u + 1,
+                                       surface.degree_v + 1, r, s)
+    for i, k in enumerate(knots[0]):
+        srf.KnotsU[i] = float(k)
+    for j, k in enumerate(knots[1]):
+        srf.KnotsV[j] = float(k)
+    for i in range(r):
+        for j in range(s):
+            x, y, z = ctrl[i, j] * w[i, j]
+            srf.Points[i, j] = rhino3dm.Point4d(float(x), float(y), float(z), float(w[i, j]))
+    return srf
+
+
+def _from_rhino(srf, source: str) -> BSplineSurface:
+    r, s = srf.Points.CountU, srf.Points.CountV
+    hom = np.array([[_point4(srf.Points[i, j]) for j in range(s)] for i in range(r)])
+    w = hom[..., 3]
+    ctrl = hom[..., :3] / w[..., None]
+    knots, periodic = {}, {}
+    degrees = {"u": srf.OrderU - 1, "v": srf.OrderV - 1}
+    for axis, d in enumerate("uv"):
+        inner = np.array(list((srf.KnotsU if d == "u" else srf.KnotsV)), dtype=np.float64)
+        ctrl, w, knots[d], periodic[d] = _direction_from_rhino(ctrl, w, inner, degrees[d], axis, f"{source} ({d})")
+    weights = None if np.allclose(w, 1.0, rtol=0, atol=0) else w
+    return BSplineSurface(ctrl, knots["u"], knots["v"], degrees["u"], degrees["v"],
+                          periodic["u"], periodic["v"], weights)
+
+
+def _direction_from_rhino(ctrl, w, inner, degree, axis, source):
+    """Rhino's knots (no superfluous ends) → ours on [0, 1], detecting the periodic layout."""
+    clamped = np.all(inner[:degree] == inner[0]) and np.all(inner[-degree:] == inner[-1])
+    if clamped:
+        full = np.concatenate([[inner[0]], inner, [inner[-1]]])
+        return ctrl, w, (full - full[0]) / (full[-1] - full[0]), False
+    n = ctrl.shape[axis] - degree
+    head, tail = np.take(ctrl, range(degree), axis=axis), np.take(ctrl, range(n, n + degree), axis=axis)
+    uniform = np.allclose(np.diff(inner), np.diff(inner)[0], rtol=1e-9, atol=0)
+    if not (uniform and n > degree and np.allclose(head, tail, rtol=0, atol=1e-12)):
+        _checks.fail(source, "clamped knots, or a uniform periodic surface", f"unclamped knots {inner.tolist()}")
+    keep = range(n)
+    return np.take(ctrl, keep, axis=axis), np.take(w, keep, axis=axis), None, True
+
+
+def _point4(p):
+    return (p.X, p.Y, p.Z, p.W)
+
+
+def _save_3dm(surfaces, path: Path) -> None:
+    import rhino3dm
+
+    model = rhino3dm.File3dm()
+    model.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
+    for surface in surfaces:
+        model.Objects.AddSurface(_to_rhino(surface))
+    if not model.Write(str(path), 7):
+        raise OSError(f"{path}: rhino3dm could not write the file")
+
+
+def _load_3dm(path: Path) -> list[BSplineSurface]:
+    import rhino3dm
+
+    model = rhino3dm.File3dm.Read(str(path))
+    if model is None:
+        _checks.fail(str(path), "a readable Rhino .3dm file", "a file rhino3dm cannot parse")
+    surfaces = []
+    for index, obj in enumerate(model.Objects):
+        geometry = obj.Geometry
+        faces = list(geometry.Surfaces) if isinstance(geometry, rhino3dm.Brep) else [geometry]
+        for face in faces:
+            if isinstance(face, rhino3dm.Surface):
+                surfaces.append(_from_rhino(face.ToNurbsSurface(), f"{path} object {index}"))
+    return surfaces
+
+
+# --- meshes -------------------------------------------------------------------------------
+def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
+    """Triangle mesh of the `m × n` sample grid (two triangles per cell) as a `trimesh.Trimesh`.
+
+    Seams of periodic directions and collapsed pole rows are welded, so a closed surface gives
+    a closed mesh.
+    """
+    import trimesh
+
+    points = np.asarray(surface.blending(m, n).points(surface.ctrl), dtype=np.float64)
+    i, j = np.meshgrid(np.arange(m - 1), np.arange(n - 1), indexing="ij")
+    a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+    faces = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)]).reshape(-1, 3)
+    mesh = trimesh.Trimesh(points.reshape(-1, 3), faces, process=False)
+    scale = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
+    mesh.merge_vertices(digits_vertex=int(np.clip(-np.log10(scale * 1e-9), 0, 15)))
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.fix_normals() if mesh.is_watertight else None
+    return mesh
+
+
+# --- dispatch -----------------------------------------------------------------------------
+def save(surfaces, path, m: int = 82, n: int = 82) -> Path:
+    """Write one surface or a list of surfaces; the format follows the extension of `path`."""
+    path = Path(path)
+    items = [surfaces] if isinstance(surfaces, BSplineSurface) else list(surfaces)
+    if not items or not all(isinstance(s, BSplineSurface) for s in items):
+        _checks.fail("surfaces", "a BSplineSurface or a non-empty list of them", type(surfaces).__name__)
+    ext = path.suffix.lower()
+    if ext == ".json":
+        data = to_dict(items[0]) if len(items) == 1 else {"format": _FORMAT + "s", "surfaces": [to_dict(s) for s in items]}
+        path.write_text(json.dumps(data))
+    elif ext == ".3dm":
+        _save_3dm(items, path)
+    elif ext in MESH_FORMATS:
+        import trimesh
+
+        meshes = [tessellate(s, m, n) for s in items]
+        (meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)).export(str(path))
+    else:
+        _checks.fail("path", f"an extension in .json, .3dm, {', '.join(MESH_FORMATS)}", repr(path.suffix))
+    return path
+
+
+def load_all(path) -> list[BSplineSurface]:
+    """Every surface in a `.json` or `.3dm` file."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext == ".3dm":
+        return _load_3dm(path)
+    if ext != ".json":
+        _checks.fail("path", "a .json or .3dm file (meshes hold no B-spline)", repr(path.suffix))
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from err
+    if isinstance(data, dict) and data.get("format") == _FORMAT + "s":
+        return [from_dict(d, f"{path} surface {k}") for k, d in enumerate(data.get("surfaces", []))]
+    return [from_dict(data, str(path))]
+
+
+def load(path) -> BSplineSurface:
+    """The single surface in a `.json` or `.3dm` file (use `load_all` for several)."""
+    surfaces = load_all(path)
+    if len(surfaces) != 1:
+        _checks.fail(str(path), "exactly one surface (use bsjax.io.load_all for several)", f"{len(surfaces)} surfaces")
+    return surfaces[0]
+
+
+def main(argv: list[str]) -> int:
+    """`bsjax convert IN OUT`: convert between .json, .3dm and mesh formats."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="bsjax convert", description=main.__doc__)
+    parser.add_argument("source")
+    parser.add_argument("target")
+    parser.add_argument("--samples", type=int, default=82, help="grid size for mesh output")
+    args = parser.parse_args(argv)
+    surfaces = load_all(args.source)
+    save(surfaces, args.target, args.samples, args.samples)
+    print(f"{args.source} → {args.target}: {len(surfaces)} surface(s)", file=sys.stderr)
+    return 0
