@@ -1,0 +1,117 @@
+"""File formats: exact JSON/.3dm round trips, Rhino's own evaluator as an oracle, meshes."""
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import rhino3dm
+import trimesh
+
+from bsjax import io, shapes
+from bsjax.basis import BSplineSurface, clamped_knots
+from helpers import random_surface
+
+GRID = np.linspace(0.0, 1.0, 9)
+U, V = np.meshgrid(GRID, GRID, indexing="ij")
+
+
+def _surfaces():
+    rng = np.random.default_rng(3)
+    return {
+        "teardrop (periodic v)": shapes.teardrop(),
+        "random nonuniform": random_surface(rng, 6, 5, 3, 2),
+        "rational": random_surface(rng, 5, 7, 2, 3, weights=True),
+        "periodic u": BSplineSurface(np.asarray(shapes.teardrop().ctrl).transpose(1, 0, 2), None,
+                                     clamped_knots(8, 3), 3, 3, periodic_u=True),
+    }
+
+
+@pytest.mark.parametrize("name", list(_surfaces()))
+@pytest.mark.parametrize("ext", [".json", ".3dm"])
+def test_round_trip_is_exact(tmp_path, name, ext):
+    surface = _surfaces()[name]
+    back = io.load(io.save(surface, tmp_path / f"s{ext}"))
+    assert (back.degree_u, back.degree_v, back.periodic_u, back.periodic_v) == (
+        surface.degree_u, surface.degree_v, surface.periodic_u, surface.periodic_v)
+    assert back.shape == surface.shape
+    tol = 0.0 if ext == ".json" else 1e-15  # .3dm stores w·P: one rounding on the way back
+    np.testing.assert_allclose(back.ctrl, surface.ctrl, rtol=0, atol=tol * 10)
+    for a, b in ((back.knots_u, surface.knots_u), (back.knots_v, surface.knots_v), (back.weights, surface.weights)):
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_allclose(a, b, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("name", list(_surfaces()))
+def test_rhino_evaluates_the_same_surface(tmp_path, name):
+    """OpenNURBS (through rhino3dm) is an independent evaluator of what we wrote."""
+    surface = _surfaces()[name]
+    io.save(surface, tmp_path / "s.3dm")
+    srf = rhino3dm.File3dm.Read(str(tmp_path / "s.3dm")).Objects[0].Geometry
+    (u0, u1), (v0, v1) = (srf.Domain(0).T0, srf.Domain(0).T1), (srf.Domain(1).T0, srf.Domain(1).T1)
+    ours = np.asarray(surface.evaluate(U, V))
+    theirs = np.array([[_xyz(srf.PointAt(u0 + (u1 - u0) * a, v0 + (v1 - v0) * b)) for b in GRID] for a in GRID])
+    np.testing.assert_allclose(theirs, ours, rtol=0, atol=1e-12)
+    assert srf.IsClosed(1) == surface.periodic_v and srf.IsClosed(0) == surface.periodic_u
+
+
+def test_json_is_plain_and_lists_several(tmp_path):
+    a, b = shapes.spoon_handle(), shapes.spoon_bowl()
+    path = io.save([a, b], tmp_path / "two.json")
+    data = json.loads(path.read_text())
+    assert data["format"] == "bsjax.surfaces" and len(data["surfaces"]) == 2
+    back = io.load_all(path)
+    np.testing.assert_array_equal(back[1].ctrl, b.ctrl)
+    with pytest.raises(ValueError, match="exactly one surface"):
+        io.load(path)
+
+
+@pytest.mark.parametrize("ext", [".obj", ".stl", ".ply", ".glb"])
+def test_mesh_export_reads_back(tmp_path, ext):
+    surface = shapes.teardrop()
+    io.save(surface, tmp_path / f"t{ext}", m=24, n=20)
+    mesh = trimesh.load(tmp_path / f"t{ext}", force="mesh")
+    points = np.asarray(surface.blending(24, 20).points(surface.ctrl)).reshape(-1, 3)
+    # every vertex is a sample of the surface, and the closed teardrop gives a closed mesh
+    d = np.min(np.linalg.norm(mesh.vertices[:, None] - points[None], axis=-1), axis=1)
+    assert d.max() < 1e-6
+    mesh.merge_vertices()
+    assert mesh.is_watertight
+
+
+def test_tessellated_volume_converges():
+    """Closed teardrop: mesh volume converges (Richardson: error shrinks ~4× per doubling)."""
+    vols = [io.tessellate(shapes.teardrop(), k, k).volume for k in (21, 41, 81, 161)]
+    errs = np.abs(np.diff(vols))
+    assert errs[2] < errs[1] < errs[0]
+    assert 2.5 < errs[1] / errs[2] < 6.0
+
+
+def test_float32_survives_json(tmp_path):
+    s = shapes.plate(dtype=np.float32)
+    back = io.load(io.save(s, tmp_path / "p.json"))
+    assert back.ctrl.dtype == jnp.float32
+    np.testing.assert_array_equal(back.ctrl, s.ctrl)
+
+
+def test_bad_files_name_the_file(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match="bad.json"):
+        io.load(bad)
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text(json.dumps({"format": "bsjax.surface", "degree_u": 3, "degree_v": 3,
+                                 "knots_u": [0, 1], "knots_v": [0, 1], "ctrl": np.zeros((4, 4, 3)).tolist()}))
+    with pytest.raises(ValueError, match="wrong.json.*knots_u"):
+        io.load(wrong)
+    with pytest.raises(ValueError, match="path"):
+        io.save(shapes.plate(), tmp_path / "x.dwg")
+    garbage = tmp_path / "g.3dm"
+    garbage.write_bytes(b"\x00" * 64)
+    with pytest.raises(ValueError, match="g.3dm"):
+        io.load(garbage)
+
+
+def _xyz(p):
+    return (p.X, p.Y, p.Z)
