@@ -1,0 +1,122 @@
+"""Forces on the lattice nodes: Voigt springs (eqs. 5.8–5.13), node damping, penalty contact.
+
+Every kernel returns the net force *on* each node, `(N, 3)`, in newtons.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from bsjax import _tensor
+from bsjax.mss._lattice import HEX_DIRECTIONS, Lattice, _slices
+
+
+def _inv_length(d):
+    """`(1/l, l)` of component-first differences `d (3, ...)`; `1/l = 0` at `l = 0` (double where)."""
+    l2 = jnp.sum(d * d, axis=0)
+    ok = l2 > 0
+    inv = jnp.where(ok, jax.lax.rsqrt(jnp.where(ok, l2, 1.0)), 0.0)
+    return inv, l2 * inv
+
+
+def _pair_force(d, dv, rest, k, c):
+    """Force on node i of a spring with `d = x_i − x_j`, `dv = v_i − v_j` (component-first, `(3, ...)`).
+
+    Hooke `−K (l − L) ê` (eq. 5.11 with `K` in N/m) plus Voigt damping `−D ((v_i − v_j)·ê) ê`
+    (eq. 5.2 along the spring), written `−[K (1 − L/l) + D (dv·d)/l²] d` so a zero-length spring
+    (L = 0, l = 0, e.g. at a pole) is a finite linear spring with finite gradients.
+    """
+    inv, _ = _inv_length(d)
+    coef = k * (1.0 - rest * inv) + c * jnp.sum(dv * d, axis=0) * inv * inv
+    return -coef * d
+
+
+def spring_forces(lattice: Lattice, x: Float[Array, "N 3"], v: Float[Array, "N 3"],
+                  rest_length: Float[Array, " E"] | None = None) -> Float[Array, "N 3"]:
+    """`−g_i` (eq. 5.13) plus the Voigt damping of every spring at node i.
+
+    Uses dense slices when the lattice is a hexahedral grid (`lattice.grid_shape`), else
+    `segment_sum` over the edge list; both give the same forces.
+    """
+    rest = lattice.rest_length if rest_length is None else rest_length
+    return edge_sum(lattice, _pair_force, (x, v), (rest, lattice.stiffness, lattice.damping))
+
+
+def edge_sum(lattice: Lattice, pair, node_arrays, edge_arrays) -> Float[Array, "N 3"]:
+    """`Σ_j pair(a_i − a_j, …, p_ij, …)` at every node i (and the opposite at j).
+
+    `pair` gets the component-first differences `(3, ...)` across each spring of every `(N, 3)`
+    array in `node_arrays` and the spring's entries of every `(E,)` array in `edge_arrays`, and
+    returns the `(3, ...)` force on the spring's first node. Dense slices on a hexahedral grid
+    (structure-of-arrays, no scatter), `segment_sum` over the edge list otherwise.
+    """
+    if lattice.grid_shape is not None:
+        return _grid_sum(lattice.grid_shape, pair, node_arrays, edge_arrays)
+    i, j = lattice.edges[:, 0], lattice.edges[:, 1]
+    f = pair(*((a[i] - a[j]).T for a in node_arrays), *edge_arrays).T
+    n = node_arrays[0].shape[0]
+    return jax.ops.segment_sum(f, i, n) - jax.ops.segment_sum(f, j, n)
+
+
+def _grid_sum(shape, pair, node_arrays, edge_arrays):
+    """Dense-slice `edge_sum` for a C-ordered grid with edges in `hex_edges` order."""
+    grids = [a.T.reshape((3,) + shape) for a in node_arrays]
+    out = jnp.zeros_like(grids[0])
+    start = 0
+    for direction in HEX_DIRECTIONS:
+        s0, s1 = zip(*(_slices(o, n) for o, n in zip(direction, shape)))
+        sub = tuple(sl.stop - sl.start for sl in s0)
+        count = sub[0] * sub[1] * sub[2]
+        if count == 0:
+            continue
+        seg = slice(start, start + count)
+        start += count
+        a0, a1 = (slice(None),) + s0, (slice(None),) + s1
+        f = pair(*(g[a0] - g[a1] for g in grids), *(p[seg].reshape(sub) for p in edge_arrays))
+        out = out.at[a0].add(f).at[a1].add(-f)
+    return out.reshape(3, -1).T
+
+
+# --- penalty contact with rigid tools --------------------------------------------------------------
+
+
+def sphere_penalty(x, v, center, radius, stiffness, damping=0.0):
+    """Penalty force pushing nodes out of a rigid sphere, `(N, 3)`.
+
+    `f = k δ n − c min(v·n, 0) n` with depth `δ = max(r − |x − c|, 0)` and outward normal `n`
+    (damping acts only while a node moves into the tool).
+    """
+    d = x - center
+    n = _tensor.unit(d)
+    depth = jnp.maximum(radius - _tensor.safe_norm(d), 0.0)
+    return _penalty(depth, n, v, stiffness, damping)
+
+
+def plane_penalty(x, v, point, normal, stiffness, damping=0.0):
+    """Penalty force pushing nodes to the `normal` side of a rigid plane (a table), `(N, 3)`."""
+    n = _tensor.unit(normal)
+    depth = jnp.maximum(-jnp.sum((x - point) * n, axis=-1), 0.0)
+    return _penalty(depth, jnp.broadcast_to(n, x.shape), v, stiffness, damping)
+
+
+def _penalty(depth, n, v, stiffness, damping):
+    inside = depth > 0
+    vn = jnp.sum(v * n, axis=-1)
+    mag = stiffness * depth - jnp.where(inside, damping * jnp.minimum(vn, 0.0), 0.0)
+    return mag[..., None] * n
+
+
+def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
+    """Sum of penalty forces of rigid tools: objects with `center`/`radius` (sphere) or
+    `point`/`normal` (plane), e.g. `bsjax.collide.Sphere` / `Plane` or `mss.Sphere` / `mss.Plane`."""
+    f = jnp.zeros_like(x)
+    for tool in tools:
+        if hasattr(tool, "radius"):
+            f = f + sphere_penalty(x, v, tool.center, tool.radius, stiffness, damping)
+        elif hasattr(tool, "normal"):
+            f = f + plane_penalty(x, v, tool.point, tool.normal, stiffness, damping)
+        else:
+            raise TypeError(f"tools: expected objects with center/radius or point/normal, got {type(tool).__name__}")
+    return f
