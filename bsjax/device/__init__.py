@@ -1,0 +1,30 @@
+"""Haptic device bridge: devices, the serial frame, and the safe two-rate force loop (SPEC §8).
+
+```python
+from bsjax.device import SimulatedDevice, ServoLoop
+from bsjax.device.physics import SculptModel
+
+with SimulatedDevice() as dev, ServoLoop(dev, SculptModel(), max_force=3.0) as loop:
+    time.sleep(10)
+print(loop.stats.report())
+```
+"""
+
+from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
+from bsjax.device.hid import HidDevice, HidField, HidLayout
+from bsjax.device.protocol import (
+    BUTTON_PRESS, DeviceError, DeviceSample, DeviceTimeout, HapticDevice, Workspace,
+)
+from bsjax.device.proxy import Proxy
+from bsjax.device.record import Recorder, Recording
+from bsjax.device.serial import SerialDevice
+from bsjax.device.servo import ServoLoop
+from bsjax.device.simulated import SimulatedDevice, sculpt_script
+from bsjax.device.telemetry import ServoStats, plot_recording
+
+__all__ = [
+    "BUTTON_PRESS", "Decoded", "DeviceError", "DeviceSample", "DeviceTimeout", "Frame", "HapticDevice",
+    "HidDevice", "HidField", "HidLayout", "Proxy", "Recorder", "Recording", "SerialDevice", "ServoLoop",
+    "ServoStats", "SimulatedDevice", "Workspace", "decode_frames", "encode_force", "encode_frame",
+    "encode_pose", "plot_recording", "sculpt_script",
+]

@@ -1,0 +1,270 @@
+"""The slow loop's model: a deformable B-spline surface over a volumetric mass-spring lattice.
+
+Dual representation (paper 002 §4.1, Dachille & Qin): the lattice's outer layer is an `m × n`
+grid of samples of the surface at fixed parameters, so after each physics tick the control net
+is the least-squares refit of those nodes, `P = A_u^+ M (A_v^+)^T` (thesis eq. 3.7,
+`Blending.refit`). Below the surface the lattice has `layers − 1` more layers shrunk towards
+the axis of a body closed in v (the teardrop: each u-ring scaled about its centroid), or
+extruded along −normal for an open sheet; the innermost layers are fixed. Springs: structural
+and face-diagonal (shear) neighbours of the `m × n × layers` index grid, periodic in v for closed
+bodies. Integration: semi-implicit Euler (thesis eqs. 5.14–5.16), `substeps` steps per tick
+inside one jitted call.
+
+Sculpting (002 §4.2): while the stylus button is held, every node inside the tool (a sphere or an
+ellipsoid at the stylus pose) gets a penalty force `k_tool · depth` away from the tool centre —
+a push from outside, a pull when the tool sits inside the body and moves out. When the button is
+released the deformation is set: rest lengths become the current lengths (plastic set).
+
+Haptic proxy: the refit surface is sampled on a denser grid; the sample nearest the tool centre
+and its normal give a plane proxy (normal towards the side the tool came from, latched while in
+contact, so passing through the wall keeps pushing back — the "surface normal" method of 002
+§3.2.3), with the tool's support distance along that normal as the proxy's `tool_radius`.
+
+`SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`);
+it is self-contained (only `bsjax.basis`/`Blending`), independent of `bsjax.mss`/`bsjax.collide`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Protocol, runtime_checkable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bsjax import shapes
+from bsjax._tensor import safe_norm
+from bsjax.device.protocol import DeviceSample
+from bsjax.device.proxy import Proxy
+
+_SHEAR = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1))
+
+
+@runtime_checkable
+class PhysicsModel(Protocol):
+    """What `ServoLoop` runs in its physics thread."""
+
+    def warmup(self) -> None:
+        """Compile every jitted function (called once, before the threads start)."""
+
+    def update(self, sample: DeviceSample) -> Proxy:
+        """Advance one physics tick with the tool at `sample`'s pose; return the new proxy."""
+
+
+def lattice_springs(m: int, n: int, layers: int, periodic_v: bool) -> np.ndarray:
+    """`(9, m, n, layers)` mask: 1 where node `(a, b, c)` has a spring to `(a, b, c) + offset`
+    for each structural/shear offset in `_SHEAR` (v wraps around for closed bodies)."""
+    a, b, c = np.meshgrid(np.arange(m), np.arange(n), np.arange(layers), indexing="ij")
+    masks = []
+    for da, db, dc in _SHEAR:
+        b2 = b + db
+        ok = (a + da < m) & (c + dc >= 0) & (c + dc < layers)
+        ok &= ((b2 >= 0) & (b2 < n)) if not periodic_v else (n > 2 or db == 0)
+        masks.append(ok)
+    return np.stack(masks).astype(np.float64)
+
+
+def _neighbour(x, offset):
+    """`x[a + da, b + db, c + dc]` at `(a, b, c)` (cyclic; callers mask the wrapped entries)."""
+    return jnp.roll(x, shift=tuple(-o for o in offset), axis=(0, 1, 2))
+
+
+def _back(f, offset):
+    """Move a per-pair quantity stored at node `(a, b, c)` to its partner `(a, b, c) + offset`."""
+    return jnp.roll(f, shift=offset, axis=(0, 1, 2))
+
+
+def lattice_nodes(surface_points: np.ndarray, normals: np.ndarray, layers: int, periodic_v: bool,
+                  thickness: float) -> np.ndarray:
+    """`(m, n, layers, 3)` node positions; layer `layers − 1` is the surface grid itself."""
+    rho = (np.arange(layers) + 1.0) / layers
+    if periodic_v:
+        centre = surface_points.mean(axis=1, keepdims=True)
+        return centre[:, :, None] + rho[None, None, :, None] * (surface_points - centre)[:, :, None]
+    return surface_points[:, :, None] - ((1.0 - rho) * thickness)[None, None, :, None] * normals[:, :, None]
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """Unit quaternion `w x y z` → rotation matrix."""
+    w, x, y, z = (float(c) for c in q)
+    n = w * w + x * x + y * y + z * z
+    if not n > 0:
+        return np.eye(3)
+    s = 2.0 / n
+    return np.array([
+        [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
+        [s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)],
+        [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)],
+    ])
+
+
+class SculptModel:
+    """Teardrop (or any surface) on a volumetric mass-spring lattice, sculpted by a sphere/ellipsoid.
+
+    **Arguments:**
+    - `surface`: a `BSplineSurface` (default `shapes.teardrop()`); its dtype is the model's dtype.
+    - `grid`: `(m, n)` surface nodes (the lattice's outer layer; needs m ≥ r, n ≥ s for the refit);
+      `layers`: lattice depth (12 → a 12×12×12 lattice for the default grid).
+    - `physics_hz`: ticks per second the caller runs; `substeps`: integration steps per tick.
+    - `node_mass`, `stiffness` (per spring), `damping` (per spring, along it), `drag` (1/s),
+      `tool_stiffness` (per node): the material, in model units.
+    - `tool_radius` or `tool_axes` (3 semi-axes, an ellipsoid aligned with the stylus).
+    - `proxy_stiffness`, `proxy_damping`: the haptic proxy, N and N·s per model unit.
+    - `proxy_grid`: samples per direction of the surface grid the proxy is taken from.
+    - `thickness`: lattice depth of an open (not closed-in-v) surface.
+    """
+
+    def __init__(self, surface=None, grid: tuple[int, int] = (12, 12), layers: int = 12,
+                 physics_hz: float = 100.0, substeps: int = 4, node_mass: float = 0.01,
+                 stiffness: float = 10.0, damping: float = 0.05, drag: float = 2.0,
+                 tool_stiffness: float = 100.0, tool_radius: float = 0.25, tool_axes=None,
+                 proxy_stiffness: float = 30.0, proxy_damping: float = 0.3, proxy_grid: int = 24,
+                 fixed_layers: int = 2, thickness: float = 0.2):
+        surface = shapes.teardrop() if surface is None else surface
+        m, n = grid
+        r, s = surface.shape
+        if m < r or n < s:
+            raise ValueError(f"grid: expected at least the control net {surface.shape} for the refit, got {grid}")
+        if not 1 <= fixed_layers < layers:
+            raise ValueError(f"fixed_layers: expected 1 <= fixed_layers < layers = {layers}, got {fixed_layers}")
+        for name, value in dict(physics_hz=physics_hz, node_mass=node_mass, stiffness=stiffness,
+                                tool_stiffness=tool_stiffness, proxy_stiffness=proxy_stiffness).items():
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: expected a finite value > 0, got {value}")
+        self.dtype = surface.ctrl.dtype
+        self.grid, self.layers, self.substeps = (m, n), layers, int(substeps)
+        self.dt = 1.0 / (physics_hz * substeps)
+        omega = np.sqrt(len(_SHEAR) * 2 * (stiffness + tool_stiffness) / node_mass)
+        if self.dt * omega >= 2.0:  # semi-implicit Euler is stable for dt·ω < 2
+            raise ValueError(f"substeps: explicit step {self.dt:.2e} s is unstable for ω ≈ {omega:.0f} rad/s; "
+                             f"expected dt < {2 / omega:.2e} s (raise substeps or lower stiffness)")
+        self.proxy_stiffness, self.proxy_damping = float(proxy_stiffness), float(proxy_damping)
+        params_u = np.linspace(0.0, 1.0, m + 2)[1:-1] if not surface.periodic_u else np.arange(m) / m
+        params_v = np.arange(n) / n if surface.periodic_v else np.linspace(0.0, 1.0, n)
+        # Built under jit: one compiled program instead of hundreds of eager basis-function ops.
+        self.blending = jax.jit(lambda pu, pv: surface.blending(m, n, pu, pv))(
+            params_u.astype(self.dtype), params_v.astype(self.dtype))
+        self.dense = jax.jit(lambda: surface.blending(proxy_grid, proxy_grid))()
+        self.surface0 = surface
+        pts = np.asarray(self.blending.points(surface.ctrl), dtype=np.float64)
+        nrm = np.asarray(self.blending.normals(surface.ctrl), dtype=np.float64)
+        centre = pts.reshape(-1, 3).mean(axis=0)
+        # Orient normals outwards (away from the centroid) once; the sign is a property of the basis.
+        self.sign = 1.0 if np.mean(np.sum((pts - centre) * nrm, axis=-1)) >= 0 else -1.0
+        x0 = lattice_nodes(pts, self.sign * nrm, layers, surface.periodic_v, thickness)
+        mask = lattice_springs(m, n, layers, surface.periodic_v)
+        rest = np.stack([np.linalg.norm(np.roll(x0, [-o for o in off], axis=(0, 1, 2)) - x0, axis=-1)
+                         for off in _SHEAR]) * mask
+        free = np.ones((m, n, layers, 1))
+        free[:, :, :fixed_layers] = 0.0
+        dt_ = self.dtype
+        self._consts = dict(mask=jnp.asarray(mask[..., None], dt_), free=jnp.asarray(free, dt_),
+                            mass=node_mass, k=stiffness, d=damping, drag=drag, k_tool=tool_stiffness)
+        self.n_nodes, self.n_springs = m * n * layers, int(mask.sum())
+        x0 = jnp.asarray(x0, dt_)
+        self._state = (x0, jnp.zeros_like(x0), jnp.asarray(rest, dt_))
+        self._initial = self._state
+        self.ctrl = surface.ctrl
+        self.tool_axes = np.full(3, float(tool_radius)) if tool_axes is None else np.asarray(tool_axes, float)
+        self.set_tool(axes=self.tool_axes)
+        self._tick = jax.jit(self._tick_impl)
+        self._settle = jax.jit(self._settle_impl)
+        self._side = 1.0
+        self._was_pressed = False
+        self._lock = threading.Lock()
+        self.ticks = 0
+
+    # --- run-time tool ------------------------------------------------------------------------
+    def set_tool(self, radius: float | None = None, axes=None) -> None:
+        """Change the tool at run time: a sphere of `radius` or an ellipsoid of semi-`axes` (3,)."""
+        a = np.full(3, float(radius)) if radius is not None else np.asarray(axes, dtype=np.float64)
+        if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a <= 0):
+            raise ValueError(f"tool: expected a radius or 3 semi-axes, finite and > 0, got {a.tolist()}")
+        self.tool_axes = a  # one reference swap, picked up at the next tick
+
+    # --- jitted kernels -----------------------------------------------------------------------
+    def _forces(self, x, v, rest, centre, axes, rot, pressing):
+        """Spring + damper forces (eqs. 5.8–5.13) and the tool's push, on the `(m, n, L, 3)` grid."""
+        c = self._consts
+        total = jnp.zeros_like(x)
+        for k, offset in enumerate(_SHEAR):
+            d = _neighbour(x, offset) - x
+            length = safe_norm(d, keepdims=True)
+            u = d / jnp.where(length > 0, length, 1)
+            rel = jnp.sum((_neighbour(v, offset) - v) * u, axis=-1, keepdims=True)
+            f = c["mask"][k] * (c["k"] * (length - rest[k][..., None]) + c["d"] * rel) * u
+            total = total + f - _back(f, offset)
+        # Tool: ellipsoid {y : |diag(1/a) Rᵀ (y − centre)| ≤ 1}; radial depth to its surface.
+        r = x - centre
+        rho = safe_norm((r @ rot) / axes)
+        dist = safe_norm(r)
+        inside = (rho < 1) & (dist > 0)
+        depth = jnp.where(inside, dist * (1 / jnp.where(inside, rho, 1) - 1), 0)
+        push = (c["k_tool"] * pressing) * depth[..., None] * r / jnp.where(dist > 0, dist, 1)[..., None]
+        return total + push
+
+    def _step(self, carry, tool):
+        x, v, rest = carry
+        c = self._consts
+        a = self._forces(x, v, rest, *tool) / c["mass"] - c["drag"] * v
+        v = (v + self.dt * a) * c["free"]
+        return (x + self.dt * v, v, rest)
+
+    def _tick_impl(self, state, centre, axes, rot, pressing):
+        tool = (centre, axes, rot, pressing)
+        state = jax.lax.fori_loop(0, self.substeps, lambda _, s: self._step(s, tool), state)
+        ctrl = self.blending.refit(state[0][:, :, -1])
+        pts = self.dense.points(ctrl).reshape(-1, 3)
+        nrm = self.sign * self.dense.normals(ctrl).reshape(-1, 3)
+        k = jnp.argmin(jnp.sum((pts - centre) ** 2, axis=-1))
+        q, nq = pts[k], nrm[k]
+        support = safe_norm(axes * (nq @ rot))  # ellipsoid support distance along nq
+        return state, ctrl, jnp.concatenate([q, nq, support[None]])
+
+    def _settle_impl(self, state):
+        x, v, _ = state
+        rest = jnp.stack([safe_norm(_neighbour(x, off) - x) for off in _SHEAR])
+        return x, v, rest * self._consts["mask"][..., 0]
+
+    # --- model interface ----------------------------------------------------------------------
+    def _tool_args(self, position, orientation):
+        dt = self.dtype
+        return (jnp.asarray(position, dt), jnp.asarray(self.tool_axes, dt), jnp.asarray(quat_to_matrix(orientation), dt))
+
+    def warmup(self) -> None:
+        """Compile the tick and the settle (both shapes are fixed, so this happens once)."""
+        x, v, rest = self._state
+        centre, axes, rot = self._tool_args(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0))
+        out = self._tick((x, v, rest), centre, axes, rot, jnp.asarray(0.0, self.dtype))
+        jax.block_until_ready(out)
+        jax.block_until_ready(self._settle(self._state))
+
+    def update(self, sample: DeviceSample) -> Proxy:
+        """One physics tick with the tool at `sample`; returns the plane proxy for the servo."""
+        pressed = sample.pressed
+        with self._lock:
+            centre, axes, rot = self._tool_args(sample.position, sample.orientation)
+            state, ctrl, out = self._tick(self._state, centre, axes, rot, jnp.asarray(float(pressed), self.dtype))
+            if self._was_pressed and not pressed:
+                state = self._settle(state)
+            self._was_pressed = pressed
+            out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
+            self._state, self.ctrl = state, ctrl
+            self.ticks += 1
+        q, normal, support = out[:3], out[3:6], float(out[6])
+        gap = float(np.dot(np.asarray(sample.position) - q, normal))
+        if self._side * gap >= support:  # out of contact: the side the tool is on may change
+            self._side = 1.0 if gap >= 0 else -1.0
+        if not np.all(np.isfinite(out)):
+            return Proxy(stamp=time.perf_counter())  # no contact model rather than a NaN force
+        return Proxy.plane(q, self._side * normal, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
+
+    def surface(self):
+        """The current surface (refit of the lattice's outer layer)."""
+        return self.surface0.with_ctrl(self.ctrl)
+
+    def reset(self) -> None:
+        with self._lock:
+            self._state, self.ctrl, self._was_pressed = self._initial, self.surface0.ctrl, False

@@ -1,0 +1,134 @@
+"""The `HapticDevice` protocol, the `DeviceSample` it returns, and device → model workspace mapping.
+
+A device reports its stylus pose in its own coordinates (metres); `Workspace` maps positions into
+model coordinates (`x_model = scale · R x_device + offset`) and forces back (`f_device = Rᵀ f`;
+forces are not scaled, so a proxy stiffness `k` in N per model unit feels like `k · scale` N/m).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+BUTTON_PRESS = 1  # bit 0 of `DeviceSample.buttons`: the stylus button (push/pull sculpting)
+
+
+class DeviceError(RuntimeError):
+    """A device failed in a way the caller should know about (not a single bad frame)."""
+
+
+class DeviceTimeout(DeviceError):
+    """No sample arrived within the device's timeout."""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceSample:
+    """One stylus reading, in model coordinates.
+
+    - `position (3,)`: tool centre; `orientation (4,)`: unit quaternion `w x y z`.
+    - `buttons`: bit mask (`BUTTON_PRESS` = stylus button).
+    - `timestamp`: seconds on the device's clock; `sequence`: the device's sample counter.
+    - `received`: host `time.perf_counter()` when the sample arrived (drives the watchdog).
+    """
+
+    position: np.ndarray
+    orientation: np.ndarray
+    buttons: int
+    timestamp: float
+    sequence: int
+    received: float
+
+    @property
+    def pressed(self) -> bool:
+        return bool(self.buttons & BUTTON_PRESS)
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Device → model coordinates: `x_model = scale · R x_device + offset`.
+
+    **Arguments:** `scale > 0` (model units per metre), `offset (3,)`, `rotation (3, 3)` orthonormal.
+    """
+
+    scale: float = 1.0
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self):
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"scale: expected a finite value > 0, got {self.scale}")
+        object.__setattr__(self, "offset", _vector(self.offset, "offset", 3))
+        rot = np.asarray(self.rotation, dtype=np.float64)
+        if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6):
+            raise ValueError(f"rotation: expected an orthonormal (3, 3) matrix, got {rot.tolist()}")
+        object.__setattr__(self, "rotation", rot)
+
+    def to_model(self, position) -> np.ndarray:
+        return self.scale * (self.rotation @ np.asarray(position, dtype=np.float64)) + self.offset
+
+    def to_device(self, position) -> np.ndarray:
+        return self.rotation.T @ ((np.asarray(position, dtype=np.float64) - self.offset) / self.scale)
+
+    def force_to_device(self, force) -> np.ndarray:
+        return self.rotation.T @ np.asarray(force, dtype=np.float64)
+
+
+@runtime_checkable
+class HapticDevice(Protocol):
+    """What `ServoLoop` needs from a device. Implementations: `SimulatedDevice`, `SerialDevice`,
+    `HidDevice`.
+
+    `read()` never blocks for long once a first sample has arrived: it returns the newest sample
+    (the same one again when nothing new came; `received` tells its age). `write(force, torque)`
+    sends a force in model coordinates (newtons). `close()` releases the device; every
+    implementation sends zero force first. Devices are context managers.
+    """
+
+    def read(self) -> DeviceSample: ...
+
+    def write(self, force, torque=None) -> None: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self): ...
+
+    def __exit__(self, *exc) -> None: ...
+
+
+class DeviceBase:
+    """Shared plumbing: context manager, workspace mapping, transport counters."""
+
+    workspace: Workspace
+
+    def __init__(self, workspace: Workspace | None = None):
+        self.workspace = workspace if workspace is not None else Workspace()
+        self.counters: dict[str, int] = {}
+
+    def _count(self, name: str, n: int = 1) -> None:
+        if n:
+            self.counters[name] = self.counters.get(name, 0) + n
+
+    def _sample(self, position, orientation, buttons, timestamp, sequence) -> DeviceSample:
+        return DeviceSample(self.workspace.to_model(position), np.asarray(orientation, dtype=np.float64),
+                            int(buttons), float(timestamp), int(sequence), time.perf_counter())
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _vector(x, name: str, size: int) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (size,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: expected {size} finite numbers, got {np.asarray(x).tolist()}")
+    return a
+
+
+def force_vector(force, name: str = "force") -> np.ndarray:
+    """A finite `(3,)` float64 force, or `ValueError` naming the argument."""
+    return _vector(force, name, 3)

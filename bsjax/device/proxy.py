@@ -1,0 +1,100 @@
+"""The local contact model the 1 kHz servo thread renders: a plane or sphere proxy.
+
+Pure Python on floats (no numpy dispatch, no JAX) so one evaluation costs a few microseconds.
+The physics thread builds a new immutable `Proxy` at its own rate and swaps it in atomically
+(one reference assignment); between updates the servo renders the local model at the current
+tool position — the "intermediate representation" of two-rate haptics (Adachi 1995, Mark 1996).
+
+Force (paper 002 §3.2.2, a penalty spring with damping): depth `s` of the tool into the proxy,
+`F = max(0, k s + d ṡ) n` along the proxy normal `n`, zero when out of contact. The damper
+opposes the penetration rate `ṡ` (the paper's `F = k s − d ṡ` measures ṡ on the surface point,
+which moves the other way); the clip at 0 keeps the wall from pulling the tool in.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+PLANE, SPHERE, NONE = "plane", "sphere", "none"
+
+
+@dataclass(frozen=True, slots=True)
+class Proxy:
+    """An immutable local contact model.
+
+    - `kind`: `"plane"` (half-space below `point` along `normal`), `"sphere"` (ball of `radius`
+      at `point`; with `inside=True` the tool is inside a cavity of that radius), or `"none"`.
+    - `tool_radius`: the tool's extent along the contact normal (for an ellipsoid tool the physics
+      puts its support distance here).
+    - `stiffness` (N per model unit), `damping` (N·s per model unit), both ≥ 0.
+    - `stamp`: `time.perf_counter()` when the physics made it (the watchdog checks its age).
+    """
+
+    kind: str = NONE
+    point: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    radius: float = 0.0
+    inside: bool = False
+    tool_radius: float = 0.0
+    stiffness: float = 0.0
+    damping: float = 0.0
+    stamp: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in (PLANE, SPHERE, NONE):
+            raise ValueError(f"kind: expected 'plane', 'sphere' or 'none', got {self.kind!r}")
+        nums = (*self.point, *self.normal, self.radius, self.tool_radius, self.stiffness, self.damping)
+        if not all(math.isfinite(x) for x in nums):
+            raise ValueError(f"Proxy: expected finite numbers, got {self}")
+        for name in ("radius", "tool_radius", "stiffness", "damping"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: expected a value >= 0, got {getattr(self, name)}")
+        if self.kind == PLANE:
+            n = math.sqrt(sum(c * c for c in self.normal))
+            if n == 0:
+                raise ValueError("normal: expected a non-zero vector for a plane proxy, got (0, 0, 0)")
+            object.__setattr__(self, "normal", tuple(float(c) / n for c in self.normal))
+
+    @classmethod
+    def plane(cls, point, normal, stiffness, damping=0.0, tool_radius=0.0, stamp=None) -> "Proxy":
+        return cls(PLANE, _vec(point), _vec(normal), 0.0, False, float(tool_radius), float(stiffness),
+                   float(damping), time.perf_counter() if stamp is None else stamp)
+
+    @classmethod
+    def sphere(cls, centre, radius, stiffness, damping=0.0, tool_radius=0.0, inside=False, stamp=None) -> "Proxy":
+        return cls(SPHERE, _vec(centre), (0.0, 0.0, 1.0), float(radius), bool(inside), float(tool_radius),
+                   float(stiffness), float(damping), time.perf_counter() if stamp is None else stamp)
+
+    def contact(self, x: float, y: float, z: float) -> tuple[float, float, float, float]:
+        """`(depth, nx, ny, nz)`: penetration of a tool centred at (x, y, z) and the push direction."""
+        if self.kind == PLANE:
+            nx, ny, nz = self.normal
+            px, py, pz = self.point
+            return self.tool_radius - ((x - px) * nx + (y - py) * ny + (z - pz) * nz), nx, ny, nz
+        if self.kind == SPHERE:
+            dx, dy, dz = x - self.point[0], y - self.point[1], z - self.point[2]
+            dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if dist == 0.0:
+                dx, dy, dz, dist = 0.0, 0.0, 1.0, 1.0  # any direction: the centre is symmetric
+            nx, ny, nz = dx / dist, dy / dist, dz / dist
+            if self.inside:  # the cavity wall pushes the tool back towards the centre
+                return dist + self.tool_radius - self.radius, -nx, -ny, -nz
+            return self.radius + self.tool_radius - dist, nx, ny, nz
+        return -1.0, 0.0, 0.0, 1.0
+
+    def force(self, position, velocity=(0.0, 0.0, 0.0)) -> tuple[float, float, float]:
+        """Penalty force on the tool: `max(0, k s + d ṡ) n` (002 §3.2.2), zero out of contact."""
+        depth, nx, ny, nz = self.contact(position[0], position[1], position[2])
+        if depth <= 0.0:
+            return 0.0, 0.0, 0.0
+        # ṡ = −v·n (depth grows when moving against the normal); the spring never pulls.
+        rate = -(velocity[0] * nx + velocity[1] * ny + velocity[2] * nz)
+        magnitude = max(0.0, self.stiffness * depth + self.damping * rate)
+        return magnitude * nx, magnitude * ny, magnitude * nz
+
+
+def _vec(x) -> tuple[float, float, float]:
+    a, b, c = (float(v) for v in x)
+    return a, b, c
