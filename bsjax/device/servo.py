@@ -163,6 +163,11 @@ class ServoLoop:
         self.stop()
 
     @property
+    def started_at(self) -> float:
+        """`time.perf_counter()` of the first tick (recording times are relative to it)."""
+        return self._t_start * 1e-9
+
+    @property
     def running(self) -> bool:
         return self._running and not self.finished.is_set()
 
