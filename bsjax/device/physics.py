@@ -18,7 +18,9 @@ released the deformation is set: rest lengths become the current lengths (plasti
 Haptic proxy: the refit surface is sampled on a denser grid; the sample nearest the tool centre
 and its normal give a plane proxy (normal towards the side the tool came from, latched while in
 contact, so passing through the wall keeps pushing back — the "surface normal" method of 002
-§3.2.3), with the tool's support distance along that normal as the proxy's `tool_radius`.
+§3.2.3), with the tool's support distance along that normal as the proxy's `tool_radius`. While the
+button is held, the plane is moved back by the nodes' summed reaction on the tool (times
+`reaction_gain`, over the proxy stiffness), so the user feels the material give way but push back.
 
 `SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`);
 it is self-contained (only `bsjax.basis`/`Blending`), independent of `bsjax.mss`/`bsjax.collide`.
@@ -113,6 +115,7 @@ class SculptModel:
     - `tool_radius` or `tool_axes` (3 semi-axes, an ellipsoid aligned with the stylus).
     - `proxy_stiffness`, `proxy_damping`: the haptic proxy, N and N·s per model unit.
     - `proxy_grid`: samples per direction of the surface grid the proxy is taken from.
+    - `reaction_gain`: newtons felt per unit of the summed tool force on the nodes while sculpting.
     - `thickness`: lattice depth of an open (not closed-in-v) surface.
     """
 
@@ -120,7 +123,8 @@ class SculptModel:
                  physics_hz: float = 100.0, substeps: int = 4, node_mass: float = 0.01,
                  stiffness: float = 10.0, damping: float = 0.05, drag: float = 2.0,
                  tool_stiffness: float = 100.0, tool_radius: float = 0.25, tool_axes=None,
-                 proxy_stiffness: float = 30.0, proxy_damping: float = 0.3, proxy_grid: int = 24,
+                 proxy_stiffness: float = 30.0, proxy_damping: float = 0.3, proxy_grid: int = 40,
+                 reaction_gain: float = 0.2,
                  fixed_layers: int = 2, thickness: float = 0.2):
         surface = shapes.teardrop() if surface is None else surface
         m, n = grid
@@ -141,6 +145,7 @@ class SculptModel:
             raise ValueError(f"substeps: explicit step {self.dt:.2e} s is unstable for ω ≈ {omega:.0f} rad/s; "
                              f"expected dt < {2 / omega:.2e} s (raise substeps or lower stiffness)")
         self.proxy_stiffness, self.proxy_damping = float(proxy_stiffness), float(proxy_damping)
+        self.reaction_gain = float(reaction_gain)
         params_u = np.linspace(0.0, 1.0, m + 2)[1:-1] if not surface.periodic_u else np.arange(m) / m
         params_v = np.arange(n) / n if surface.periodic_v else np.linspace(0.0, 1.0, n)
         # Built under jit: one compiled program instead of hundreds of eager basis-function ops.
@@ -171,7 +176,7 @@ class SculptModel:
         self.set_tool(axes=self.tool_axes)
         self._tick = jax.jit(self._tick_impl)
         self._settle = jax.jit(self._settle_impl)
-        self._side = 1.0
+        self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
         self._lock = threading.Lock()
         self.ticks = 0
@@ -203,12 +208,12 @@ class SculptModel:
         inside = (rho < 1) & (dist > 0)
         depth = jnp.where(inside, dist * (1 / jnp.where(inside, rho, 1) - 1), 0)
         push = (c["k_tool"] * pressing) * depth[..., None] * r / jnp.where(dist > 0, dist, 1)[..., None]
-        return total + push
+        return total + push, push
 
     def _step(self, carry, tool):
         x, v, rest = carry
         c = self._consts
-        a = self._forces(x, v, rest, *tool) / c["mass"] - c["drag"] * v
+        a = self._forces(x, v, rest, *tool)[0] / c["mass"] - c["drag"] * v
         v = (v + self.dt * a) * c["free"]
         return (x + self.dt * v, v, rest)
 
@@ -221,7 +226,9 @@ class SculptModel:
         k = jnp.argmin(jnp.sum((pts - centre) ** 2, axis=-1))
         q, nq = pts[k], nrm[k]
         support = safe_norm(axes * (nq @ rot))  # ellipsoid support distance along nq
-        return state, ctrl, jnp.concatenate([q, nq, support[None]])
+        # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
+        reaction = safe_norm(jnp.sum(self._forces(*state, *tool)[1], axis=(0, 1, 2)))
+        return state, ctrl, jnp.concatenate([q, nq, support[None], reaction[None]])
 
     def _settle_impl(self, state):
         x, v, _ = state
@@ -253,13 +260,17 @@ class SculptModel:
             out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
             self._state, self.ctrl = state, ctrl
             self.ticks += 1
-        q, normal, support = out[:3], out[3:6], float(out[6])
+        q, normal, support, reaction = out[:3], out[3:6], float(out[6]), float(out[7])
         gap = float(np.dot(np.asarray(sample.position) - q, normal))
-        if self._side * gap >= support:  # out of contact: the side the tool is on may change
+        if self._side is None or abs(gap) >= support:  # out of contact: the tool's side may change
             self._side = 1.0 if gap >= 0 else -1.0
         if not np.all(np.isfinite(out)):
             return Proxy(stamp=time.perf_counter())  # no contact model rather than a NaN force
-        return Proxy.plane(q, self._side * normal, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
+        n = self._side * normal
+        # While sculpting, the surface yields under the tool; shifting the plane back by
+        # reaction / k makes the servo render the nodes' reaction on top of the local contact.
+        q = q - n * (self.reaction_gain * reaction / self.proxy_stiffness)
+        return Proxy.plane(q, n, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
 
     def surface(self):
         """The current surface (refit of the lattice's outer layer)."""
@@ -268,3 +279,4 @@ class SculptModel:
     def reset(self) -> None:
         with self._lock:
             self._state, self.ctrl, self._was_pressed = self._initial, self.surface0.ctrl, False
+            self._side = None

@@ -1,0 +1,122 @@
+"""The JAX sculpting model behind the servo loop, and a 2-second run of the two-rate loop."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from bsjax.device import ServoLoop, SimulatedDevice
+from bsjax.device.physics import SculptModel
+from bsjax.device.protocol import DeviceSample
+
+
+@pytest.fixture(scope="module")
+def model():
+    m = SculptModel(grid=(8, 8), layers=4, fixed_layers=1)  # small: tests; the benchmark runs 12×12×12
+    m.warmup()
+    return m
+
+
+def at(x, pressed=False, y=0.0, z=0.0):
+    return DeviceSample(np.array([x, y, z]), np.array([1.0, 0.0, 0.0, 0.0]), int(pressed), 0.0, 0, time.perf_counter())
+
+
+def displacement(model):
+    return np.asarray(model.ctrl) - np.asarray(model.surface0.ctrl)
+
+
+def test_rest_state_reproduces_the_surface(model):
+    model.reset()
+    model.update(at(3.0))
+    assert np.abs(displacement(model)).max() < 1e-6  # refit of the undeformed lattice
+    assert model.n_nodes == 8 * 8 * 4 and model.ctrl.dtype == np.float64
+
+
+def test_push_from_outside_dents_and_sets_on_release(model):
+    model.reset()
+    for _ in range(60):
+        model.update(at(0.75, pressed=True))  # sphere r = 0.25 reaches x = 0.5, the wall is at ≈ 0.62
+    dent = displacement(model)[..., 0].min()
+    assert dent < -0.02
+    for _ in range(40):
+        model.update(at(3.0))  # released, far away: the dent stays (plastic set)
+    kept = displacement(model)
+    assert kept[..., 0].min() < 0.8 * dent and np.all(np.isfinite(kept))
+
+
+def test_pull_from_inside_bulges(model):
+    model.reset()
+    for _ in range(60):
+        model.update(at(0.45, pressed=True))  # inside the body: nodes pushed outwards
+    assert displacement(model)[..., 0].max() > 0.02
+
+
+def test_no_deformation_without_the_button(model):
+    model.reset()
+    for _ in range(30):
+        model.update(at(0.75))
+    assert np.abs(displacement(model)).max() < 1e-6
+
+
+def test_proxy_normal_faces_the_tool_side_and_latches(model):
+    model.reset()
+    outside = model.update(at(0.95))
+    assert outside.kind == "plane" and outside.normal[0] > 0.8 and outside.tool_radius == pytest.approx(0.25)
+    assert outside.force((0.8, 0.0, 0.0))[0] > 0  # touching the wall from outside pushes out
+    inside = model.update(at(0.75))  # moved into contact: the side stays latched
+    assert inside.normal[0] > 0.8
+    for _ in range(20):
+        pressing = model.update(at(0.7, pressed=True))
+    assert pressing.force((0.7, 0.0, 0.0))[0] > 0.02  # sculpting: the material pushes back
+    model.reset()
+    cavity = model.update(at(0.2))
+    assert cavity.normal[0] < -0.8 and cavity.force((0.45, 0.0, 0.0))[0] < 0  # from inside: pushes in
+
+
+def test_tool_shape_changes_at_run_time(model):
+    model.reset()
+    model.set_tool(axes=(0.1, 0.3, 0.3))
+    proxy = model.update(at(0.95))
+    n = np.array(proxy.normal)  # ellipsoid support distance |diag(a) n| (identity orientation)
+    assert proxy.tool_radius == pytest.approx(np.linalg.norm(np.array([0.1, 0.3, 0.3]) * n))
+    assert proxy.tool_radius < 0.16
+    model.set_tool(radius=0.2)
+    assert model.update(at(0.95)).tool_radius == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="tool"):
+        model.set_tool(axes=(0.1, -1.0, 0.1))
+    model.set_tool(radius=0.25)
+
+
+def test_unstable_step_and_small_grid_are_refused():
+    with pytest.raises(ValueError, match="unstable"):
+        SculptModel(substeps=1, stiffness=1e5)
+    with pytest.raises(ValueError, match="grid"):
+        SculptModel(grid=(4, 4))
+
+
+def test_two_second_simulated_session_meets_the_rate(model):
+    """1 kHz servo with the JAX physics running beside it. On a loaded 2-core CI machine the
+    assertion leaves a margin (≥ 950 Hz, ≤ 1 % lost slots); the strict 10 s figures are in
+    `benchmarks/haptics.py` and the README."""
+    model.reset()
+    threads = set()
+    update = model.update
+
+    def spy(sample):
+        threads.add(threading.current_thread().name)
+        return update(sample)
+
+    model.update = spy
+    try:
+        loop = ServoLoop(SimulatedDevice(), model, rate_hz=1000, max_force=3.0, physics_hz=100)
+        loop.start()
+        time.sleep(2.0)
+        stats = loop.stop()
+    finally:
+        del model.update
+    assert stats.rate_hz >= 950, stats.report()
+    assert abs(stats.period_p50 - 1.0) < 0.05 and stats.missed_deadlines <= 20, stats.report()
+    assert stats.physics_updates >= 40 and threads == {"bsjax-physics"}, stats.report()
+    assert 0 < stats.force_max <= 3.0 and stats.nonfinite == 0
+    assert np.abs(displacement(model)).max() > 1e-3  # the scripted press sculpted the surface
