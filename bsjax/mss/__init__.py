@@ -5,7 +5,9 @@ Pure functions over pytrees: `init(lattice) -> State`, `step(lattice, state, dt,
 `simulate(lattice, state, dt, n_steps, …) -> State` (a `lax.scan`).
 """
 
-from bsjax.mss._forces import plane_penalty, sphere_penalty, spring_forces, tool_forces
+from bsjax.mss._forces import (
+    RigidPlane, RigidSphere, behind_plane, edge_sum, plane_penalty, sphere_penalty, spring_forces, tool_forces,
+)
 from bsjax.mss._integrators import (
     Contact, Plasticity, check_dt, energy, forces, implicit_step, stable_dt, step,
 )
@@ -25,3 +27,7 @@ __all__ = [
     "simulate", "simulate_plastic", "sphere_penalty", "spring_damping", "spring_forces", "spring_stiffness",
     "stable_dt", "step", "tool_forces", "trajectory", "yield_rest_lengths",
 ]
+
+from bsjax.mss._coupling import SurfaceCoupling, simulate_coupled, surface_lattice  # noqa: E402
+
+__all__ += ["RigidPlane", "RigidSphere", "behind_plane", "edge_sum", "SurfaceCoupling", "simulate_coupled", "surface_lattice"]

@@ -5,11 +5,12 @@ Every kernel returns the net force *on* each node, `(N, 3)`, in newtons.
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from bsjax import _tensor
+from bsjax import _checks, _tensor
 from bsjax.mss._lattice import HEX_DIRECTIONS, Lattice, _slices
 
 
@@ -120,3 +121,38 @@ def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
         else:
             raise TypeError(f"tools: expected objects with center/radius or point/normal, got {type(tool).__name__}")
     return f
+
+
+class RigidSphere(eqx.Module):
+    """A rigid spherical tool: `center (3,)` in m, `radius` in m (same fields as `collide.Sphere`)."""
+
+    center: Float[Array, " 3"]
+    radius: Float[Array, ""]
+
+    def __init__(self, center, radius):
+        _checks.check_ndim(center, "center", 1, last=3)
+        _checks.check_positive(radius, "radius")
+        self.center = jnp.asarray(center)
+        self.radius = jnp.asarray(radius)
+
+
+class RigidPlane(eqx.Module):
+    """A rigid half-space (a table, a clamp face): `point (3,)` on the plane, `normal (3,)`
+    pointing to the free side (same fields as `collide.Plane`)."""
+
+    point: Float[Array, " 3"]
+    normal: Float[Array, " 3"]
+
+    def __init__(self, point, normal):
+        _checks.check_ndim(point, "point", 1, last=3)
+        _checks.check_ndim(normal, "normal", 1, last=3)
+        if _checks.is_concrete(normal) and not float(jnp.linalg.norm(jnp.asarray(normal))) > 0:
+            _checks.fail("normal", "a non-zero vector", normal)
+        self.point = jnp.asarray(point)
+        self.normal = jnp.asarray(normal)
+
+
+def behind_plane(positions: Float[Array, "N 3"], point, normal) -> Array:
+    """Boolean mask of nodes on the solid side of a plane (`(x − p)·n ≤ 0`) — e.g. the nodes a
+    clamp holds, for `Lattice(fixed=...)`."""
+    return jnp.sum((jnp.asarray(positions) - jnp.asarray(point)) * jnp.asarray(normal), axis=-1) <= 0

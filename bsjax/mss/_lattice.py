@@ -258,13 +258,24 @@ def grid_edges(node_map: np.ndarray, periodic_u: bool = False, periodic_v: bool 
 
 
 def merge_coincident(points: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """Unique nodes of a point grid within `tol` (seams, poles) and the map grid → node."""
+    """Merge grid points closer than `tol` (a closed seam, a pole) into one node.
+
+    **Returns:** `(first, node_map)`: the grid index (flat) of each node's first sample, `(N,)`,
+    and the node of every sample, shaped like `points[..., 0]`.
+    """
+    from scipy.spatial import cKDTree
+
     flat = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    key = np.round(flat / tol).astype(np.int64)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    # keep nodes in the grid's order of first appearance
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    node_map = rank[inverse.ravel()].reshape(np.shape(points)[:-1])
-    return first[order], node_map.astype(np.int32)
+    label = np.arange(len(flat))
+    for a, b in sorted(cKDTree(flat).query_pairs(tol)):
+        root_a, root_b = _root(label, a), _root(label, b)
+        label[max(root_a, root_b)] = min(root_a, root_b)
+    roots = np.array([_root(label, k) for k in range(len(flat))])
+    first, inverse = np.unique(roots, return_inverse=True)
+    return first, inverse.reshape(np.shape(points)[:-1]).astype(np.int32)
+
+
+def _root(label, k):
+    while label[k] != k:
+        k = label[k]
+    return k

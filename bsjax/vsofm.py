@@ -1,0 +1,241 @@
+"""Volumetric self-organising feature map (VSOFM): a hexahedral lattice fitted inside a closed
+surface from surface samples (thesis §5.3.2, Igwe & Knopf; SPEC §6).
+
+An `a × b × c` lattice of weight nodes, initially the samples' bounding box, is trained
+Kohonen-style: each sample finds its best-matching boundary node, and every boundary node moves
+toward the neighbourhood-weighted mean of the samples won around it (batch SOM: a whole batch per
+cycle, the neighbourhood a separable Gaussian over lattice index distance), with a learning rate
+and a radius that both decay geometrically over the cycles. Interior nodes are kept at the
+discrete-harmonic position of the boundary (Jacobi sweeps during training, conjugate gradients at
+the end), so they spread evenly inside. At the end boundary nodes snap to their nearest samples.
+`report` counts inverted hexahedra and measures boundary distance and element quality;
+`lattice` turns the result into an `mss.Lattice`.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from bsjax import _checks
+
+
+class Settings(eqx.Module):
+    """Training settings: learning rate and neighbourhood radius (lattice units) decay
+    geometrically from `*_start` to `*_end`; `batch` samples per cycle (all when fewer);
+    `sweeps` Jacobi sweeps of the interior per cycle."""
+
+    learning_rate_start: float = eqx.field(static=True, default=0.9)
+    learning_rate_end: float = eqx.field(static=True, default=0.05)
+    radius_start: float | None = eqx.field(static=True, default=None)  # None: max(shape) / 2
+    radius_end: float = eqx.field(static=True, default=0.5)
+    batch: int = eqx.field(static=True, default=1024)
+    sweeps: int = eqx.field(static=True, default=4)
+
+
+def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
+    """`(a, b, c)` boolean mask of the lattice's outer layer."""
+    mask = np.zeros(shape, dtype=bool)
+    mask[[0, -1]] = True
+    mask[:, [0, -1]] = True
+    mask[:, :, [0, -1]] = True
+    return mask
+
+
+def fit(points: Float[ArrayLike, "P 3"], shape: tuple[int, int, int], cycles: int = 300, key=None,
+        settings: Settings = Settings()) -> Float[Array, "a b c 3"]:
+    """Train a VSOFM lattice of `shape = (a, b, c)` on surface samples `points (P, 3)`.
+
+    **Arguments:**
+    - `points`: samples of a closed surface (e.g. `blending.points(ctrl).reshape(-1, 3)`);
+      repeated points (poles, seams) are dropped.
+    - `shape`: lattice size, each ≥ 2.
+    - `cycles`: training cycles (thesis: 300).
+    - `key`: `jax.random` key for the batch draws (default `PRNGKey(0)`).
+
+    **Returns:** node positions `shape + (3,)`; boundary nodes lie on samples, interior nodes
+    inside. Check `report(points, nodes).inverted == 0`.
+    """
+    _checks.check_ndim(points, "points", 2, last=3)
+    _checks.check_finite(points, "points")
+    shape = tuple(int(s) for s in shape) if np.ndim(shape) == 1 else shape
+    if len(shape) != 3 or min(shape) < 2:
+        _checks.fail("shape", "three lattice sizes >= 2", shape)
+    if not isinstance(cycles, (int, np.integer)) or cycles < 1:
+        _checks.fail("cycles", "an int >= 1", cycles)
+    pts = jnp.asarray(points)
+    if not jnp.issubdtype(pts.dtype, jnp.floating):
+        pts = pts.astype(jnp.asarray(1.0).dtype)
+    if _checks.is_concrete(pts):
+        pts = jnp.asarray(np.unique(np.asarray(pts), axis=0), dtype=pts.dtype)
+    if pts.shape[0] < 4:
+        _checks.fail("points", "at least 4 distinct samples", pts.shape[0])
+    key = jax.random.PRNGKey(0) if key is None else key
+    return _fit(pts, key, shape, int(cycles), settings)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3, 4))
+def _fit(points, key, shape, cycles, settings):
+    dtype = points.dtype
+    n = int(np.prod(shape))
+    bmask = boundary_mask(shape)
+    bidx = jnp.asarray(np.nonzero(bmask.ravel())[0].astype(np.int32))
+    bgrid = jnp.asarray(bmask)[..., None]
+    lo, hi = jnp.min(points, axis=0), jnp.max(points, axis=0)
+    axes = jnp.meshgrid(*[jnp.linspace(0.0, 1.0, s, dtype=dtype) for s in shape], indexing="ij")
+    nodes = lo + jnp.stack(axes, axis=-1) * (hi - lo)
+    idx = [jnp.arange(s, dtype=dtype) for s in shape]
+    r0 = settings.radius_start or max(shape) / 2.0
+    batch = min(settings.batch, points.shape[0])
+    frac = jnp.arange(cycles, dtype=dtype) / max(cycles - 1, 1)
+    sigma = r0 * (settings.radius_end / r0) ** frac
+    alpha = settings.learning_rate_start * (settings.learning_rate_end / settings.learning_rate_start) ** frac
+    keys = jax.random.split(key, cycles)
+
+    def cycle(nodes, xs):
+        sig, lr, k = xs
+        x = points if batch == points.shape[0] else points[jax.random.randint(k, (batch,), 0, points.shape[0])]
+        wb = nodes.reshape(-1, 3)[bidx]
+        d2 = jnp.sum(wb * wb, axis=-1)[None, :] - 2.0 * x @ wb.T
+        win = bidx[jnp.argmin(d2, axis=1)]
+        acc = jax.ops.segment_sum(jnp.concatenate([x, jnp.ones((batch, 1), dtype)], axis=-1), win, n)
+        acc = _gauss_smooth(acc.reshape(shape + (4,)), idx, sig)
+        cnt = acc[..., 3:]
+        ok = cnt > 1e-6 * jnp.max(cnt)
+        target = acc[..., :3] / jnp.where(ok, cnt, 1.0)
+        moved = jnp.where(ok & bgrid, nodes + lr * (target - nodes), nodes)
+        return _jacobi(moved, bgrid, settings.sweeps), None
+
+    nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, keys))[0]
+    nodes = _snap(nodes, bidx, points)
+    return _harmonic_interior(nodes, bgrid, 4 * max(shape))
+
+
+def _gauss_smooth(field, idx, sigma):
+    """Separable Gaussian `exp(−Δ²/2σ²)` over lattice index distance along the three axes."""
+    for axis, i in enumerate(idx):
+        g = jnp.exp(-((i[:, None] - i[None, :]) ** 2) / (2.0 * sigma * sigma))
+        field = jnp.moveaxis(jnp.tensordot(g, jnp.moveaxis(field, axis, 0), axes=1), 0, axis)
+    return field
+
+
+def _neighbour_mean(nodes):
+    """Mean of the 6 face neighbours (interior entries only are used)."""
+    p = jnp.pad(nodes, ((1, 1), (1, 1), (1, 1), (0, 0)), mode="edge")
+    s = (p[2:, 1:-1, 1:-1] + p[:-2, 1:-1, 1:-1] + p[1:-1, 2:, 1:-1] + p[1:-1, :-2, 1:-1]
+         + p[1:-1, 1:-1, 2:] + p[1:-1, 1:-1, :-2])
+    return s / 6.0
+
+
+def _jacobi(nodes, bgrid, sweeps):
+    for _ in range(sweeps):
+        nodes = jnp.where(bgrid, nodes, _neighbour_mean(nodes))
+    return nodes
+
+
+def _laplacian(u, bgrid):
+    """`(I − mean of 6 neighbours)` on interior nodes; boundary entries pass through unchanged."""
+    return jnp.where(bgrid, u, u - _neighbour_mean(jnp.where(bgrid, 0.0, u)))
+
+
+def _harmonic_interior(nodes, bgrid, iterations):
+    """Interior nodes at the discrete harmonic extension of the boundary (CG on the 7-point
+    Laplacian with the boundary as Dirichlet data)."""
+    boundary = jnp.where(bgrid, nodes, 0.0)
+    b = jnp.where(bgrid, nodes, _neighbour_mean(boundary))  # rhs: boundary contributions
+    x0 = nodes
+    r = b - _laplacian(x0, bgrid)
+
+    def body(_, c):
+        x, r, p, rr = c
+        ap = _laplacian(p, bgrid)
+        pap = jnp.sum(p * ap)
+        a = jnp.where(pap > 0, rr / jnp.where(pap > 0, pap, 1.0), 0.0)
+        x, r = x + a * p, r - a * ap
+        rr2 = jnp.sum(r * r)
+        beta = jnp.where(rr > 0, rr2 / jnp.where(rr > 0, rr, 1.0), 0.0)
+        return x, r, r + beta * p, rr2
+
+    return jax.lax.fori_loop(0, iterations, body, (x0, r, r, jnp.sum(r * r)))[0]
+
+
+def _snap(nodes, bidx, points):
+    """Boundary nodes onto their nearest sample (blocks of 1024 nodes bound the memory)."""
+    flat = nodes.reshape(-1, 3)
+    p2 = jnp.sum(points * points, axis=-1)
+
+    def nearest(x):
+        return points[jnp.argmin(p2 - 2.0 * points @ x)]
+
+    snapped = jax.lax.map(nearest, flat[bidx], batch_size=1024)
+    return flat.at[bidx].set(snapped).reshape(nodes.shape)
+
+
+# --- quality -------------------------------------------------------------------------------------------
+
+# corner (bit i, j, k) → its three edge neighbours in right-handed order (+i, +j, +k reversed
+# where the corner sits at the far end), so a positively oriented hexahedron has all 8 > 0.
+_CORNERS = [(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+
+
+def corner_jacobians(nodes: Float[Array, "a b c 3"], scaled: bool = True) -> Float[Array, "a-1 b-1 c-1 8"]:
+    """Jacobian determinants of every hexahedron at its 8 corners (scaled: by the three edge
+    lengths, so 1 for a cube, ≤ 0 for an inverted/degenerate corner)."""
+    p = nodes
+    a, b, c = (s - 1 for s in p.shape[:3])
+
+    def corner(i, j, k):
+        return p[i:i + a, j:j + b, k:k + c]
+
+    out = []
+    for i, j, k in _CORNERS:
+        o = corner(i, j, k)
+        si, sj, sk = (1 - 2 * i), (1 - 2 * j), (1 - 2 * k)
+        e1 = (corner(1 - i, j, k) - o) * si
+        e2 = (corner(i, 1 - j, k) - o) * sj
+        e3 = (corner(i, j, 1 - k) - o) * sk
+        det = jnp.sum(e1 * jnp.cross(e2, e3), axis=-1)
+        if scaled:
+            norm = jnp.linalg.norm(e1, axis=-1) * jnp.linalg.norm(e2, axis=-1) * jnp.linalg.norm(e3, axis=-1)
+            det = jnp.where(norm > 0, det / jnp.where(norm > 0, norm, 1.0), 0.0)
+        out.append(det)
+    return jnp.stack(out, axis=-1)
+
+
+class Report(eqx.Module):
+    """Quality of a fitted lattice: `inverted` hexahedra (any corner Jacobian ≤ 0);
+    `min_scaled_jacobian`, `mean_scaled_jacobian` over all corners; boundary-to-sample distance
+    `boundary_max`, `boundary_mean` (m); `n_elements`."""
+
+    inverted: int
+    n_elements: int
+    min_scaled_jacobian: float
+    mean_scaled_jacobian: float
+    boundary_max: float
+    boundary_mean: float
+
+
+def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) -> Report:
+    """Element quality and boundary distance of a VSOFM result (numpy, concrete values)."""
+    from scipy.spatial import cKDTree
+
+    nodes = np.asarray(nodes)
+    jac = np.asarray(corner_jacobians(jnp.asarray(nodes)))
+    bad = np.any(jac <= 0, axis=-1)
+    b = nodes[boundary_mask(nodes.shape[:3])]
+    dist = cKDTree(np.asarray(points).reshape(-1, 3)).query(b)[0]
+    return Report(int(bad.sum()), int(bad.size), float(jac.min()), float(jac.mean()),
+                  float(dist.max()), float(dist.mean()))
+
+
+def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):
+    """The fitted nodes as a volumetric `mss.Lattice` (edge, face- and body-diagonal springs);
+    arguments as `mss.hex_lattice`."""
+    from bsjax import mss
+
+    return mss.hex_lattice(nodes, material=material, **kwargs)

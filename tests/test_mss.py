@@ -1,0 +1,410 @@
+"""Mass-spring-damper physics: closed forms, direct linear solves, invariants, errors, gradients."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsjax import mss, shapes
+from helpers import check_grad
+
+GRAVITY = jnp.array([0.0, 0.0, -9.81])
+
+# Jitted once per lattice structure and reused across tests (compile time dominates on 2 cores).
+simulate = jax.jit(mss.simulate, static_argnames=("n_steps", "method", "cg_iterations", "checkpoint_every",
+                                                 "check_stability"))
+trajectory = jax.jit(mss.trajectory, static_argnames=("n_steps", "save_every", "method", "check_stability"))
+relax = jax.jit(mss.relax, static_argnames=("max_steps", "check_every", "method", "cg_iterations"))
+
+
+def grid(shape, spacing=1.0):
+    g = np.stack(np.meshgrid(*[np.arange(float(s)) for s in shape], indexing="ij"), -1)
+    return g * spacing
+
+
+def one_spring(k=100.0, c=0.0, m=0.5, rest=1.0, free_both=False):
+    x = np.array([[0.0, 0, 0], [rest, 0, 0]])
+    fixed = np.array([not free_both, False])
+    return mss.Lattice(x, np.array([[0, 1]]), k, c, m, fixed)
+
+
+def oscillator(t, x0, k, c, m):
+    """Closed form of m x'' + c x' + k x = 0, x(0) = x0, x'(0) = 0 (independent reference)."""
+    w0 = np.sqrt(k / m)
+    zeta = c / (2 * np.sqrt(k * m))
+    if zeta < 1:
+        wd = w0 * np.sqrt(1 - zeta**2)
+        return x0 * np.exp(-zeta * w0 * t) * (np.cos(wd * t) + zeta * w0 / wd * np.sin(wd * t))
+    if zeta == 1:
+        return x0 * np.exp(-w0 * t) * (1 + w0 * t)
+    s = w0 * np.sqrt(zeta**2 - 1)
+    r1, r2 = -zeta * w0 + s, -zeta * w0 - s
+    a = x0 * r2 / (r2 - r1)
+    return a * np.exp(r1 * t) + (x0 - a) * np.exp(r2 * t)
+
+
+def test_damped_spring_matches_closed_form():
+    """Under-, critically and over-damped (and undamped) springs, one vmapped rollout."""
+    k, m, x0 = 100.0, 0.5, 0.05
+    zetas = np.array([0.0, 0.2, 1.0, 2.5])
+    start = np.array([[0.0, 0, 0], [1.0 + x0, 0, 0]])
+
+    def run(c):
+        lat = one_spring(k, c, m)
+        return mss.trajectory(lat, mss.init(lat, start), 1e-4, 20000, save_every=100)[1].position
+
+    saved = jax.jit(jax.vmap(run))(jnp.asarray(2 * zetas * np.sqrt(k * m)))
+    t = 1e-4 * 100 * np.arange(1, 201)
+    for zeta, pos in zip(zetas, np.asarray(saved)):
+        # symplectic Euler advances a phase error O(ω dt); tolerance 1 % of the amplitude
+        ref = oscillator(t, x0, k, 2 * zeta * np.sqrt(k * m), m)
+        np.testing.assert_allclose(pos[:, 1, 0] - 1.0, ref, atol=1e-2 * x0)
+        assert np.all(pos[:, 0] == 0)
+
+
+def test_ratio_and_frequency_formulas():
+    k, m, zeta = 250.0, 0.1, 0.3
+    d = mss.spring_damping(mss.Material(1.0, 1.0, zeta), k, m)
+    assert np.isclose(float(mss.damping_ratio(d, k, m)), zeta)
+    assert np.isclose(float(mss.natural_frequency(k, m)), 50.0)
+    assert np.isclose(float(mss.spring_stiffness(mss.PLASTICINE, 0.01, 1e-4)), 13e6 * 1e-4 / 0.01)
+
+
+def perturbed_hex(shape=(3, 3, 3), seed=0, scale=0.05):
+    rng = np.random.default_rng(seed)
+    g = grid(shape)
+    return g + scale * rng.normal(size=g.shape)
+
+
+def test_energy_conserved_without_damping():
+    lat = mss.hex_lattice(grid((3, 3, 2)), 50.0, 0.0, 0.2)
+    x = perturbed_hex((3, 3, 2), scale=0.08).reshape(-1, 3)
+    state = mss.init(lat, x)
+    dt = 0.1 * float(mss.stable_dt(lat))
+    _, saved = trajectory(lat, state, dt, n_steps=4000, save_every=20)
+    e = np.array([sum(float(v) for v in mss.energy(lat, mss.State(p, v)))
+                  for p, v in zip(saved.position, saved.velocity)])
+    e0 = sum(float(v) for v in mss.energy(lat, state))
+    assert e0 > 0
+    # symplectic Euler: energy oscillates with amplitude O(dt) but does not drift
+    assert np.max(np.abs(e - e0)) / e0 < 0.05
+    assert abs(e[-50:].mean() - e[:50].mean()) / e0 < 0.01
+
+
+def linear_stiffness(lat):
+    """Assembled linearised stiffness Σ k e eᵀ at rest (numpy reference)."""
+    x = np.asarray(lat.rest_positions)
+    n = len(x)
+    kmat = np.zeros((3 * n, 3 * n))
+    for (i, j), k in zip(np.asarray(lat.edges), np.asarray(lat.stiffness)):
+        e = (x[i] - x[j]) / np.linalg.norm(x[i] - x[j])
+        b = k * np.outer(e, e)
+        for a, bb, s in ((i, i, 1), (j, j, 1), (i, j, -1), (j, i, -1)):
+            kmat[3 * a:3 * a + 3, 3 * bb:3 * bb + 3] += s * b
+    return kmat
+
+
+def test_clamped_bar_static_deflection_matches_linear_solve():
+    g = grid((5, 2, 2))
+    fixed = (g[..., 0] == 0).reshape(-1)
+    lat = mss.hex_lattice(g, 1e4, 20.0, 0.01, fixed, node_damping=0.5)
+    state, steps, ok = relax(lat, mss.init(lat), 0.02, gravity=GRAVITY, method="implicit",
+                             cg_iterations=60, tol=1e-16, max_steps=4000, check_every=20)
+    assert bool(ok)
+    free = ~np.asarray(lat.fixed)
+    dofs = np.repeat(free, 3)
+    kmat = linear_stiffness(lat)[np.ix_(dofs, dofs)]
+    f = (np.asarray(lat.mass)[:, None] * np.array([0, 0, -9.81])).reshape(-1)[dofs]
+    u_ref = np.linalg.solve(kmat, f)
+    u = (np.asarray(state.position) - np.asarray(lat.rest_positions)).reshape(-1)[dofs]
+    assert np.abs(u_ref).max() > 1e-3  # a visible deflection
+    np.testing.assert_allclose(u, u_ref, atol=2e-3 * np.abs(u_ref).max())
+
+
+def test_fixed_nodes_never_move():
+    x = perturbed_hex((3, 3, 3))
+    fixed = np.zeros(27, bool)
+    fixed[[0, 5, 13, 26]] = True
+    lat = mss.hex_lattice(grid((3, 3, 3)), 80.0, 1.0, 0.1, fixed)
+    rng = np.random.default_rng(1)
+    force = jnp.asarray(rng.normal(size=(200, 27, 3)))
+    state = mss.init(lat, x.reshape(-1, 3))
+    for method in ("semi_implicit", "implicit"):
+        out = simulate(lat, state, 1e-3, n_steps=200, external_force=force, gravity=GRAVITY, method=method)
+        assert np.array_equal(np.asarray(out.position)[fixed], x.reshape(-1, 3)[fixed])
+        assert np.all(np.asarray(out.velocity)[fixed] == 0)
+        assert not np.allclose(np.asarray(out.position)[~fixed], x.reshape(-1, 3)[~fixed])
+
+
+def test_constant_force_converges_to_rest():
+    g = grid((3, 3, 2))
+    fixed = (g[..., 2] == 0).reshape(-1)
+    lat = mss.hex_lattice(g, 100.0, 2.0, 0.05, fixed, node_damping=0.2)
+    force = jnp.zeros((18, 3)).at[:, 0].set(0.5)
+    state, steps, ok = relax(lat, mss.init(lat), 0.5 * float(mss.stable_dt(lat)), force,
+                             tol=1e-18, max_steps=200_000)
+    assert bool(ok) and int(steps) < 200_000
+    residual = mss.forces(lat, state, force)
+    assert float(jnp.abs(jnp.where(lat.fixed[:, None], 0.0, residual)).max()) < 1e-6
+    assert float(state.position[~fixed][:, 0].mean() - g.reshape(-1, 3)[~fixed][:, 0].mean()) > 1e-3
+
+
+def test_stability_limit_is_tight_and_enforced():
+    k, m = 400.0, 0.25
+    lat = one_spring(k, 0.0, m, free_both=True)
+    limit = float(mss.stable_dt(lat))
+    assert np.isclose(limit, 2.0 / np.sqrt(2 * k / m))  # exact for one free spring
+    start = mss.init(lat, np.array([[0.0, 0, 0], [1.1, 0, 0]]))
+    ok = simulate(lat, start, 0.97 * limit, n_steps=2000, check_stability=False)
+    assert float(jnp.abs(ok.position).max()) < 2.0
+    bad = simulate(lat, start, 1.03 * limit, n_steps=2000, check_stability=False)
+    assert not float(jnp.abs(bad.position).max()) < 2.0
+    with pytest.raises(ValueError, match=r"dt: expected a time step <= 0\.0353"):
+        mss.simulate(lat, start, 1.03 * limit, 10)
+    with pytest.raises(Exception, match="stability limit"):
+        jax.jit(lambda dt: mss.simulate(lat, start, dt, 10).position)(1.03 * limit).block_until_ready()
+
+
+def test_implicit_is_stable_for_steel_at_1khz():
+    g = grid((6, 3, 3), 0.01)
+    fixed = (g[..., 0] == 0).reshape(-1)
+    lat = mss.hex_lattice(g, material=mss.STEEL, fixed=fixed)
+    assert float(mss.stable_dt(lat)) < 1e-5  # explicit would need > 100 steps per ms
+    with pytest.raises(ValueError):
+        mss.simulate(lat, mss.init(lat), 1e-3, 10)
+    push = jnp.zeros((54, 3)).at[-9:, 2].set(-50.0)
+    out = simulate(lat, mss.init(lat), 1e-3, n_steps=300, external_force=push, gravity=GRAVITY,
+                   method="implicit", cg_iterations=30)
+    u = np.asarray(out.position - lat.rest_positions)
+    assert np.all(np.isfinite(u)) and np.abs(u).max() < 1e-4  # steel barely bends
+    assert u[-9:, 2].mean() < 0  # but it bends the right way
+
+
+def test_grid_and_edge_list_kernels_agree():
+    x = perturbed_hex((3, 4, 2)).reshape(-1, 3)
+    v = np.random.default_rng(2).normal(size=x.shape)
+    n_edges = len(mss.hex_edges((3, 4, 2)))
+    k = np.linspace(1, 2, n_edges)
+    lat = mss.hex_lattice(grid((3, 4, 2)), k, 0.3, 0.2)
+    plain = mss.Lattice(lat.rest_positions, lat.edges, k, 0.3, 0.2)
+    np.testing.assert_allclose(mss.spring_forces(lat, x, v), mss.spring_forces(plain, x, v), atol=1e-12)
+    s = mss.State(jnp.asarray(x), jnp.asarray(v))
+    a = mss.implicit_step(lat, s, 0.1, gravity=GRAVITY)
+    b = mss.implicit_step(plain, s, 0.1, gravity=GRAVITY)
+    np.testing.assert_allclose(a.position, b.position, atol=1e-12)
+
+
+def spring_force_reference(x, v, edges, rest, k, c):
+    """Loop-based numpy reference of eqs. 5.11–5.13 with Voigt damping."""
+    f = np.zeros_like(x)
+    for (i, j), l0, kk, cc in zip(edges, rest, k, c):
+        d = x[i] - x[j]
+        e = d / np.linalg.norm(d)
+        s = kk * (np.linalg.norm(d) - l0) * e + cc * np.dot(v[i] - v[j], e) * e
+        f[i] -= s
+        f[j] += s
+    return f
+
+
+def test_spring_forces_match_loop_reference_and_grad():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(7, 3))
+    edges = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [4, 5], [5, 6], [6, 0], [0, 3]])
+    k, c = rng.uniform(1, 5, 8), rng.uniform(0, 1, 8)
+    lat = mss.Lattice(x + 0.1 * rng.normal(size=x.shape), edges, k, c, 1.0)
+    v = rng.normal(size=x.shape)
+    ref = spring_force_reference(x, v, edges, np.asarray(lat.rest_length), k, c)
+    np.testing.assert_allclose(mss.spring_forces(lat, x, v), ref, atol=1e-12)
+    np.testing.assert_allclose(jax.jit(mss.spring_forces)(lat, x, v), ref, atol=1e-12)
+    check_grad(lambda y: jnp.sum(mss.spring_forces(lat, y.reshape(7, 3), v) ** 2), x.reshape(-1))
+
+
+def test_zero_length_spring_is_finite_with_finite_gradient():
+    lat = mss.Lattice(np.zeros((2, 3)), np.array([[0, 1]]), 10.0, 1.0, 1.0)
+    x = jnp.zeros((2, 3))
+    f = mss.spring_forces(lat, x, x)
+    assert np.all(np.asarray(f) == 0)
+    g = jax.grad(lambda y: jnp.sum(mss.spring_forces(lat, y, y) ** 2))(x)
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_vmap_over_materials():
+    g = grid((3, 3, 2), 0.01)
+    fixed = (g[..., 2] == 0).reshape(-1)
+    mats = mss.Material(jnp.array([1e4, 3e4, 1e5]), jnp.array([1000.0, 1200.0, 900.0]), jnp.array([0.1, 0.5, 1.0]))
+
+    def run(mat):
+        lat = mss.hex_lattice(g, material=mat, fixed=fixed)
+        return mss.simulate(lat, mss.init(lat), 1e-5, 300, gravity=GRAVITY, check_stability=False).position
+
+    batched = jax.jit(jax.vmap(run))(mats)
+    single = jax.jit(run)
+    for b in range(3):
+        one = single(jax.tree.map(lambda a: a[b], mats))
+        np.testing.assert_allclose(batched[b], one, rtol=1e-10, atol=1e-14)
+    sag = -np.asarray(batched[:, ~fixed, 2] - g.reshape(-1, 3)[~fixed, 2]).mean(axis=1)
+    assert sag[0] > sag[1] > sag[2] > 0  # stiffer sags less
+
+
+def test_material_presets():
+    assert float(mss.PLASTICINE.youngs_modulus) == 13e6 and float(mss.PLASTICINE.density) == 2500
+    assert set(mss.PRESETS) >= {"plasticine", "steel", "jelly"}
+    g = grid((3, 3, 3), 0.01)
+    lat = mss.hex_lattice(g, material=mss.PLASTICINE)
+    total_mass = float(jnp.sum(lat.mass))
+    assert np.isclose(total_mass, 2500 * 0.02**3)
+    assert np.isclose(float(jnp.sum(lat.stiffness * lat.rest_length**2)), 13e6 * 0.02**3)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(mass=-1.0), "mass"),
+    (dict(stiffness=np.array([1.0, -2.0])), "stiffness"),
+    (dict(edges=np.array([[0, 1], [1, 3]])), r"edges: expected node indices in \[0, 3\)"),
+    (dict(rest_positions=np.array([[0, 0, 0], [np.nan, 0, 0], [1, 1, 1.0]])), "rest_positions"),
+    (dict(fixed=np.array([True, False])), "fixed"),
+    (dict(edges=np.array([[0, 1], [2, 2]])), "self-loop"),
+    (dict(damping=np.ones(5)), "damping"),
+])
+def test_bad_inputs(bad, match):
+    args = dict(rest_positions=np.eye(3), edges=np.array([[0, 1], [1, 2]]), stiffness=1.0, damping=0.1,
+                mass=1.0, fixed=None)
+    args.update(bad)
+    with pytest.raises(ValueError, match=match):
+        mss.Lattice(**args)
+
+
+def test_bad_simulate_inputs():
+    lat = one_spring()
+    s = mss.init(lat)
+    with pytest.raises(ValueError, match="external_force"):
+        mss.simulate(lat, s, 1e-4, 5, external_force=jnp.zeros((3, 3)))
+    with pytest.raises(ValueError, match="method"):
+        mss.simulate(lat, s, 1e-4, 5, method="rk4")
+    with pytest.raises(ValueError, match="state.position"):
+        mss.simulate(lat, mss.State(jnp.full((2, 3), jnp.nan), jnp.zeros((2, 3))), 1e-4, 5)
+    with pytest.raises(ValueError, match="dt"):
+        mss.simulate(lat, s, -1e-4, 5)
+
+
+def test_sphere_tool_and_table_contact():
+    g = grid((5, 5, 2), 0.1) + np.array([-0.2, -0.2, 0.0])
+    lat = mss.hex_lattice(g, 200.0, 1.0, 0.01, node_damping=0.05)
+    table = mss.RigidPlane(jnp.array([0.0, 0, 0]), jnp.array([0.0, 0, 1]))
+    tool = mss.RigidSphere(jnp.array([0.0, 0.0, 0.12]), 0.06)
+    contact = mss.Contact(2e3, 1.0)
+    state = mss.init(lat)
+    out = simulate(lat, state, 2e-4, n_steps=5000, gravity=GRAVITY, tools=(table, tool), contact=contact)
+    x = np.asarray(out.position)
+    assert x[:, 2].min() > -0.01  # resting on the table, small penalty penetration
+    depth = 0.06 - np.linalg.norm(x - np.array([0, 0, 0.12]), axis=1)
+    assert depth.max() < 0.01  # pushed out of the tool
+    assert x[2 * 10 + 2 * 2 + 1, 2] < 0.1 - 0.02  # the tool dented the top under its centre (node (2, 2, 1))
+
+
+def test_yield_rest_lengths_closed_form():
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]])
+    lat = mss.Lattice(x, np.array([[0, 1], [2, 3]]), 100.0, 5.0, 0.1)
+    stretched = jnp.asarray(x * np.array([[1.3, 1, 1]]))  # both springs at strain 0.3
+    plastic = mss.Plasticity(0.05, radius=2.0, center=jnp.array([0.5, 0, 0]))
+    rest = np.asarray(mss.yield_rest_lengths(lat, stretched, plastic))
+    np.testing.assert_allclose(rest, [1.3 / 1.05, 1.0])  # strain left = yield; far spring untouched
+    squeezed = jnp.asarray(x * np.array([[0.8, 1, 1]]))
+    np.testing.assert_allclose(mss.yield_rest_lengths(lat, squeezed, mss.Plasticity(0.05))[0], 0.8 / 0.95)
+
+
+def test_plastic_rollout_leaves_a_permanent_set():
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]])
+    lat = mss.Lattice(x, np.array([[0, 1], [2, 3]]), 100.0, 5.0, 0.1, np.array([True, False, True, False]))
+    pull = jnp.zeros((3000, 4, 3)).at[:1000, 1, 0].set(20.0).at[:1000, 3, 0].set(20.0)  # load, then release
+    plastic = mss.Plasticity(0.05, radius=2.0, center=jnp.array([0.5, 0, 0]))
+    lat2, out = mss.simulate_plastic(lat, mss.init(lat), 1e-3, 3000, plastic, pull)
+    rest = np.asarray(lat2.rest_length)
+    assert rest[0] > 1.1 and rest[1] == 1.0
+    # after release the yielded spring rests at its new length, the elastic one at 1
+    assert abs(float(out.position[1, 0]) - rest[0]) < 1e-3
+    assert abs(float(out.position[3, 0] - out.position[2, 0]) - 1.0) < 1e-3
+
+
+def test_surface_coupling_roundtrip_and_refit_rate():
+    surf = shapes.teardrop()
+    blend = surf.blending(12, 10)
+    lat, coupling = mss.surface_lattice(blend, surf.ctrl, mss.JELLY)
+    # poles merge to one node each, the periodic seam (v = 0 and 1) shares nodes
+    assert lat.n_nodes == 2 + 10 * 9
+    np.testing.assert_allclose(coupling.ctrl(coupling.nodes(surf.ctrl)), surf.ctrl, atol=1e-12)
+    np.testing.assert_allclose(coupling.grid(lat.rest_positions), blend.points(surf.ctrl), atol=1e-12)
+    state = mss.init(lat)
+    final, ctrls = jax.jit(lambda s: mss.simulate_coupled(lat, coupling, s, 1e-4, 60, 20, gravity=GRAVITY))(state)
+    assert ctrls.shape == (3, 8, 8, 3)
+    np.testing.assert_allclose(ctrls[-1], coupling.ctrl(final.position), atol=1e-12)
+    assert float(ctrls[-1, ..., 2].mean()) < float(surf.ctrl[..., 2].mean())
+
+
+# --- differentiable rollouts ----------------------------------------------------------------------
+
+
+def small_lattice():
+    g = grid((3, 2, 2), 0.1)
+    fixed = (g[..., 0] == 0).reshape(-1)
+    return mss.hex_lattice(g, 50.0, 0.5, 0.02, fixed)
+
+
+def test_grad_wrt_stiffness_damping_and_force():
+    lat = small_lattice()
+    s0 = mss.init(lat)
+
+    def end_z(params):
+        k, c, fz = params[0], params[1], params[2]
+        l2 = eqx.tree_at(lambda l: (l.stiffness, l.damping), lat, (lat.stiffness * k, lat.damping * c))
+        force = jnp.zeros((12, 3)).at[:, 2].set(fz)
+        return jnp.sum(mss.simulate(l2, s0, 2e-3, 200, force, GRAVITY).position[:, 2])
+
+    check_grad(jax.jit(end_z), jnp.array([1.0, 1.0, -0.1]), eps=1e-6, rtol=1e-4, n_dirs=2)
+
+
+def test_grad_wrt_tool_trajectory_and_initial_ctrl():
+    lat = small_lattice()
+    n = 150
+    t = jnp.linspace(0, 1, n)
+
+    def pushed(offset):
+        centers = jnp.stack([0.2 + 0 * t, 0.05 + 0 * t, 0.16 - 0.06 * t * offset], axis=-1)
+        path = (eqx.tree_at(lambda s: (s.center, s.radius), mss.RigidSphere(jnp.zeros(3), 0.05),
+                            (centers, jnp.full((n,), 0.05))),)
+        out = mss.simulate(lat, mss.init(lat), 2e-3, n, tool_path=path, contact=mss.Contact(500.0))
+        return jnp.sum(out.position[:, 2])
+
+    check_grad(jax.jit(pushed), jnp.array(1.0).reshape(()), eps=1e-6, rtol=1e-4, n_dirs=1)
+
+    surf = shapes.plate(4, 4, 0.1)
+    blend = surf.blending(5, 5)
+    slat, coupling = mss.surface_lattice(blend, surf.ctrl, stiffness=20.0, damping=0.1, mass=0.01,
+                                         fixed=np.pad(np.ones((1, 5), bool), ((0, 4), (0, 0))))
+
+    def from_ctrl(ctrl):
+        s = mss.init(slat, coupling.nodes(ctrl))
+        out = mss.simulate(slat, s, 2e-3, 100, gravity=GRAVITY)
+        return jnp.sum(coupling.ctrl(out.position)[..., 2] ** 2)
+
+    check_grad(jax.jit(lambda c: from_ctrl(c.reshape(4, 4, 3))), surf.ctrl.reshape(-1) + 0.001, eps=1e-6,
+               rtol=1e-4, n_dirs=2)
+
+
+def test_checkpointed_long_rollout_gradient_and_memory():
+    lat = small_lattice()
+    s0 = mss.init(lat)
+
+    def loss(k, every):
+        l2 = eqx.tree_at(lambda l: l.stiffness, lat, lat.stiffness * k)
+        return jnp.sum(mss.simulate(l2, s0, 1e-3, 10_000, gravity=GRAVITY, checkpoint_every=every).position[:, 2])
+
+    g_ckpt = jax.jit(jax.grad(lambda k: loss(k, 100)))
+    g_plain = jax.jit(jax.grad(lambda k: loss(k, None)))
+    a, b = float(g_ckpt(1.0)), float(g_plain(1.0))
+    assert np.isfinite(a) and np.isclose(a, b, rtol=1e-9)
+    fwd = jax.jit(lambda k: loss(k, 100))
+    fd = (float(fwd(1.0 + 1e-6)) - float(fwd(1.0 - 1e-6))) / 2e-6
+    assert np.isclose(a, fd, rtol=1e-4)
+    mem = lambda f: f.lower(1.0).compile().memory_analysis().temp_size_in_bytes  # noqa: E731
+    assert mem(g_ckpt) * 10 < mem(g_plain)  # stores ~n/c + c states instead of n
