@@ -44,10 +44,11 @@ def check_positive(x: Any, name: str, strict: bool = True) -> None:
     if not is_concrete(x):
         return
     a = np.asarray(x)
-    bad = np.any(a <= 0) if strict else np.any(a < 0)
-    if bad or not np.all(np.isfinite(a)):
-        sign = "> 0" if strict else ">= 0"
-        fail(name, f"finite values {sign}", f"min {np.min(a) if a.size else a}")
+    sign = "> 0" if strict else ">= 0"
+    if not np.all(np.isfinite(a)):
+        fail(name, f"finite values {sign}", "NaN or inf")
+    if np.any(a <= 0) if strict else np.any(a < 0):
+        fail(name, f"finite values {sign}", f"min {np.min(a)}")
 
 
 def check_degree(degree: Any, name: str, n_ctrl: int | None = None, n_name: str = "") -> None:

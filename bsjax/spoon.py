@@ -1,0 +1,196 @@
+"""The spoon case study of the thesis (§7.3, SPEC §9), as composable steps.
+
+1. `bend_handle`: a surface mass-spring lattice on the handle's blending grid (plasticine,
+   plastic yield), one end clamped by a plane, the neck pushed up by a sphere tool; the control
+   points come back by the least-squares refit (paper 002 §4.1 dual representation).
+2. `attach_bowl` + `bsjax.merge.merge`: the bowl follows the bent neck and the two patches
+   become one surface.
+3. `jelly`, `drop`, `spill`: a jelly (B-spline sphere + VSOFM hexahedral lattice) dropped into
+   the spoon's bowl tilted sideways by an angle; contact against a height map sampled once from
+   the merged surface; the spilled fraction is a smooth function of the final node positions.
+4. `best_tilt`: gradient descent on the tilt with `jax.grad` through the whole drop.
+
+All lengths in metres, times in seconds. The bowl frame has x along the spoon (the bowl at
+x ∈ [0, 0.06]), z up out of the bowl; a sideways tilt θ rotates gravity about x.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from bsjax import mss
+from bsjax.basis import BSplineSurface
+
+GRAVITY = 9.81
+
+
+class _Ball(eqx.Module):
+    """A rigid sphere tool in the shape the mass-spring penalty expects (`center`, `radius`)."""
+
+    center: Float[Array, "... 3"]
+    radius: Float[Array, "..."]
+
+
+# --- 1. bending the handle -------------------------------------------------------------------
+def bend_handle(handle: BSplineSurface, push: float = 0.012, clamp_x: float = -0.085,
+                samples: tuple[int, int] = (25, 8), dt: float = 1e-3, steps: int = 200,
+                yield_strain: float = 0.01, node_damping: float = 3e-3):
+    """Bend the handle plastically: nodes behind the plane `x = clamp_x` are fixed (the clamp),
+    a 6 mm sphere rises `push` metres under the handle near the neck; then the lattice relaxes
+    to rest and the control net is refit from the nodes.
+
+    **Returns:** `(bent_handle, info)` with the neck lift and the simulation sizes.
+    """
+    m, n = samples
+    blending = handle.blending(m, n)
+    nodes = blending.points(handle.ctrl).reshape(-1, 3)
+    edges = mss.grid_edges(np.arange(m * n).reshape(m, n))
+    volume = 0.12 * 0.012 * 0.003  # a 3 mm plasticine strip
+    # ground damping (N·s/m per node) settles the strip's slow bending mode after the push
+    lattice = mss.from_material(nodes, edges, mss.PLASTICINE, volume, fixed=nodes[:, 0] < clamp_x,
+                                node_damping=node_damping)
+    lift = jnp.minimum(jnp.linspace(0.0, 1.5, steps), 1.0)[:, None]
+    start = jnp.array([-0.03, 0.0, -0.0065], dtype=nodes.dtype)
+    path = _Ball(center=start + lift * jnp.array([0.0, 0.0, push], dtype=nodes.dtype),
+                 radius=jnp.full((steps,), 0.006, dtype=nodes.dtype))
+    plastic, state = mss.simulate_plastic(lattice, mss.init(lattice), dt, steps, mss.Plasticity(yield_strain),
+                                          tool_path=[path], contact=mss.Contact(5e3, 1.0), method="implicit")
+    rest, taken, converged = mss.relax(plastic, mss.State(state.position, jnp.zeros_like(state.velocity)), dt,
+                                       method="implicit", tol=1e-10, max_steps=3000)
+    ctrl = blending.refit(rest.position.reshape(m, n, 3))
+    lift_neck = float(jnp.mean(rest.position.reshape(m, n, 3)[-1, :, 2] - nodes.reshape(m, n, 3)[-1, :, 2]))
+    info = {"lattice_nodes": m * n, "springs": int(edges.shape[0]), "steps": steps, "dt": dt,
+            "neck_lift_m": lift_neck, "relaxed": bool(converged), "relax_steps": int(taken), "fixed_nodes": int(np.sum(np.asarray(nodes[:, 0]) < clamp_x))}
+    return handle.with_ctrl(ctrl), info
+
+
+def attach_bowl(handle: BSplineSurface, bowl: BSplineSurface) -> BSplineSurface:
+    """Move the bowl rigidly so that its u = 0 edge sits on the handle's u = 1 edge and it
+    continues the handle's end direction (a pitch about y)."""
+    rot, origin = bowl_frame(handle, bowl)
+    return bowl.with_ctrl(bowl.ctrl @ rot.T + origin)
+
+
+def bowl_frame(handle: BSplineSurface, bowl: BSplineSurface):
+    """`(rotation, origin)` of the attached bowl: world = rotation @ local + origin."""
+    edge = handle.ctrl[-1].mean(0)
+    direction = handle.ctrl[-1].mean(0) - handle.ctrl[-2].mean(0)
+    pitch = jnp.arctan2(direction[2], direction[0])
+    c, s = jnp.cos(pitch), jnp.sin(pitch)
+    rot = jnp.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]], dtype=bowl.ctrl.dtype)
+    return rot, edge - rot @ bowl.ctrl[0].mean(0)
+
+
+# --- 3. the jelly drop ---------------------------------------------------------------------
+class HeightMap(eqx.Module):
+    """A surface sampled once on a regular (x, y) grid of the bowl frame: heights `z`, a
+    coverage mask (1 on the surface's footprint, 0 outside) and the slopes, for O(1) contact
+    queries by bilinear interpolation (differentiable in the query point). `margin` is the signed
+    distance to the footprint's edge (the rim): positive inside, negative outside."""
+
+    z: Float[Array, "gx gy"]
+    mask: Float[Array, "gx gy"]
+    margin: Float[Array, "gx gy"]
+    dzdx: Float[Array, "gx gy"]
+    dzdy: Float[Array, "gx gy"]
+    origin: Float[Array, " 2"]
+    spacing: Float[Array, " 2"]
+
+
+def height_map(points: np.ndarray, lo, hi, cells: tuple[int, int] = (160, 100)) -> HeightMap:
+    """Height map of `(…, 3)` surface samples (bowl frame) over `[lo, hi]` in (x, y)."""
+    from scipy.interpolate import griddata
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    gx = np.linspace(lo[0], hi[0], cells[0])
+    gy = np.linspace(lo[1], hi[1], cells[1])
+    X, Y = np.meshgrid(gx, gy, indexing="ij")
+    from scipy.ndimage import distance_transform_edt
+
+    z = griddata(pts[:, :2], pts[:, 2], (X, Y), method="linear")
+    inside = np.isfinite(z)
+    mask = inside.astype(np.float64)
+    z = np.where(mask > 0, z, np.nanmin(z) - 0.05)  # outside: far below, and masked out anyway
+    spacing = np.array([gx[1] - gx[0], gy[1] - gy[0]])
+    dzdx, dzdy = np.gradient(z, *spacing)
+    margin = distance_transform_edt(inside, sampling=spacing) - distance_transform_edt(~inside, sampling=spacing)
+    as_j = jnp.asarray
+    return HeightMap(as_j(z), as_j(mask), as_j(margin), as_j(dzdx), as_j(dzdy),
+                     as_j(np.array(lo[:2], float)), as_j(spacing))
+
+
+def _bilinear(grid, hm: HeightMap, xy):
+    """Bilinear interpolation of `grid` at `(N, 2)` points (clamped to the grid)."""
+    g = (xy - hm.origin) / hm.spacing
+    hi = jnp.array(grid.shape, dtype=g.dtype) - 1.000001
+    g = jnp.clip(g, 0.0, hi)
+    i0 = jnp.floor(g).astype(jnp.int32)
+    t = g - i0
+    i, j = i0[:, 0], i0[:, 1]
+    a, b = t[:, 0], t[:, 1]
+    return ((1 - a) * (1 - b) * grid[i, j] + a * (1 - b) * grid[i + 1, j]
+            + (1 - a) * b * grid[i, j + 1] + a * b * grid[i + 1, j + 1])
+
+
+def bowl_force(hm: HeightMap, x, v, stiffness, damping, shell: float = 0.004):
+    """Penalty force of the rigid spoon on nodes below its surface (within a `shell`-thick skin),
+    along the surface normal `(−z_x, −z_y, 1)/|·|`, weighted by the footprint mask."""
+    xy = x[:, :2]
+    depth = _bilinear(hm.z, hm, xy) - x[:, 2]
+    cover = _bilinear(hm.mask, hm, xy)
+    active = (depth > 0) & (depth < shell)
+    normal = jnp.stack([-_bilinear(hm.dzdx, hm, xy), -_bilinear(hm.dzdy, hm, xy), jnp.ones_like(depth)], -1)
+    normal = normal / jnp.linalg.norm(normal, axis=-1, keepdims=True)
+    vn = jnp.sum(v * normal, -1)
+    mag = jnp.where(active, cover * (stiffness * depth - damping * jnp.minimum(vn, 0.0)), 0.0)
+    return mag[:, None] * normal
+
+
+def tilted_gravity(tilt):
+    """Gravity in the bowl frame when the bowl is rolled by `tilt` radians about its x axis."""
+    return GRAVITY * jnp.stack([jnp.zeros_like(tilt), jnp.sin(tilt), -jnp.cos(tilt)])
+
+
+def drop(lattice: mss.Lattice, hm: HeightMap, tilt, dt: float, steps: int, contact_stiffness: float,
+         contact_damping: float = 0.0, velocity=(0.0, 0.0, 0.0), chunk: int = 50):
+    """Drop (or throw, with an initial `velocity`) the jelly lattice onto the spoon tilted by
+    `tilt` radians; `jax.checkpoint` every `chunk` steps so `jax.grad` with respect to the tilt
+    keeps only `steps / chunk` states.
+
+    **Returns:** `(final_state, risk)`: the risk is the time average of `rim_risk`.
+    """
+    gravity = tilted_gravity(jnp.asarray(tilt, dtype=lattice.mass.dtype))
+
+    def body(carry, _):
+        state, risk = carry
+        f = bowl_force(hm, state.position, state.velocity, contact_stiffness, contact_damping)
+        state = mss.step(lattice, state, dt, external_force=f, gravity=gravity)
+        return (state, risk + rim_risk(hm, state.position)), None
+
+    @jax.checkpoint
+    def run_chunk(carry, _):
+        return jax.lax.scan(body, carry, None, length=chunk)[0], None
+
+    v0 = jnp.broadcast_to(jnp.asarray(velocity, dtype=lattice.mass.dtype), lattice.rest_positions.shape)
+    carry = (mss.init(lattice, velocity=v0), jnp.zeros((), lattice.mass.dtype))
+    state, risk = jax.lax.scan(run_chunk, carry, None, length=steps // chunk)[0]
+    return state, risk / (steps // chunk * chunk)
+
+
+def rim_risk(hm: HeightMap, position, scale: float = 0.003):
+    """Smooth closeness of the jelly to the rim: mean over nodes of `σ(−margin / scale)` (½ on
+    the rim, → 1 beyond it, → 0 deep inside). Its time average is the spill risk."""
+    return jnp.mean(jax.nn.sigmoid(-_bilinear(hm.margin, hm, position[:, :2]) / scale))
+
+
+def spill(hm: HeightMap, position, width: float = 0.0005):
+    """Fraction of jelly nodes that left the spoon: outside its footprint, or fallen more than
+    a few millimetres below its surface; smooth (sigmoid) so it has a gradient."""
+    xy = position[:, :2]
+    cover = _bilinear(hm.mask, hm, xy)
+    below = jax.nn.sigmoid((_bilinear(hm.z, hm, xy) - 0.004 - position[:, 2]) / width)
+    return jnp.mean(1.0 - cover * (1.0 - below))
