@@ -35,7 +35,7 @@ class Settings(eqx.Module):
     radius_start: float | None = eqx.field(static=True, default=None)  # None: max(shape) / 2
     radius_end: float = eqx.field(static=True, default=0.5)
     batch: int = eqx.field(static=True, default=1024)
-    sweeps: int = eqx.field(static=True, default=4)
+    sweeps: int = eqx.field(static=True, default=2)
 
 
 def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
@@ -164,15 +164,21 @@ def _harmonic_interior(nodes, bgrid, iterations):
     return jax.lax.fori_loop(0, iterations, body, (x0, r, r, jnp.sum(r * r)))[0]
 
 
-def _snap(nodes, bidx, points):
-    """Boundary nodes onto their nearest sample (blocks of 1024 nodes bound the memory)."""
+def _snap(nodes, bidx, points, k=8):
+    """Boundary nodes onto the surface: projected onto the least-squares plane of their `k`
+    nearest samples (blocks of 512 nodes bound the memory). Unlike snapping to the nearest
+    sample, two nodes never collapse onto one sample when the lattice is denser than the cloud."""
     flat = nodes.reshape(-1, 3)
     p2 = jnp.sum(points * points, axis=-1)
 
-    def nearest(x):
-        return points[jnp.argmin(p2 - 2.0 * points @ x)]
+    def project(x):
+        near = points[jax.lax.top_k(2.0 * points @ x - p2, k)[1]]
+        c = jnp.mean(near, axis=0)
+        d = near - c
+        n = jnp.linalg.eigh(d.T @ d)[1][:, 0]  # smallest principal direction: the normal
+        return x - jnp.dot(x - c, n) * n
 
-    snapped = jax.lax.map(nearest, flat[bidx], batch_size=1024)
+    snapped = jax.lax.map(project, flat[bidx], batch_size=512)
     return flat.at[bidx].set(snapped).reshape(nodes.shape)
 
 

@@ -1,0 +1,72 @@
+"""VSOFM: boundary on the surface, interior inside, no inverted hexahedra, clear errors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsjax import mss, shapes, vsofm
+
+
+def fibonacci_sphere(n, radius=1.0):
+    """Nearly uniform points on a sphere (an exact surface to measure the distance to)."""
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    phi = np.pi * (1 + 5**0.5) * k
+    r = np.sqrt(1 - z * z)
+    return radius * np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def test_sphere_boundary_on_surface_interior_inside_no_inverted():
+    pts = fibonacci_sphere(3000, 0.5)
+    nodes = np.asarray(vsofm.fit(pts, (8, 8, 8), key=jax.random.PRNGKey(1)))
+    assert nodes.shape == (8, 8, 8, 3)
+    bmask = vsofm.boundary_mask((8, 8, 8))
+    radius = np.linalg.norm(nodes, axis=-1)
+    assert np.abs(radius[bmask] - 0.5).max() < 0.005  # on the sphere (1 % of the radius)
+    assert radius[~bmask].max() < 0.5 - 0.02  # interior strictly inside
+    rep = vsofm.report(pts, nodes)
+    assert rep.inverted == 0 and rep.min_scaled_jacobian > 0
+    assert rep.n_elements == 7**3
+    # the nodes fill the ball: boundary nodes spread over the whole sphere
+    dirs = nodes[bmask] / radius[bmask, None]
+    assert np.abs(dirs.mean(axis=0)).max() < 0.05
+    # interior nodes spread (no clumping): nearest-neighbour distances within a factor 4
+    inner = nodes[1:-1, 1:-1, 1:-1].reshape(-1, 3)
+    d = np.linalg.norm(inner[:, None] - inner[None], axis=-1) + np.eye(len(inner)) * 9
+    assert d.min(axis=1).max() < 4 * d.min(axis=1).min()
+
+
+def test_teardrop_no_inverted_and_lattice_ready_for_mss():
+    surf = shapes.teardrop()
+    pts = np.asarray(surf.blending(40, 40).points(surf.ctrl)).reshape(-1, 3)
+    nodes = vsofm.fit(pts, (8, 8, 8), cycles=300)
+    rep = vsofm.report(pts, nodes)
+    assert rep.inverted == 0, rep
+    assert rep.boundary_max < 0.06  # within the sample spacing of the cloud
+    lat = vsofm.lattice(nodes, mss.JELLY)
+    assert lat.n_nodes == 512 and lat.grid_shape == (8, 8, 8)
+    assert float(mss.hex_volume(jnp.asarray(nodes))) > 0
+
+
+def test_corner_jacobians_detect_inversion():
+    g = np.stack(np.meshgrid(*[np.arange(3.0)] * 3, indexing="ij"), -1)
+    jac = np.asarray(vsofm.corner_jacobians(jnp.asarray(g)))
+    np.testing.assert_allclose(jac, 1.0)
+    folded = g.copy()
+    folded[1, 1, 1] = [2.6, 2.6, 2.6]  # push the centre node through a corner
+    rep = vsofm.report(g.reshape(-1, 3), folded)
+    assert rep.inverted > 0 and rep.min_scaled_jacobian < 0
+
+
+@pytest.mark.parametrize("args, match", [
+    ((np.zeros((10, 2)), (4, 4, 4)), "points"),
+    ((np.full((10, 3), np.nan), (4, 4, 4)), "points"),
+    ((np.random.default_rng(0).normal(size=(10, 3)), (4, 1, 4)), "shape"),
+    ((np.random.default_rng(0).normal(size=(10, 3)), (4, 4)), "shape"),
+])
+def test_bad_inputs(args, match):
+    with pytest.raises(ValueError, match=match):
+        vsofm.fit(*args)
+    with pytest.raises(ValueError, match="cycles"):
+        vsofm.fit(np.random.default_rng(0).normal(size=(10, 3)), (4, 4, 4), cycles=0)
