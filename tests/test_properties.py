@@ -1,0 +1,106 @@
+"""Property-based tests (hypothesis) on degrees, knot vectors, parameters and net shapes.
+
+Sizes are drawn from small fixed sets: every new shape costs a compile, and the properties
+(partition of unity, non-negativity, band width, scipy agreement, refit round trip) do not
+depend on the size.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
+
+from bsjax.basis import BSplineSurface, blending_matrix, periodic_blending_matrix
+
+N_CTRL, M_PARAMS = 10, 32
+SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+blending = jax.jit(blending_matrix, static_argnames=("degree", "nu"))
+periodic = jax.jit(periodic_blending_matrix, static_argnames=("n_ctrl", "degree", "nu"))
+
+
+@st.composite
+def knot_vectors(draw, n_ctrl=N_CTRL):
+    """(degree, clamped knots on [0, 1]) with repeated interior knots (multiplicity ≤ degree)."""
+    degree = draw(st.integers(1, 5))
+    n_interior = n_ctrl - degree - 1
+    grid = draw(st.lists(st.integers(1, 19), min_size=n_interior, max_size=n_interior))
+    values, counts = np.unique(np.asarray(grid, dtype=np.float64) / 20, return_counts=True)
+    if counts.size and counts.max() > degree:  # cap the multiplicity, refill with fresh values
+        free = [x for x in np.arange(1, 20) / 20 if x not in values]
+        values = np.concatenate([values, free[: int(np.sum(counts - np.minimum(counts, degree)))]])
+        counts = np.concatenate([np.minimum(counts, degree), np.ones(len(values) - len(counts), int)])
+    interior = np.sort(np.repeat(values, counts))
+    return degree, np.concatenate([np.zeros(degree + 1), interior, np.ones(degree + 1)])
+
+
+params = st.lists(st.floats(0.0, 1.0, allow_nan=False), min_size=M_PARAMS - 2, max_size=M_PARAMS - 2).map(
+    lambda x: np.asarray([0.0, 1.0] + x)
+)
+
+
+@SETTINGS
+@given(knot_vectors(), params)
+def test_partition_of_unity_nonnegative_banded(degree_knots, x):
+    degree, knots = degree_knots
+    a = np.asarray(blending(knots, degree, x))
+    np.testing.assert_allclose(a.sum(1), 1.0, rtol=0, atol=1e-13)
+    assert a.min() >= -1e-15
+    assert np.all((a != 0).sum(1) <= degree + 1)
+    # the non-zeros of a row are contiguous (band structure)
+    for row in a != 0:
+        idx = np.nonzero(row)[0]
+        assert idx[-1] - idx[0] + 1 == len(idx)
+
+
+@SETTINGS
+@given(knot_vectors(), params, st.integers(0, 2))
+def test_scipy_agreement(degree_knots, x, nu):
+    degree, knots = degree_knots
+    ref = scipy_matrix(knots, degree, x, nu)
+    np.testing.assert_allclose(blending(knots, degree, x, nu=nu), ref, rtol=0, atol=tolerance(ref, 1e-11))
+
+
+@SETTINGS
+@given(st.integers(1, 5), st.integers(6, 9), params, st.integers(0, 2))
+def test_periodic_properties(degree, n_ctrl, x, nu):
+    a = np.asarray(periodic(n_ctrl, degree, x, nu=nu))
+    ref = periodic_reference(n_ctrl, degree, x, nu)
+    np.testing.assert_allclose(a, ref, rtol=0, atol=tolerance(ref, 1e-11))
+    np.testing.assert_allclose(a.sum(1), 1.0 if nu == 0 else 0.0, rtol=0, atol=tolerance(a, 1e-12))
+    if nu == 0:
+        assert a.min() >= -1e-15
+
+
+@eqx.filter_jit
+def _grid_and_back(b, ctrl):
+    pts = b.points(ctrl)
+    return pts, b.refit(pts)
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.sampled_from([(4, 6), (7, 5)]),  # non-square nets
+    st.integers(1, 3), st.integers(1, 3),
+    st.booleans(), st.booleans(),
+    st.integers(0, 2**31 - 1),
+)
+def test_surface_grid_matches_scipy_and_refits(shape, k, l, periodic_v, rational, seed):
+    r, s = shape
+    rng = np.random.default_rng(seed)
+    tu = np.concatenate([np.zeros(k + 1), np.sort(rng.uniform(0.1, 0.9, r - k - 1)), np.ones(k + 1)])
+    tv = None if periodic_v else np.concatenate([np.zeros(l + 1), np.sort(rng.uniform(0.1, 0.9, s - l - 1)),
+                                                 np.ones(l + 1)])
+    surface = BSplineSurface(rng.normal(size=(r, s, 3)), tu, tv, k, l, periodic_v=periodic_v,
+                             weights=rng.uniform(0.5, 2.0, (r, s)) if rational else None)
+    # Greville-like parameters in u keep the refit well posed; v is sampled on a fine grid.
+    b = surface.blending(params_u=np.linspace(0, 1, 24), params_v=np.linspace(0, 1, 24, endpoint=False))
+    pts, back = _grid_and_back(b, surface.ctrl)
+    u, v = np.meshgrid(np.asarray(b.params_u), np.asarray(b.params_v), indexing="ij")
+    np.testing.assert_allclose(pts, ndbspline_surface(surface, u, v), rtol=0, atol=1e-12)
+    a_u = np.asarray(b.a_u[0])
+    if np.linalg.svd(a_u, compute_uv=False).min() > 1e-3:  # the random knots left no span empty
+        np.testing.assert_allclose(back, surface.ctrl, rtol=0, atol=1e-9)
+    assert jnp.all(jnp.isfinite(b.normals(surface.ctrl)))
