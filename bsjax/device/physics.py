@@ -68,14 +68,33 @@ def lattice_springs(m: int, n: int, layers: int, periodic_v: bool) -> np.ndarray
     return np.stack(masks).astype(np.float64)
 
 
-def _neighbour(x, offset):
-    """`x[a + da, b + db, c + dc]` at `(a, b, c)` (cyclic; callers mask the wrapped entries)."""
-    return jnp.roll(x, shift=tuple(-o for o in offset), axis=(0, 1, 2))
+def _pad(y, periodic_v: bool):
+    """Pad the `(m, n, L, …)` grid by one node: after the end of u, around v (cyclic when the
+    body is closed in v), around the layers; so every neighbour is a static slice."""
+    if periodic_v:
+        y = jnp.concatenate([y[:, -1:], y, y[:, :1]], axis=1)
+        widths = ((0, 1), (0, 0), (1, 1))
+    else:
+        widths = ((0, 1), (1, 1), (1, 1))
+    return jnp.pad(y, widths + ((0, 0),) * (y.ndim - 3))
 
 
-def _back(f, offset):
-    """Move a per-pair quantity stored at node `(a, b, c)` to its partner `(a, b, c) + offset`."""
-    return jnp.roll(f, shift=offset, axis=(0, 1, 2))
+def _shifted(padded, offset, shape):
+    """`y[a + da, b + db, c + dc]` at `(a, b, c)` from `_pad(y)` (zeros past the lattice)."""
+    (da, db, dc), (m, n, layers) = offset, shape
+    return padded[da : da + m, 1 + db : 1 + db + n, 1 + dc : 1 + dc + layers]
+
+
+def _back(f, offset, periodic_v: bool):
+    """Move a per-pair quantity stored at node `(a, b, c)` to its partner `(a, b, c) + offset`;
+    the pair masks are zero where a partner does not exist, so wrapped entries carry zeros."""
+    da, db, dc = offset
+    if periodic_v:
+        f = jnp.roll(f, db, axis=1)
+        db = 0
+    m, n, layers = f.shape[:3]
+    f = jnp.pad(f, ((da, 0), (max(db, 0), max(-db, 0)), (max(dc, 0), max(-dc, 0))) + ((0, 0),) * (f.ndim - 3))
+    return f[:m, max(-db, 0) : max(-db, 0) + n, max(-dc, 0) : max(-dc, 0) + layers]
 
 
 def lattice_nodes(surface_points: np.ndarray, normals: np.ndarray, layers: int, periodic_v: bool,
@@ -193,14 +212,16 @@ class SculptModel:
     def _forces(self, x, v, rest, centre, axes, rot, pressing):
         """Spring + damper forces (eqs. 5.8–5.13) and the tool's push, on the `(m, n, L, 3)` grid."""
         c = self._consts
+        shape, periodic = x.shape[:3], self.surface0.periodic_v
+        xp, vp = _pad(x, periodic), _pad(v, periodic)
         total = jnp.zeros_like(x)
         for k, offset in enumerate(_SHEAR):
-            d = _neighbour(x, offset) - x
+            d = _shifted(xp, offset, shape) - x
             length = safe_norm(d, keepdims=True)
             u = d / jnp.where(length > 0, length, 1)
-            rel = jnp.sum((_neighbour(v, offset) - v) * u, axis=-1, keepdims=True)
+            rel = jnp.sum((_shifted(vp, offset, shape) - v) * u, axis=-1, keepdims=True)
             f = c["mask"][k] * (c["k"] * (length - rest[k][..., None]) + c["d"] * rel) * u
-            total = total + f - _back(f, offset)
+            total = total + f - _back(f, offset, periodic)
         # Tool: ellipsoid {y : |diag(1/a) Rᵀ (y − centre)| ≤ 1}; radial depth to its surface.
         r = x - centre
         rho = safe_norm((r @ rot) / axes)
@@ -219,6 +240,7 @@ class SculptModel:
 
     def _tick_impl(self, state, centre, axes, rot, pressing):
         tool = (centre, axes, rot, pressing)
+        # A rolled loop: XLA:CPU compiles an unrolled one to ~10× slower code here (measured).
         state = jax.lax.fori_loop(0, self.substeps, lambda _, s: self._step(s, tool), state)
         ctrl = self.blending.refit(state[0][:, :, -1])
         pts = self.dense.points(ctrl).reshape(-1, 3)
@@ -232,7 +254,8 @@ class SculptModel:
 
     def _settle_impl(self, state):
         x, v, _ = state
-        rest = jnp.stack([safe_norm(_neighbour(x, off) - x) for off in _SHEAR])
+        xp = _pad(x, self.surface0.periodic_v)
+        rest = jnp.stack([safe_norm(_shifted(xp, off, x.shape[:3]) - x) for off in _SHEAR])
         return x, v, rest * self._consts["mask"][..., 0]
 
     # --- model interface ----------------------------------------------------------------------
