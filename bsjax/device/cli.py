@@ -1,0 +1,118 @@
+"""`bsjax haptics`: sculpt the teardrop with a sphere (or ellipsoid) tool on a haptic device.
+
+```
+bsjax haptics --simulated --duration 10          # the default: a scripted push/pull session
+bsjax haptics --serial /dev/ttyACM0 --baud 921600
+bsjax haptics --hid 1234:5678 [--hid-layout layout.json]
+bsjax haptics --replay session.npz --plot session.png
+```
+Prints the servo telemetry at the end (also on Ctrl-C; zero force is written first).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from bsjax.device.hid import HidDevice, HidLayout
+from bsjax.device.protocol import Workspace
+from bsjax.device.proxy import Proxy
+from bsjax.device.serial import SerialDevice
+from bsjax.device.servo import ServoLoop
+from bsjax.device.simulated import DEFAULT_WORKSPACE, SimulatedDevice
+from bsjax.device.telemetry import plot_recording
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="bsjax haptics", description=__doc__.split("\n")[0])
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--simulated", action="store_true", help="scripted virtual stylus (default)")
+    src.add_argument("--serial", metavar="PORT", help="serial device speaking the bsjax frame protocol")
+    src.add_argument("--hid", metavar="VID:PID", help="USB HID device (hex ids)")
+    src.add_argument("--replay", metavar="FILE", help="replay a recorded session (.npz)")
+    p.add_argument("--hid-layout", metavar="JSON", help="HID report layout (default: HidLayout.generic)")
+    p.add_argument("--baud", type=int, default=921600)
+    p.add_argument("--scale", type=float, default=DEFAULT_WORKSPACE.scale, help="model units per device metre")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds (0: until Ctrl-C)")
+    p.add_argument("--rate", type=float, default=1000.0, help="servo rate, Hz")
+    p.add_argument("--physics-hz", type=float, default=100.0)
+    p.add_argument("--max-force", type=float, default=3.0, help="newtons")
+    p.add_argument("--tool-radius", type=float, default=0.25, help="sphere tool radius, model units")
+    p.add_argument("--ellipsoid", type=float, nargs=3, metavar=("A", "B", "C"), help="ellipsoid tool semi-axes")
+    p.add_argument("--proxy-only", action="store_true", help="a fixed plane proxy, no physics (no JAX work)")
+    p.add_argument("--record", metavar="FILE", help="save the session (.npz)")
+    p.add_argument("--plot", metavar="PNG", help="plot the session")
+    p.add_argument("--cpu", type=int, help="pin the servo thread to this CPU")
+    return p
+
+
+def _device(args):
+    workspace = Workspace(scale=args.scale)
+    if args.serial:
+        return SerialDevice(args.serial, baudrate=args.baud, workspace=workspace)
+    if args.hid:
+        vid, _, pid = args.hid.partition(":")
+        try:
+            vid_i, pid_i = int(vid, 16), int(pid, 16)
+        except ValueError:
+            raise SystemExit(f"--hid: expected VID:PID in hex (e.g. 046d:c62b), got {args.hid!r}") from None
+        if args.hid_layout:
+            with open(args.hid_layout) as fh:
+                layout = HidLayout.from_dict({"vendor_id": vid_i, "product_id": pid_i, **json.load(fh)})
+        else:
+            layout = HidLayout.generic(vid_i, pid_i)
+        return HidDevice(layout, workspace=workspace)
+    if args.replay:
+        return SimulatedDevice.replay(args.replay, realtime=True)
+    return SimulatedDevice()
+
+
+def _model(args):
+    if args.proxy_only:  # the teardrop's equator as a wall facing +x
+        return Proxy.plane((0.62, 0.0, 0.0), (1.0, 0.0, 0.0), stiffness=30.0, damping=0.3,
+                           tool_radius=args.tool_radius, stamp=0.0)
+    from bsjax.device.physics import SculptModel
+
+    return SculptModel(physics_hz=args.physics_hz, tool_radius=args.tool_radius, tool_axes=args.ellipsoid)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    print("bsjax haptics: building the model and compiling the physics…", flush=True)
+    model = _model(args)
+    interrupted = False
+    with _device(args) as device:
+        loop = ServoLoop(device, model, rate_hz=args.rate, max_force=args.max_force, physics_hz=args.physics_hz,
+                         record=bool(args.record or args.plot), cpu=args.cpu)
+        try:
+            loop.start()
+            print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
+            end = time.perf_counter() + args.duration if args.duration > 0 else float("inf")
+            while loop.running and time.perf_counter() < end:
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            stats = loop.stop()  # writes zero force before anything else
+    print("bsjax haptics: zero force written" + (" (interrupted)" if interrupted else ""))
+    print(stats.report())
+    if args.record or args.plot:
+        rec = loop.recording()
+        if args.record:
+            rec.save(args.record)
+            print(f"recorded {len(rec)} ticks to {args.record}")
+        if args.plot:
+            plot_recording(rec, args.plot)
+            print(f"plot written to {args.plot}")
+    if hasattr(model, "ctrl"):
+        import numpy as np
+
+        moved = np.abs(np.asarray(model.ctrl) - np.asarray(model.surface0.ctrl)).max()
+        print(f"sculpted surface: {model.ticks} physics ticks, largest control-point displacement {moved:.4f}")
+    return 130 if interrupted else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
