@@ -6,6 +6,7 @@ import time
 import numpy as np
 import pytest
 
+from bsjax import shapes
 from bsjax.device import ServoLoop, SimulatedDevice
 from bsjax.device.physics import SculptModel
 from bsjax.device.protocol import DeviceSample
@@ -89,8 +90,9 @@ def test_tool_shape_changes_at_run_time(model):
 
 
 def test_unstable_step_and_small_grid_are_refused():
-    with pytest.raises(ValueError, match="unstable"):
-        SculptModel(substeps=1, stiffness=1e5)
+    with pytest.raises(ValueError, match="unstable"):  # mss.check_dt's stability limit
+        SculptModel(shapes.plate(4, 4), grid=(4, 4), layers=2, fixed_layers=1, substeps=1, stiffness=1e5,
+                    proxy_grid=4)
     with pytest.raises(ValueError, match="grid"):
         SculptModel(grid=(4, 4))
 

@@ -7,8 +7,10 @@ is the least-squares refit of those nodes, `P = A_u^+ M (A_v^+)^T` (thesis eq. 3
 the axis of a body closed in v (the teardrop: each u-ring scaled about its centroid), or
 extruded along −normal for an open sheet; the innermost layers are fixed. Springs: structural
 and face-diagonal (shear) neighbours of the `m × n × layers` index grid, periodic in v for closed
-bodies. Integration: semi-implicit Euler (thesis eqs. 5.14–5.16), `substeps` steps per tick
-inside one jitted call.
+bodies. Dynamics: `bsjax.mss` — a `Lattice` on that edge list (with the wrap-around springs, so
+the edge-list kernel rather than `hex_lattice`'s dense grid), `mss.step` (semi-implicit Euler,
+thesis eqs. 5.14–5.16) `substeps` times per tick inside one jitted call, `mss.check_dt` refusing an
+unstable step; the tool's push enters as `external_force`, plasticity as `rest_length`.
 
 Sculpting (002 §4.2): while the stylus button is held, every node inside the tool (a sphere or an
 ellipsoid at the stylus pose) gets a penalty force `k_tool · depth` away from the tool centre —
@@ -22,8 +24,9 @@ contact, so passing through the wall keeps pushing back — the "surface normal"
 button is held, the plane is moved back by the nodes' summed reaction on the tool (times
 `reaction_gain`, over the proxy stiffness), so the user feels the material give way but push back.
 
-`SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`);
-it is self-contained (only `bsjax.basis`/`Blending`), independent of `bsjax.mss`/`bsjax.collide`.
+`SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`).
+Collision is local to this module (ellipsoid penalty on the nodes, nearest-sample proxy); it does
+not use `bsjax.collide`.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bsjax import shapes
+from bsjax import mss, shapes
 from bsjax._tensor import safe_norm
 from bsjax.device.protocol import DeviceSample
 from bsjax.device.proxy import Proxy
@@ -68,33 +71,15 @@ def lattice_springs(m: int, n: int, layers: int, periodic_v: bool) -> np.ndarray
     return np.stack(masks).astype(np.float64)
 
 
-def _pad(y, periodic_v: bool):
-    """Pad the `(m, n, L, …)` grid by one node: after the end of u, around v (cyclic when the
-    body is closed in v), around the layers; so every neighbour is a static slice."""
-    if periodic_v:
-        y = jnp.concatenate([y[:, -1:], y, y[:, :1]], axis=1)
-        widths = ((0, 1), (0, 0), (1, 1))
-    else:
-        widths = ((0, 1), (1, 1), (1, 1))
-    return jnp.pad(y, widths + ((0, 0),) * (y.ndim - 3))
-
-
-def _shifted(padded, offset, shape):
-    """`y[a + da, b + db, c + dc]` at `(a, b, c)` from `_pad(y)` (zeros past the lattice)."""
-    (da, db, dc), (m, n, layers) = offset, shape
-    return padded[da : da + m, 1 + db : 1 + db + n, 1 + dc : 1 + dc + layers]
-
-
-def _back(f, offset, periodic_v: bool):
-    """Move a per-pair quantity stored at node `(a, b, c)` to its partner `(a, b, c) + offset`;
-    the pair masks are zero where a partner does not exist, so wrapped entries carry zeros."""
-    da, db, dc = offset
-    if periodic_v:
-        f = jnp.roll(f, db, axis=1)
-        db = 0
-    m, n, layers = f.shape[:3]
-    f = jnp.pad(f, ((da, 0), (max(db, 0), max(-db, 0)), (max(dc, 0), max(-dc, 0))) + ((0, 0),) * (f.ndim - 3))
-    return f[:m, max(-db, 0) : max(-db, 0) + n, max(-dc, 0) : max(-dc, 0) + layers]
+def lattice_edges(mask: np.ndarray) -> np.ndarray:
+    """`(E, 2)` node index pairs (C order of the `(m, n, L)` grid) of the springs in `mask`."""
+    shape = mask.shape[1:]
+    idx = np.arange(int(np.prod(shape))).reshape(shape)
+    pairs = []
+    for k, (da, db, dc) in enumerate(_SHEAR):
+        a, b, c = np.nonzero(mask[k])
+        pairs.append(np.stack([idx[a, b, c], idx[a + da, (b + db) % shape[1], c + dc]], axis=-1))
+    return np.concatenate(pairs).astype(np.int32)
 
 
 def lattice_nodes(surface_points: np.ndarray, normals: np.ndarray, layers: int, periodic_v: bool,
@@ -159,36 +144,34 @@ class SculptModel:
         self.dtype = surface.ctrl.dtype
         self.grid, self.layers, self.substeps = (m, n), layers, int(substeps)
         self.dt = 1.0 / (physics_hz * substeps)
-        omega = np.sqrt(len(_SHEAR) * 2 * (stiffness + tool_stiffness) / node_mass)
-        if self.dt * omega >= 2.0:  # semi-implicit Euler is stable for dt·ω < 2
-            raise ValueError(f"substeps: explicit step {self.dt:.2e} s is unstable for ω ≈ {omega:.0f} rad/s; "
-                             f"expected dt < {2 / omega:.2e} s (raise substeps or lower stiffness)")
         self.proxy_stiffness, self.proxy_damping = float(proxy_stiffness), float(proxy_damping)
         self.reaction_gain = float(reaction_gain)
         params_u = np.linspace(0.0, 1.0, m + 2)[1:-1] if not surface.periodic_u else np.arange(m) / m
         params_v = np.arange(n) / n if surface.periodic_v else np.linspace(0.0, 1.0, n)
         # Built under jit: one compiled program instead of hundreds of eager basis-function ops.
-        self.blending = jax.jit(lambda pu, pv: surface.blending(m, n, pu, pv))(
+        self.blending, self.dense = jax.jit(lambda pu, pv: (surface.blending(m, n, pu, pv),
+                                                           surface.blending(proxy_grid, proxy_grid)))(
             params_u.astype(self.dtype), params_v.astype(self.dtype))
-        self.dense = jax.jit(lambda: surface.blending(proxy_grid, proxy_grid))()
         self.surface0 = surface
         pts = np.asarray(self.blending.points(surface.ctrl), dtype=np.float64)
         nrm = np.asarray(self.blending.normals(surface.ctrl), dtype=np.float64)
         centre = pts.reshape(-1, 3).mean(axis=0)
         # Orient normals outwards (away from the centroid) once; the sign is a property of the basis.
         self.sign = 1.0 if np.mean(np.sum((pts - centre) * nrm, axis=-1)) >= 0 else -1.0
-        x0 = lattice_nodes(pts, self.sign * nrm, layers, surface.periodic_v, thickness)
-        mask = lattice_springs(m, n, layers, surface.periodic_v)
-        rest = np.stack([np.linalg.norm(np.roll(x0, [-o for o in off], axis=(0, 1, 2)) - x0, axis=-1)
-                         for off in _SHEAR]) * mask
-        free = np.ones((m, n, layers, 1))
-        free[:, :, :fixed_layers] = 0.0
-        dt_ = self.dtype
-        self._consts = dict(mask=jnp.asarray(mask[..., None], dt_), free=jnp.asarray(free, dt_),
-                            mass=node_mass, k=stiffness, d=damping, drag=drag, k_tool=tool_stiffness)
-        self.n_nodes, self.n_springs = m * n * layers, int(mask.sum())
-        x0 = jnp.asarray(x0, dt_)
-        self._state = (x0, jnp.zeros_like(x0), jnp.asarray(rest, dt_))
+        x0 = lattice_nodes(pts, self.sign * nrm, layers, surface.periodic_v, thickness).astype(self.dtype)
+        fixed = np.zeros((m, n, layers), bool)
+        fixed[:, :, :fixed_layers] = True
+        # The edge list (not `mss.hex_lattice`'s dense grid) because the springs wrap around v.
+        self.lattice = mss.Lattice(x0.reshape(-1, 3), lattice_edges(lattice_springs(m, n, layers, surface.periodic_v)),
+                                   stiffness, damping, node_mass, fixed.reshape(-1), node_damping=drag * node_mass)
+        try:
+            mss.check_dt(self.lattice, self.dt, contact_stiffness=tool_stiffness)
+        except ValueError as err:
+            raise ValueError(f"substeps: the explicit step is unstable for this material ({err}); "
+                             "raise substeps or lower the stiffness") from None
+        self.tool_stiffness = tool_stiffness
+        self.n_nodes, self.n_springs = self.lattice.n_nodes, self.lattice.n_edges
+        self._state = (mss.init(self.lattice), self.lattice.rest_length)
         self._initial = self._state
         self.ctrl = surface.ctrl
         self.tool_axes = np.full(3, float(tool_radius)) if tool_axes is None else np.asarray(tool_axes, float)
@@ -209,54 +192,40 @@ class SculptModel:
         self.tool_axes = a  # one reference swap, picked up at the next tick
 
     # --- jitted kernels -----------------------------------------------------------------------
-    def _forces(self, x, v, rest, centre, axes, rot, pressing):
-        """Spring + damper forces (eqs. 5.8–5.13) and the tool's push, on the `(m, n, L, 3)` grid."""
-        c = self._consts
-        shape, periodic = x.shape[:3], self.surface0.periodic_v
-        xp, vp = _pad(x, periodic), _pad(v, periodic)
-        total = jnp.zeros_like(x)
-        for k, offset in enumerate(_SHEAR):
-            d = _shifted(xp, offset, shape) - x
-            length = safe_norm(d, keepdims=True)
-            u = d / jnp.where(length > 0, length, 1)
-            rel = jnp.sum((_shifted(vp, offset, shape) - v) * u, axis=-1, keepdims=True)
-            f = c["mask"][k] * (c["k"] * (length - rest[k][..., None]) + c["d"] * rel) * u
-            total = total + f - _back(f, offset, periodic)
-        # Tool: ellipsoid {y : |diag(1/a) Rᵀ (y − centre)| ≤ 1}; radial depth to its surface.
+    def _tool_push(self, x, centre, axes, rot, pressing):
+        """Nodes inside the tool (ellipsoid `|diag(1/a) Rᵀ (y − centre)| ≤ 1`) pushed radially
+        out to its surface: `k_tool · depth`, only while the button is held (002 §4.2)."""
         r = x - centre
         rho = safe_norm((r @ rot) / axes)
         dist = safe_norm(r)
         inside = (rho < 1) & (dist > 0)
         depth = jnp.where(inside, dist * (1 / jnp.where(inside, rho, 1) - 1), 0)
-        push = (c["k_tool"] * pressing) * depth[..., None] * r / jnp.where(dist > 0, dist, 1)[..., None]
-        return total + push, push
+        return (self.tool_stiffness * pressing) * depth[:, None] * r / jnp.where(dist > 0, dist, 1)[:, None]
 
     def _step(self, carry, tool):
-        x, v, rest = carry
-        c = self._consts
-        a = self._forces(x, v, rest, *tool)[0] / c["mass"] - c["drag"] * v
-        v = (v + self.dt * a) * c["free"]
-        return (x + self.dt * v, v, rest)
+        state, rest = carry
+        push = self._tool_push(state.position, *tool)
+        return mss.step(self.lattice, state, self.dt, external_force=push, rest_length=rest), rest
 
-    def _tick_impl(self, state, centre, axes, rot, pressing):
+    def _tick_impl(self, carry, centre, axes, rot, pressing):
         tool = (centre, axes, rot, pressing)
-        # A rolled loop: XLA:CPU compiles an unrolled one to ~10× slower code here (measured).
-        state = jax.lax.fori_loop(0, self.substeps, lambda _, s: self._step(s, tool), state)
-        ctrl = self.blending.refit(state[0][:, :, -1])
+        carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tool), carry)
+        m, n = self.grid
+        x = carry[0].position
+        ctrl = self.blending.refit(x.reshape(m, n, self.layers, 3)[:, :, -1])
         pts = self.dense.points(ctrl).reshape(-1, 3)
         nrm = self.sign * self.dense.normals(ctrl).reshape(-1, 3)
         k = jnp.argmin(jnp.sum((pts - centre) ** 2, axis=-1))
         q, nq = pts[k], nrm[k]
         support = safe_norm(axes * (nq @ rot))  # ellipsoid support distance along nq
         # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
-        reaction = safe_norm(jnp.sum(self._forces(*state, *tool)[1], axis=(0, 1, 2)))
-        return state, ctrl, jnp.concatenate([q, nq, support[None], reaction[None]])
+        reaction = safe_norm(jnp.sum(self._tool_push(x, *tool), axis=0))
+        return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None]])
 
-    def _settle_impl(self, state):
-        x, v, _ = state
-        xp = _pad(x, self.surface0.periodic_v)
-        rest = jnp.stack([safe_norm(_shifted(xp, off, x.shape[:3]) - x) for off in _SHEAR])
-        return x, v, rest * self._consts["mask"][..., 0]
+    def _settle_impl(self, carry):
+        state, _ = carry
+        e = self.lattice.edges
+        return state, safe_norm(state.position[e[:, 0]] - state.position[e[:, 1]])
 
     # --- model interface ----------------------------------------------------------------------
     def _tool_args(self, position, orientation):
@@ -265,9 +234,8 @@ class SculptModel:
 
     def warmup(self) -> None:
         """Compile the tick and the settle (both shapes are fixed, so this happens once)."""
-        x, v, rest = self._state
         centre, axes, rot = self._tool_args(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0))
-        out = self._tick((x, v, rest), centre, axes, rot, jnp.asarray(0.0, self.dtype))
+        out = self._tick(self._state, centre, axes, rot, jnp.asarray(0.0, self.dtype))
         jax.block_until_ready(out)
         jax.block_until_ready(self._settle(self._state))
 
