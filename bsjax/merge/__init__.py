@@ -1,0 +1,89 @@
+"""Merging B-spline patches into one surface (thesis ch. 4, §6.3, App. A; SPEC §4).
+
+Any number of dissimilar patches become one B-spline surface with the continuity asked for at
+each seam, without matching the edges first. Each patch is discretised with its blending
+matrices (`M_i = A_u^i P^i A_v^iT`), the grids are stacked (`[M1; M2]`, `[M1 M2]`,
+`[M1 M2; M3 M4]`), and one control net is refitted with the revised blending matrices
+(eq. 3.7). The merged knot vector joins the patches' vectors with `degree − c` knots at a C^c
+seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made uniform.
+
+* `merge(surfaces, direction, continuity)` / `merge_grid(rows, continuity)`: one call.
+* `plan(...)` / `plan_grid(...)` → `MergeLayout`: all the fixed work once; `layout.apply(ctrls)`
+  is then jittable and differentiable in the input control nets.
+* `merge_knots`, `average_knots`, `cross_knots`, `common_degree`: the knot and degree rules.
+* `deviation(originals, merged)` → `Deviation` (mean, median, std, max, close points) by
+  closest-point projection; `plot_deviation` draws the heat map.
+* `refine(layout, ctrls)` (or `merge(..., refine=True)`): nonlinear refit with parameter
+  correction (beyond the thesis).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+from bsjax import _checks
+from bsjax.basis import BSplineSurface
+from bsjax.merge._deviation import Deviation, closest_parameters, deviation, plot_deviation, project
+from bsjax.merge._knots import average_knots, combine_knots, cross_knots, merge_knots
+from bsjax.merge._layout import MergeLayout, common_degree, plan, plan_grid
+from bsjax.merge._nonlinear import refine
+from bsjax.merge._orient import orient_row, orient_surface
+from bsjax.merge._overlap import contact_masks, overlap_trims
+
+__all__ = [
+    "merge", "merge_grid", "merge_knots", "average_knots", "combine_knots", "cross_knots",
+    "common_degree", "plan", "plan_grid", "MergeLayout", "refine", "deviation", "Deviation",
+    "plot_deviation", "project", "closest_parameters", "orient_row", "orient_surface",
+    "contact_masks", "overlap_trims",
+]
+
+
+def _finish(layout: MergeLayout, ctrls, refine_fit: bool) -> BSplineSurface:
+    ctrl = refine(layout, ctrls) if refine_fit else layout.apply(ctrls)
+    return layout.surface(ctrl)
+
+
+def merge(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: int = 2, *,
+          samples=82, cross_knots: str = "average", degrees=None, orient: str = "auto",
+          trim=None, overlap: str = "keep", refine: bool = False) -> BSplineSurface:
+    """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
+
+    **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
+    `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`), plus
+    - `overlap`: `"keep"`, or `"drop"` to find intersecting patches' overlapping sample rows and
+      leave them out (§4.4.1; dense distance test, `overlap_trims`). Not with `trim`.
+    - `refine`: also run the nonlinear refit with parameter correction (`refine`).
+
+    **Returns:** the merged surface: degree `(k, l)`, `r = Σ r_i − (N − 1)` control points along
+    the merge direction (more or fewer after a degree change), the largest count across.
+    """
+    if overlap not in ("keep", "drop"):
+        _checks.fail("overlap", "'keep' or 'drop'", repr(overlap))
+    surfaces = list(surfaces)
+    if overlap == "drop":
+        if trim is not None:
+            _checks.fail("trim", "None when overlap='drop' (the trims are computed)", trim)
+        probe = plan(surfaces, direction, continuity, samples=samples, cross_knots=cross_knots,
+                     degrees=degrees, orient=orient)
+        oriented = [orient_surface(s, op[0] if direction == "u" else op)
+                    for s, op in zip(surfaces, _flat_ops(probe, direction))]
+        m = samples if isinstance(samples, int) else samples[0 if direction == "u" else 1]
+        trim = overlap_trims(oriented, direction, m)
+    layout = plan(surfaces, direction, continuity, samples=samples, cross_knots=cross_knots,
+                  degrees=degrees, orient=orient, trim=trim)
+    return _finish(layout, [s.ctrl for s in surfaces], refine)
+
+
+def _flat_ops(layout: MergeLayout, direction: str):
+    ops = layout.orientations
+    return [row for row in ops] if direction == "u" else list(ops[0])
+
+
+def merge_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples=82,
+               degrees=None, refine: bool = False) -> BSplineSurface:
+    """Merge a grid of patches (`rows[i][j]`, rows stacked along u) into one surface (§4.4.3).
+
+    See `plan_grid` for the arrangement; `continuity` is one int or `(c_u, c_v)`.
+    """
+    layout = plan_grid(rows, continuity, samples=samples, degrees=degrees)
+    return _finish(layout, [[s.ctrl for s in row] for row in rows], refine)

@@ -1,0 +1,301 @@
+"""Merging patches (bsjax.merge): knot rules, exact reproduction, continuity, gradients, errors.
+
+References: the thesis's worked knot examples (§4.3.3, §6.3.1.3); scipy's NdBSpline evaluation
+of the surface that was cut into the patches (merging the pieces must give it back); closed-form
+geometry (planes, creases); finite differences for gradients.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import interpolate
+
+from bsjax import merge as mg
+from bsjax.basis import BSplineSurface, clamped_knots, elevate_degree
+from bsjax.merge import _fast, _orient
+from bsjax.merge._layout import changed_degree_knots
+from helpers import check_grad, random_knots, random_surface
+from oracles import ndbspline_surface
+
+S = 16  # samples per patch direction: small, and one size so compiled kernels are shared
+U1 = [0, 0, 0, 0, 0.2138, 0.4959, 0.7262, 1, 1, 1, 1]
+U2 = [0, 0, 0, 0, 0.1215, 0.2512, 0.3689, 0.5047, 0.7283, 0.8631, 1, 1, 1, 1]
+
+
+def _insert(knots, degree, ctrl, t, times):
+    """Insert knot `t` `times` times along axis 0 of `ctrl` with FITPACK (scipy), not bsjax."""
+    flat = np.asarray(ctrl).reshape(len(ctrl), -1)
+    cols = []
+    for j in range(flat.shape[1]):
+        tck = (np.asarray(knots, np.float64), flat[:, j], degree)
+        for _ in range(times):
+            tck = interpolate.insert(t, tck)
+        cols.append(np.asarray(tck[1])[: len(tck[0]) - degree - 1])
+    return np.asarray(tck[0]), np.stack(cols, -1).reshape((-1,) + np.shape(ctrl)[1:])
+
+
+def split(surface: BSplineSurface, direction: str, t: float):
+    """The two pieces of `surface` on either side of the iso-line `direction = t`, each
+    reparametrised to [0, 1] (knot insertion to full multiplicity, NURBS Book §5.3, by FITPACK)."""
+    if direction == "v":
+        a, b = split(_orient.orient_surface(surface, (True, False, False)), "u", t)
+        back = (True, False, False)
+        return _orient.orient_surface(a, back), _orient.orient_surface(b, back)
+    k = surface.degree_u
+    have = int(np.sum(np.isclose(np.asarray(surface.knots_u), t)))
+    ku, ctrl = _insert(surface.knots_u, k, surface.ctrl, t, k - have)
+    i = int(np.searchsorted(ku, t - 1e-12))
+    ka = np.concatenate([ku[:i], [t] * (k + 1)]) / t
+    kb = (np.concatenate([[t] * (k + 1), ku[i + k:]]) - t) / (1 - t)
+    a = BSplineSurface(ctrl[:i], ka, surface.knots_v, k, surface.degree_v)
+    b = BSplineSurface(ctrl[i - 1:], kb, surface.knots_v, k, surface.degree_v)
+    return a, b
+
+
+def grid_error(merged: BSplineSurface, reference: BSplineSurface, count: int = 23) -> float:
+    g = np.linspace(0.0, 1.0, count)
+    u, v = np.meshgrid(g, g, indexing="ij")
+    ref = ndbspline_surface(reference, u.ravel(), v.ravel())
+    got = np.asarray(_fast.evaluate(merged, jnp.asarray(u.ravel()), jnp.asarray(v.ravel())))
+    return float(np.max(np.abs(got - ref)))
+
+
+@pytest.fixture(scope="module")
+def surface():
+    return random_surface(np.random.default_rng(7), 7, 6, 3, 3)
+
+
+# --- knot vectors ----------------------------------------------------------------------------
+def test_merge_knots_thesis_433():
+    """Thesis §4.3.3. The printed vectors have two typos: 0.2512 → 0.6256 is missing from both
+    (the count must be r1 + r2 − 1 + k + 1 = 20), and 0.4317 should be (0.3631 + 0.5)/2 = 0.4316;
+    0.2478 (C⁰) vs 0.2480 (C²) is a rounding slip of 0.24795."""
+    c0 = mg.merge_knots(U1, U2, 3, 0)
+    c2 = mg.merge_knots(U1, U2, 3, 2)
+    thesis_c0 = [0, 0, 0, 0, .1069, .2478, .3631, .5, .5, .5, .5608, .6256, .6845, .7524, .8642, .9316, 1, 1, 1, 1]
+    thesis_c2 = [0, 0, 0, 0, .1069, .2480, .3631, .4317, .5, .5304, .5608, .6256, .6845, .7524, .8642, .9316, 1, 1, 1, 1]
+    assert len(c0) == len(c2) == (7 + 10 - 1) + 3 + 1
+    np.testing.assert_allclose(c0, thesis_c0, atol=2e-4)
+    np.testing.assert_allclose(c2, thesis_c2, atol=2e-4)
+    assert c2[7] == pytest.approx((0.7262 / 2 + 0.5) / 2) and c2[9] == pytest.approx((0.5 + 0.56075) / 2)
+    c1 = mg.merge_knots(U1, U2, 3, 1)
+    assert np.sum(c1 == 0.5) == 2 and c1[7] == pytest.approx(0.43155)
+
+
+def test_average_knots_thesis_6313():
+    a = [0, 0, 0, 0.25, 0.49, 0.67, 0.75, 0.9, 1, 1, 1]
+    b = [0, 0, 0, 0.20, 0.45, 0.61, 0.71, 0.85, 1, 1, 1]
+    thesis = [0, 0, 0, 0.22, 0.47, 0.64, 0.73, 0.87, 1, 1, 1]  # printed truncated to 2 decimals
+    got = mg.average_knots(a, b)
+    np.testing.assert_allclose(np.floor(got * 100 + 1e-9) / 100, thesis)
+    with pytest.raises(ValueError, match="knots_b"):
+        mg.average_knots(a, b[:-1])
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 5), st.integers(0, 4), st.integers(0, 4), st.integers(0, 10**6))
+def test_merge_knots_properties(degree, extra_a, extra_b, seed):
+    rng = np.random.default_rng(seed)
+    ka = random_knots(rng, degree + 1 + extra_a, degree)
+    kb = random_knots(rng, degree + 1 + extra_b, degree)
+    for c in range(degree):
+        t = mg.merge_knots(ka, kb, degree, c)
+        assert len(t) == len(ka) + len(kb) - degree - 2  # r = r_a + r_b − 1
+        assert np.all(np.diff(t) >= 0)
+        assert np.sum(t == 0.5) == degree - c  # C^c at the seam
+        np.testing.assert_allclose(t[: degree + 1 + extra_a], np.concatenate([ka[: degree + 1], ka[degree + 1:-degree - 1] / 2]))
+        BSplineSurface(np.zeros((len(t) - degree - 1, degree + 1, 3)), t, clamped_knots(degree + 1, degree), degree, degree)
+
+
+def test_cross_knots_modes():
+    ta, tb = random_knots(np.random.default_rng(1), 6, 3), random_knots(np.random.default_rng(2), 9, 3)
+    np.testing.assert_allclose(mg.cross_knots([ta, tb], 3, 9, "uniform"), clamped_knots(9, 3))
+    np.testing.assert_allclose(mg.cross_knots([ta, ta], 3, 6), ta)
+    merged = mg.cross_knots([ta, tb], 3, 9)
+    assert len(merged) == 13 and np.all(np.diff(merged) >= 0)
+    inner = merged[4:-4]
+    pooled = np.concatenate([ta[4:-4], tb[4:-4]])
+    assert pooled.min() <= inner.min() and inner.max() <= pooled.max()
+    with pytest.raises(ValueError, match="cross_knots"):
+        mg.cross_knots([ta], 3, 6, "spline")
+
+
+# --- merging gives back the surface that was cut -------------------------------------------
+@pytest.mark.parametrize("direction", ["u", "v"])
+def test_merge_halves_reproduces(surface, direction):
+    a, b = split(surface, direction, 0.5)
+    for c in (0, 1, 2):  # the original is C² at 0.5: every continuity up to 2 contains it
+        merged = mg.merge([a, b], direction, c, samples=S)
+        assert merged.shape == ((a.shape[0] + b.shape[0] - 1, 6) if direction == "u" else (7, a.shape[1] + b.shape[1] - 1))
+        assert grid_error(merged, surface) < 1e-6
+
+
+def test_merge_auto_orientation(surface):
+    a, b = split(surface, "u", 0.5)
+    for op in [(False, True, True), (True, False, False), (True, True, False)]:
+        turned = _orient.orient_surface(b, op)
+        layout = mg.plan([a, turned], "u", 2, samples=S)
+        merged = layout.surface(layout.apply([a.ctrl, turned.ctrl]))
+        assert grid_error(merged, surface) < 1e-6
+
+
+def test_oriented_edges_match_evaluation(surface):
+    edges = _orient._edges(surface)
+    t = jnp.linspace(0.0, 1.0, 17)
+    for op in _orient.ALL:
+        s = _orient.orient_surface(surface, op)
+        for d in "uv":
+            for e in (0, 1):
+                uu, vv = (jnp.full_like(t, e), t) if d == "u" else (t, jnp.full_like(t, e))
+                np.testing.assert_allclose(_orient._oriented_edge(edges, op, d, e), s.evaluate(uu, vv), atol=1e-12)
+
+
+def test_merge_three_in_a_row_and_grid(surface):
+    a, rest = split(surface, "u", 1 / 3)
+    b, c = split(rest, "u", 0.5)
+    assert grid_error(mg.merge([a, b, c], "u", 2, samples=S), surface) < 1e-6
+    top, bottom = split(surface, "u", 0.5)
+    rows = [list(split(top, "v", 0.5)), list(split(bottom, "v", 0.5))]
+    merged = mg.merge_grid(rows, (2, 1), samples=S)
+    assert merged.shape == (top.shape[0] + bottom.shape[0] - 1, rows[0][0].shape[1] + rows[0][1].shape[1] - 1)
+    assert grid_error(merged, surface) < 1e-6
+
+
+def test_merge_trimmed_patch(surface):
+    """A patch cut at u = 0.6 overlaps its neighbour from 0.5; trimming it at 0.5/0.6 of its own
+    parameter range leaves exactly the missing half, and the merge gives back the surface."""
+    left, _ = split(surface, "u", 0.6)
+    _, right = split(surface, "u", 0.5)
+    merged = mg.merge([left, right], "u", 2, samples=(30, S), trim=[(0.0, 0.5 / 0.6), None], orient="as_given")
+    assert grid_error(merged, surface) < 1e-6
+
+
+def test_merge_degree_policies(surface):
+    a, b = split(surface, "u", 0.5)
+    b_up = elevate_degree(b, "u", 1)
+    np.testing.assert_allclose(grid_error(b_up, b), 0.0, atol=1e-12)
+    with pytest.raises(ValueError, match="degrees"):
+        mg.merge([a, b_up], "u", 2, samples=S)
+    up = mg.merge([a, b_up], "u", 2, samples=S, degrees="elevate")
+    assert (up.degree_u, up.degree_v) == (4, 3)
+    assert grid_error(up, surface) < 1e-6  # exact elevation keeps the cubic in the space
+    down_layout = mg.plan([a, b_up], "u", 2, samples=S, degrees="reduce")
+    # the knot rules are the foundation's: elevation adds to every multiplicity; reduction drops
+    # the end multiplicities and caps interior ones at the new degree
+    np.testing.assert_allclose(changed_degree_knots(b.knots_u, 3, 4), b_up.knots_u)
+    t = np.array([0, 0, 0, 0, 0, .3, .3, .6, 1, 1, 1, 1, 1.0])
+    np.testing.assert_allclose(changed_degree_knots(t, 4, 2), [0, 0, 0, .3, .3, .6, 1, 1, 1])
+    b_down_count = len(changed_degree_knots(b_up.knots_u, 4, 3)) - 4
+    assert (down_layout.merged.degree_u, down_layout.merged.ctrl_shape[0]) == (3, a.shape[0] + b_down_count - 1)
+    down = down_layout.surface(down_layout.apply([a.ctrl, b_up.ctrl]))
+    assert grid_error(down, surface) < 1e-6
+
+
+def test_thesis_case6_degrees():
+    """6×6 bicubic with an 8×12 patch of degrees 4×5, merged along v (thesis Fig. 4.6/6.14)."""
+    rng = np.random.default_rng(3)
+    a = random_surface(rng, 6, 6, 3, 3)
+    b = random_surface(rng, 8, 12, 4, 5)
+    b = b.with_ctrl(b.ctrl + jnp.array([0.0, 1.0, 0.0]))
+    up = mg.plan([a, b], "v", 2, samples=S, degrees="elevate", orient="as_given")
+    # elevation raises every knot's multiplicity: 6 ctrl, 3 spans → 6 + 3·d
+    assert (up.merged.degree_u, up.merged.degree_v) == (4, 5)
+    assert up.merged.ctrl_shape == (max(6 + 3, 8), (6 + 3 * 2) + 12 - 1)
+    down = mg.plan([a, b], "v", 2, samples=S, degrees="reduce", orient="as_given")
+    assert (down.merged.degree_u, down.merged.degree_v) == (3, 3)
+    assert down.merged.ctrl_shape == (max(6, 8 - 1), 6 + (12 - 2) - 1)  # −d per reduced patch
+
+
+# --- geometry ------------------------------------------------------------------------------
+def _plate(x0, x1, r, s, z=lambda x, y: 0.0 * x):
+    """A plate over [x0, x1] × [0, 1], control points at the Greville abscissae, so x and y are
+    linear in u and v (linear precision) whatever the control counts."""
+    ku, kv = clamped_knots(r, 3), clamped_knots(s, 3)
+    gu = np.array([np.mean(ku[i + 1 : i + 4]) for i in range(r)])
+    gv = np.array([np.mean(kv[j + 1 : j + 4]) for j in range(s)])
+    x, y = np.meshgrid(x0 + (x1 - x0) * gu, gv, indexing="ij")
+    return BSplineSurface(np.stack([x, y, z(x, y)], -1), ku, kv, 3, 3)
+
+
+def test_flat_coplanar_zero_deviation():
+    a, b = _plate(0.0, 1.0, 5, 5), _plate(1.0, 2.0, 7, 6)
+    for c in (0, 1, 2):
+        merged = mg.merge([a, b], "u", c, samples=S)
+        assert float(jnp.max(jnp.abs(merged.ctrl[..., 2]))) < 1e-12
+        report = mg.deviation([a, b], merged, samples=12, tolerance=1e-6)
+        assert report.max < 1e-9 and report.n_within == report.n_points == 2 * 144
+
+
+@pytest.mark.parametrize("c", [0, 1, 2])
+def test_seam_continuity(c):
+    """A roof (crease at x = 1): the merged surface's derivatives jump across the seam exactly up
+    to the order asked for — C⁰ keeps a kink, C² smooths S_u and S_uu."""
+    a = _plate(0.0, 1.0, 5, 4, lambda x, y: 0.4 * x)
+    b = _plate(1.0, 2.0, 5, 4, lambda x, y: 0.4 * (2.0 - x))
+    merged = mg.merge([a, b], "u", c, samples=S)
+    h = 1e-9
+    u = jnp.array([0.5 - h, 0.5 + h])
+    v = jnp.full(2, 0.37)
+    jumps = []
+    for nu in (1, 2):
+        d = merged.evaluate(u, v, nu, 0)
+        jumps.append(float(jnp.linalg.norm(d[1] - d[0]) / jnp.linalg.norm(d[0] + d[1])))
+    assert (jumps[0] > 0.1) == (c == 0)
+    assert (jumps[1] > 0.1) == (c <= 1)
+    assert jumps[0] < 1e-6 or c == 0
+
+
+# --- jit, vmap, grad --------------------------------------------------------------------------
+_apply = jax.jit(lambda layout, ctrls: layout.apply(ctrls))
+
+
+def test_layout_jit_vmap_grad(surface):
+    a, b = split(surface, "u", 0.5)
+    layout = mg.plan([a, b], "u", 2, samples=S)
+    eager = layout.apply([a.ctrl, b.ctrl])
+    np.testing.assert_allclose(_apply(layout, [a.ctrl, b.ctrl]), eager, atol=1e-12)
+    batch = a.ctrl[None] + 0.01 * jnp.asarray(np.random.default_rng(0).normal(size=(3,) + a.ctrl.shape))
+    stacked = jax.vmap(lambda p: layout.apply([p, b.ctrl]))(batch)
+    for i in range(3):
+        np.testing.assert_allclose(stacked[i], layout.apply([batch[i], b.ctrl]), atol=1e-12)
+    w = jnp.asarray(np.random.default_rng(1).normal(size=eager.shape))
+
+    def objective(pa):
+        return jnp.sum(w * layout.apply([pa, b.ctrl]) ** 2)
+
+    check_grad(objective, a.ctrl)
+    check_grad(lambda pb: jnp.sum(jnp.sin(layout.apply([a.ctrl, pb]))), b.ctrl)
+
+
+# --- bad input -------------------------------------------------------------------------------
+def test_bad_input(surface):
+    a, b = split(surface, "u", 0.5)
+    with pytest.raises(ValueError, match="continuity"):
+        mg.merge([a, b], "u", 3, samples=S)
+    with pytest.raises(ValueError, match="continuity"):
+        mg.merge_knots(U1, U2, 3, -1)
+    with pytest.raises(ValueError, match="surfaces"):
+        mg.merge([a], "u")
+    with pytest.raises(ValueError, match="direction"):
+        mg.merge([a, b], "w")
+    with pytest.raises(ValueError, match="rows"):
+        mg.merge_grid([[a, b], [a]])
+    with pytest.raises(ValueError, match="periodic"):
+        from bsjax.shapes import teardrop
+        mg.merge([a, teardrop()], "u", samples=S)
+    with pytest.raises(ValueError, match="knots"):
+        mg.merge_knots(U1, U2[:-1], 3, 0)
+    layout = mg.plan([a, b], "u", 2, samples=S)
+    with pytest.raises(ValueError, match="ctrl"):
+        layout.apply([a.ctrl, b.ctrl[:-1]])
+    with pytest.raises(ValueError, match="ctrls"):
+        layout.apply([a.ctrl])
+    with pytest.raises(ValueError, match="samples"):
+        mg.merge([a, b], "u", 2, samples=2)
+    with pytest.raises(ValueError, match="trim"):
+        mg.merge([a, b], "u", 2, samples=S, trim=[(0.5, 0.2), None])
