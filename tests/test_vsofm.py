@@ -37,14 +37,30 @@ def test_sphere_boundary_on_surface_interior_inside_no_inverted():
     assert d.min(axis=1).max() < 4 * d.min(axis=1).min()
 
 
+def revolved_points(surf, m=40, n=40):
+    """Samples of a closed-in-v, clamped-in-u surface by scipy (an independent evaluator): the
+    periodic direction as a clamped-free uniform spline with wrapped control points."""
+    from scipy.interpolate import BSpline
+
+    ctrl = np.asarray(surf.ctrl)
+    r, s, _ = ctrl.shape
+    tu = np.asarray(surf.knots_u)
+    tv = np.arange(-3, s + 4) / s
+    wrapped = np.concatenate([ctrl, ctrl[:, :3]], axis=1)
+    u, v = np.linspace(0, 1, m), np.linspace(0, 1, n, endpoint=False)
+    along_u = BSpline(tu, wrapped, 3)(u)  # (m, s + 3, 3)
+    return BSpline(tv, np.moveaxis(along_u, 1, 0), 3)(v).transpose(1, 0, 2).reshape(-1, 3)
+
+
 def test_teardrop_no_inverted_and_lattice_ready_for_mss():
     surf = shapes.teardrop()
-    pts = np.asarray(surf.blending(40, 40).points(surf.ctrl)).reshape(-1, 3)
+    pts = revolved_points(surf)
+    assert np.ptp(pts[:, 2]) > 1.9  # the whole drop, z from -1 to 1
     nodes = vsofm.fit(pts, (8, 8, 8), cycles=300)
     rep = vsofm.report(pts, nodes)
     assert rep.inverted == 0, rep
     assert rep.boundary_max < 0.06  # within the sample spacing of the cloud
-    lat = vsofm.lattice(nodes, mss.JELLY)
+    lat = vsofm.lattice(nodes, material=mss.JELLY)
     assert lat.n_nodes == 512 and lat.grid_shape == (8, 8, 8)
     assert float(mss.hex_volume(jnp.asarray(nodes))) > 0
 
