@@ -1,0 +1,25 @@
+"""Collision detection and contact forces for deformable B-spline surfaces (SPEC §3, thesis ch. 3).
+
+- Tools: `Point`, `Sphere`, `Ellipsoid`, `Plane`, `Implicit`, `TriangleMesh`.
+- Queries: `contacts(blending, ctrl, tool)` → `Contact`;
+  `surface_contacts(blending_a, ctrl_a, blending_b, ctrl_b)` → `SurfaceContact`.
+- Kernels: `triangles_intersect`, `closest_point_on_triangle`, `hulls_apart`, `tessellate`.
+- Forces: `contact_force`, `sample_forces`, `nodal_forces`.
+"""
+
+from bsjax.collide.broad import hulls_apart, parametric_window, sample_window
+from bsjax.collide.contact import Contact, SurfaceContact, contacts, surface_contacts
+from bsjax.collide.force import contact_force, nodal_forces, sample_forces
+from bsjax.collide.hierarchy import cell_triangles, sphere_hierarchy, tessellate
+from bsjax.collide.tools import (
+    AbstractTool, Ellipsoid, Implicit, Plane, Point, ProjectionSolver, Sphere, TriangleMesh,
+)
+from bsjax.collide.triangles import closest_point_on_triangle, triangles_intersect
+
+__all__ = [
+    "AbstractTool", "Contact", "Ellipsoid", "Implicit", "Plane", "Point", "ProjectionSolver",
+    "Sphere", "SurfaceContact", "TriangleMesh", "cell_triangles", "closest_point_on_triangle",
+    "contact_force", "contacts", "hulls_apart", "nodal_forces", "parametric_window",
+    "sample_forces", "sample_window", "sphere_hierarchy", "surface_contacts", "tessellate",
+    "triangles_intersect",
+]

@@ -1,0 +1,188 @@
+"""Level-of-detail sphere hierarchy over the sample grid and its tessellation (thesis §3.3.3.4–5).
+
+Level 0 holds one sphere per grid cell: the sphere through three corners (both ends of the
+longer diagonal and one other corner), so the fourth lies inside (thesis Fig. 3.6). A level-L
+block covers 3^L × 3^L cells: its centre is the three-point sphere of its corners on the
+intermittent rows and columns (every 3^L-th row of the blending matrices, `Blending.lod`), and
+its radius is grown until it encloses its nine children — so every block sphere encloses the
+triangles of its cells and pruning never loses a contact.
+
+The pair traversal is the thesis's alternating refinement with static shapes: a fixed-capacity
+list of candidate (block_a, block_b) pairs; each step splits the blocks of one surface into
+their 3 × 3 children, keeps the pairs whose spheres intersect (`jnp.nonzero(size=capacity)`)
+and reports overflow when more than `capacity` pairs intersect.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from bsjax._tensor import safe_norm
+
+BRANCH = 3
+
+
+def three_point_sphere(p00, p10, p01, p11):
+    """Centre of the circle through the longer diagonal's ends and one more corner (thesis §3.3.3.4)."""
+    long_main = jnp.sum((p11 - p00) ** 2, -1) >= jnp.sum((p10 - p01) ** 2, -1)
+    a = jnp.where(long_main[..., None], p00, p10)
+    b = jnp.where(long_main[..., None], p11, p01)
+    c = jnp.where(long_main[..., None], p10, p00)
+    u, v = b - a, c - a
+    w = jnp.cross(u, v)
+    ww = jnp.sum(w * w, -1)
+    uu, vv = jnp.sum(u * u, -1), jnp.sum(v * v, -1)
+    ok = ww > jnp.finfo(ww.dtype).eps * uu * vv
+    off = (uu[..., None] * jnp.cross(v, w) + vv[..., None] * jnp.cross(w, u)) / (2 * jnp.where(ok, ww, 1))[..., None]
+    return jnp.where(ok[..., None], a + off, 0.5 * (a + b))
+
+
+def _corners(points):
+    return points[:-1, :-1], points[1:, :-1], points[:-1, 1:], points[1:, 1:]
+
+
+def levels_for(cells: int) -> int:
+    """Number of refinement levels so that one top block covers `cells` cells."""
+    return max(0, math.ceil(math.log(max(cells, 1), BRANCH) - 1e-12))
+
+
+def block_order(levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Grid (row, column) of each position in the base-3 interleaved ("block-major") order.
+
+    In this order the 9 children of block q of the next coarser level are positions 9q … 9q+8,
+    at every level — so refinement is `9 q + child` and a level is a reshape of the one below.
+    """
+    size = BRANCH**levels
+    rows, cols = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+    shape = (BRANCH,) * (2 * levels)
+    order = [ax for k in range(levels) for ax in (k, levels + k)]
+
+    def reorder(a):
+        return a.reshape(shape).transpose(order).reshape(-1) if levels else a.reshape(-1)
+
+    return reorder(rows), reorder(cols)
+
+
+def sphere_hierarchy(points: Float[Array, "m n 3"], levels: int) -> list[tuple[Array, Array]]:
+    """Bounding spheres of every level, `[(centers (3, N_l), radii (N_l,)) for l = 0..levels]`.
+
+    `N_l = 9^(levels − l)` blocks in block-major order (`block_order`); padding blocks beyond
+    the grid have radius −∞ and never intersect anything.
+    """
+    m, n = points.shape[:2]
+    dtype = points.dtype
+    size = BRANCH**levels
+    neg = jnp.array(-jnp.inf, dtype)
+    out = []
+    centers = radii = None
+    for level in range(levels + 1):
+        step = BRANCH**level
+        count = BRANCH ** (levels - level)
+        iu = np.minimum(np.arange(count + 1) * step, m - 1)
+        iv = np.minimum(np.arange(count + 1) * step, n - 1)
+        coarse = points[iu][:, iv]  # intermittent rows and columns of the blending matrices
+        corners = _corners(coarse)
+        rows, cols = block_order(levels - level)
+        c = three_point_sphere(*corners)[rows, cols]  # (N_l, 3)
+        valid = jnp.asarray((rows * step < m - 1) & (cols * step < n - 1))
+        if level == 0:
+            radius = jnp.max(jnp.stack([safe_norm(p[rows, cols] - c) for p in corners]), 0)
+        else:
+            child_c = centers.T.reshape(-1, BRANCH * BRANCH, 3)
+            child_r = radii.reshape(-1, BRANCH * BRANCH)
+            radius = jnp.max(safe_norm(child_c - c[:, None]) + child_r, axis=1)
+        centers, radii = c.T, jnp.where(valid, radius, neg)
+        out.append((centers, radii))
+    return out
+
+
+def cell_triangles(points: Float[Array, "m n 3"]) -> tuple[Array, Array]:
+    """Two triangles per grid cell, split along the shorter diagonal (the thesis drops the longest side).
+
+    **Returns:** `(triangles (m−1, n−1, 2, 3, 3), vertex indices (m−1, n−1, 2, 3))` into the
+    flattened `(m·n)` grid; triangles are counter-clockwise in (u, v), so their normals follow
+    `T_u × T_v`.
+    """
+    m, n = points.shape[:2]
+    idx = np.arange(m * n).reshape(m, n)
+    i00, i10, i01, i11 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    p00, p10, p01, p11 = _corners(points)
+    main_short = jnp.sum((p11 - p00) ** 2, -1) <= jnp.sum((p10 - p01) ** 2, -1)
+    split_main = np.stack([np.stack([i00, i10, i11], -1), np.stack([i00, i11, i01], -1)], -2)
+    split_anti = np.stack([np.stack([i00, i10, i01], -1), np.stack([i10, i11, i01], -1)], -2)
+    faces = jnp.where(main_short[..., None, None], jnp.asarray(split_main), jnp.asarray(split_anti))
+    return points.reshape(-1, 3)[faces], faces
+
+
+def tessellate(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[Array, "F 3"]]:
+    """The triangle mesh of a sample grid: `(vertices (m·n, 3), faces (2(m−1)(n−1), 3))`."""
+    _, faces = cell_triangles(points)
+    return points.reshape(-1, 3), faces.reshape(-1, 3)
+
+
+def _overlap(ca, ra, cb, rb):
+    both = (ra >= 0) & (rb >= 0)  # padding blocks have radius -inf
+    d2 = (ca[0] - cb[0]) ** 2 + (ca[1] - cb[1]) ** 2 + (ca[2] - cb[2]) ** 2
+    return both & (d2 <= jnp.where(both, ra + rb, 0) ** 2)
+
+
+def _compact(hit, size):
+    """Positions of the first `size` True entries of `(P, 9)` `hit`, without a scatter.
+
+    A cumulative count per parent and a binary search find each output's parent, then its
+    rank among the parent's hits picks the child. **Returns:** `(parent, child, valid)`.
+    """
+    counts = hit.sum(1, dtype=jnp.int32)
+    ends = jnp.cumsum(counts)
+    j = jnp.arange(size, dtype=jnp.int32)
+    parent = jnp.minimum(jnp.searchsorted(ends, j, side="right", method="scan"), hit.shape[0] - 1)
+    parent = parent.astype(jnp.int32)
+    rank = j - (ends[parent] - counts[parent])
+    cum = jnp.cumsum(hit[parent], 1, dtype=jnp.int32)
+    child = jnp.argmax(cum > rank[:, None], 1).astype(jnp.int32)
+    return parent, child, j < ends[-1]
+
+
+def traverse(levels_a, levels_b, capacity: int):
+    """Alternating refinement of candidate pairs down to cell pairs (thesis §3.3.3.4).
+
+    **Returns:** `(leaf_a (K,), leaf_b (K,), valid (K,), overflow, count)`: block-major leaf
+    indices of candidate cell pairs whose spheres intersect.
+    """
+    la, lb = len(levels_a) - 1, len(levels_b) - 1
+    ia = jnp.zeros((1,), jnp.int32)
+    ib = jnp.zeros((1,), jnp.int32)
+    (ca, ra), (cb, rb) = levels_a[la], levels_b[lb]
+    valid = _overlap(ca[:, :1], ra[:1], cb[:, :1], rb[:1])
+    overflow = jnp.zeros((), bool)
+    count = valid.sum(dtype=jnp.int32)
+    turn_a, steps, step = True, la + lb, 0
+    kids = jnp.arange(BRANCH * BRANCH, dtype=jnp.int32)
+    while la > 0 or lb > 0:
+        step += 1
+        refine_a = (turn_a and la > 0) or lb == 0
+        if refine_a:
+            la -= 1
+            ja, jb = ia[:, None] * 9 + kids, ib[:, None]
+        else:
+            lb -= 1
+            ja, jb = ia[:, None], ib[:, None] * 9 + kids
+        (ca, ra), (cb, rb) = levels_a[la], levels_b[lb]
+        hit = valid[:, None] & _overlap(ca[:, ja], ra[ja], cb[:, jb], rb[jb])
+        # capacity schedule: the full capacity for the last two steps, a third of it for the
+        # two before, … (along a contact curve pairs grow about ninefold per two steps)
+        size = min(hit.size, max(capacity // BRANCH ** ((steps - step) // 2), min(capacity, 64)))
+        count = hit.sum(dtype=jnp.int32)
+        overflow = overflow | (count > size)
+        parent, child, valid = _compact(hit, size)
+        if refine_a:
+            ia, ib = ia[parent] * 9 + child, ib[parent]
+        else:
+            ia, ib = ia[parent], ib[parent] * 9 + child
+        turn_a = not turn_a
+    return ia, ib, valid, overflow, count
