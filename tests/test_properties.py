@@ -77,7 +77,7 @@ def test_periodic_properties(degree, n_ctrl, x, nu):
 @eqx.filter_jit
 def _grid_and_back(b, ctrl):
     pts = b.points(ctrl)
-    return pts, b.refit(pts)
+    return pts, (None if b.refit_u is None else b.refit(pts))
 
 
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -100,7 +100,9 @@ def test_surface_grid_matches_scipy_and_refits(shape, k, l, periodic_v, rational
     pts, back = _grid_and_back(b, surface.ctrl)
     u, v = np.meshgrid(np.asarray(b.params_u), np.asarray(b.params_v), indexing="ij")
     np.testing.assert_allclose(pts, ndbspline_surface(surface, u, v), rtol=0, atol=1e-12)
-    a_u = np.asarray(b.a_u[0])
-    if np.linalg.svd(a_u, compute_uv=False).min() > 1e-3:  # the random knots left no span empty
+    sigma = np.linalg.svd(np.asarray(b.a_u[0]), compute_uv=False).min()
+    if sigma > 1e-3:  # the random knots left no knot span without samples
         np.testing.assert_allclose(back, surface.ctrl, rtol=0, atol=1e-9)
+    if sigma < 1e-12:  # rank-deficient: no stored inverse, and refit refuses
+        assert back is None
     assert jnp.all(jnp.isfinite(b.normals(surface.ctrl)))
