@@ -4,7 +4,8 @@
 
 Runs, in one process on the same simulated device and script:
 1. peer: the same loop with a plain `time.sleep` wait, normal priority, default GIL switch
-   interval (what a straightforward Python loop gets), static proxy, 3 s;
+   interval, garbage collector untouched (what a straightforward Python loop gets), static
+   proxy, 3 s;
 2. bsjax `ServoLoop` (hybrid sleep/spin wait, SCHED_FIFO where permitted), static proxy, 3 s;
 3. bsjax `ServoLoop` with the physics thread running `SculptModel` — a 12×12 surface grid that
    is the outer layer of a 12×12×12 (12³) mass-spring lattice, refit to the teardrop's 8×8 net,
@@ -42,7 +43,7 @@ def main() -> None:
     args = ap.parse_args()
 
     _, peer = run("peer: sleep-only wait, normal priority, default switch interval", WALL, 3.0,
-                  spin_us=0.0, realtime=False, switch_interval=None)
+                  spin_us=0.0, realtime=False, switch_interval=None, freeze_gc=False)
     _, alone = run("bsjax ServoLoop, static proxy (no physics)", WALL, 3.0)
 
     t = time.perf_counter()

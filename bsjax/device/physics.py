@@ -5,12 +5,12 @@ grid of samples of the surface at fixed parameters, so after each physics tick t
 is the least-squares refit of those nodes, `P = A_u^+ M (A_v^+)^T` (thesis eq. 3.7,
 `Blending.refit`). Below the surface the lattice has `layers − 1` more layers shrunk towards
 the axis of a body closed in v (the teardrop: each u-ring scaled about its centroid), or
-extruded along −normal for an open sheet; the innermost layers are fixed. Springs: structural
-and face-diagonal (shear) neighbours of the `m × n × layers` index grid, periodic in v for closed
-bodies. Dynamics: `bsjax.mss` — a `Lattice` on that edge list (with the wrap-around springs, so
-the edge-list kernel rather than `hex_lattice`'s dense grid), `mss.step` (semi-implicit Euler,
-thesis eqs. 5.14–5.16) `substeps` times per tick inside one jitted call, `mss.check_dt` refusing an
-unstable step; the tool's push enters as `external_force`, plasticity as `rest_length`.
+extruded along −normal for an open sheet; the innermost layers are fixed. Dynamics: `bsjax.mss` — `mss.hex_lattice` on the `m × n × layers` node grid (edges, face
+and body diagonals, dense-slice kernel), plus, for a body closed in v, a small edge-list
+`mss.Lattice` of the springs across the v seam; `mss.step` (semi-implicit Euler, thesis eqs.
+5.14–5.16) runs `substeps` times per tick inside one jitted call and `mss.check_dt` refuses an
+unstable step; the tool's push and the seam springs enter as `external_force`, plasticity (the
+plastic set on release) as `rest_length`.
 
 Sculpting (002 §4.2): while the stylus button is held, every node inside the tool (a sphere or an
 ellipsoid at the stylus pose) gets a penalty force `k_tool · depth` away from the tool centre —
@@ -44,7 +44,6 @@ from bsjax._tensor import safe_norm
 from bsjax.device.protocol import DeviceSample
 from bsjax.device.proxy import Proxy
 
-_SHEAR = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1))
 
 
 @runtime_checkable
@@ -58,27 +57,17 @@ class PhysicsModel(Protocol):
         """Advance one physics tick with the tool at `sample`'s pose; return the new proxy."""
 
 
-def lattice_springs(m: int, n: int, layers: int, periodic_v: bool) -> np.ndarray:
-    """`(9, m, n, layers)` mask: 1 where node `(a, b, c)` has a spring to `(a, b, c) + offset`
-    for each structural/shear offset in `_SHEAR` (v wraps around for closed bodies)."""
+def seam_edges(m: int, n: int, layers: int) -> np.ndarray:
+    """`(E, 2)` springs of the `mss.HEX_DIRECTIONS` stencil that cross the v seam of a body
+    closed in v (from column `b` to `(b + db) mod n` where `b + db` leaves `0..n−1`), node ids in
+    C order of the `(m, n, layers)` grid. `mss.hex_lattice` has every other spring."""
+    idx = np.arange(m * n * layers).reshape(m, n, layers)
     a, b, c = np.meshgrid(np.arange(m), np.arange(n), np.arange(layers), indexing="ij")
-    masks = []
-    for da, db, dc in _SHEAR:
-        b2 = b + db
-        ok = (a + da < m) & (c + dc >= 0) & (c + dc < layers)
-        ok &= ((b2 >= 0) & (b2 < n)) if not periodic_v else (n > 2 or db == 0)
-        masks.append(ok)
-    return np.stack(masks).astype(np.float64)
-
-
-def lattice_edges(mask: np.ndarray) -> np.ndarray:
-    """`(E, 2)` node index pairs (C order of the `(m, n, L)` grid) of the springs in `mask`."""
-    shape = mask.shape[1:]
-    idx = np.arange(int(np.prod(shape))).reshape(shape)
     pairs = []
-    for k, (da, db, dc) in enumerate(_SHEAR):
-        a, b, c = np.nonzero(mask[k])
-        pairs.append(np.stack([idx[a, b, c], idx[a + da, (b + db) % shape[1], c + dc]], axis=-1))
+    for da, db, dc in mss.HEX_DIRECTIONS:
+        b2 = b + db
+        ok = (a + da < m) & (c + dc >= 0) & (c + dc < layers) & ((b2 < 0) | (b2 >= n))
+        pairs.append(np.stack([idx[ok], idx[a[ok] + da, b2[ok] % n, c[ok] + dc]], axis=-1))
     return np.concatenate(pairs).astype(np.int32)
 
 
@@ -161,17 +150,24 @@ class SculptModel:
         x0 = lattice_nodes(pts, self.sign * nrm, layers, surface.periodic_v, thickness).astype(self.dtype)
         fixed = np.zeros((m, n, layers), bool)
         fixed[:, :, :fixed_layers] = True
-        # The edge list (not `mss.hex_lattice`'s dense grid) because the springs wrap around v.
-        self.lattice = mss.Lattice(x0.reshape(-1, 3), lattice_edges(lattice_springs(m, n, layers, surface.periodic_v)),
-                                   stiffness, damping, node_mass, fixed.reshape(-1), node_damping=drag * node_mass)
+        # Hexahedral stencil (edges, face and body diagonals) through mss's dense-slice kernel;
+        # for a body closed in v the springs across the seam form a second, small edge-list
+        # lattice on the same nodes whose forces enter `mss.step` as external force.
+        self.lattice = mss.hex_lattice(x0, stiffness, damping, node_mass, fixed, node_damping=drag * node_mass)
+        seam = seam_edges(m, n, layers) if surface.periodic_v else np.zeros((0, 2), np.int32)
+        self.seam = mss.Lattice(x0.reshape(-1, 3), seam, stiffness, damping, node_mass) if len(seam) else None
         try:
+            # The seam nodes' springs split between the two lattices add up to an interior
+            # node's stencil, so the bound of the dense lattice covers them.
             mss.check_dt(self.lattice, self.dt, contact_stiffness=tool_stiffness)
         except ValueError as err:
             raise ValueError(f"substeps: the explicit step is unstable for this material ({err}); "
                              "raise substeps or lower the stiffness") from None
         self.tool_stiffness = tool_stiffness
-        self.n_nodes, self.n_springs = self.lattice.n_nodes, self.lattice.n_edges
-        self._state = (mss.init(self.lattice), self.lattice.rest_length)
+        self.n_nodes = self.lattice.n_nodes
+        self.n_springs = self.lattice.n_edges + (self.seam.n_edges if self.seam else 0)
+        rest_seam = self.seam.rest_length if self.seam else jnp.zeros((0,), self.dtype)
+        self._state = (mss.init(self.lattice), self.lattice.rest_length, rest_seam)
         self._initial = self._state
         self.ctrl = surface.ctrl
         self.tool_axes = np.full(3, float(tool_radius)) if tool_axes is None else np.asarray(tool_axes, float)
@@ -203,9 +199,12 @@ class SculptModel:
         return (self.tool_stiffness * pressing) * depth[:, None] * r / jnp.where(dist > 0, dist, 1)[:, None]
 
     def _step(self, carry, tool):
-        state, rest = carry
+        state, rest, rest_seam = carry
         push = self._tool_push(state.position, *tool)
-        return mss.step(self.lattice, state, self.dt, external_force=push, rest_length=rest), rest
+        if self.seam is not None:
+            push = push + mss.spring_forces(self.seam, state.position, state.velocity, rest_seam)
+        state = mss.step(self.lattice, state, self.dt, external_force=push, rest_length=rest)
+        return state, rest, rest_seam
 
     def _tick_impl(self, carry, centre, axes, rot, pressing):
         tool = (centre, axes, rot, pressing)
@@ -223,9 +222,15 @@ class SculptModel:
         return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None]])
 
     def _settle_impl(self, carry):
-        state, _ = carry
-        e = self.lattice.edges
-        return state, safe_norm(state.position[e[:, 0]] - state.position[e[:, 1]])
+        state, _, _ = carry
+        x = state.position
+
+        def lengths(lattice):
+            e = lattice.edges
+            return safe_norm(x[e[:, 0]] - x[e[:, 1]])
+
+        seam = lengths(self.seam) if self.seam is not None else carry[2]
+        return state, lengths(self.lattice), seam
 
     # --- model interface ----------------------------------------------------------------------
     def _tool_args(self, position, orientation):
