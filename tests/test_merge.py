@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from scipy import interpolate
 
 from bsjax import merge as mg
-from bsjax.basis import BSplineSurface, clamped_knots, elevate_degree
+from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.merge import _fast, _orient
 from bsjax.merge._layout import changed_degree_knots
 from helpers import check_grad, random_knots, random_surface
@@ -61,8 +61,24 @@ def grid_error(merged: BSplineSurface, reference: BSplineSurface, count: int = 2
     g = np.linspace(0.0, 1.0, count)
     u, v = np.meshgrid(g, g, indexing="ij")
     ref = ndbspline_surface(reference, u.ravel(), v.ravel())
-    got = np.asarray(_fast.evaluate(merged, jnp.asarray(u.ravel()), jnp.asarray(v.ravel())))
+    got = ndbspline_surface(merged, u.ravel(), v.ravel())
     return float(np.max(np.abs(got - ref)))
+
+
+def elevated(b: BSplineSurface) -> BSplineSurface:
+    """`b` raised to degree 4 in u: the quartic space with every knot one more time contains the
+    cubic, so an interpolating scipy fit (make_lsq_spline) of dense samples is exact."""
+    k = b.degree_u
+    values, counts = np.unique(np.asarray(b.knots_u), return_counts=True)
+    t = np.repeat(values, counts + 1)
+    x = np.linspace(0, 1, 4 * len(t))
+    pts = np.stack([ndbspline_surface(b, x, np.full_like(x, vj)) for vj in np.asarray(greville(b.knots_v, 3))], 1)
+    rows = interpolate.make_lsq_spline(x, pts.reshape(len(x), -1), t, k + 1).c
+    grid = rows.reshape(len(t) - k - 2, -1, 3)
+    # columns: the cubic in v is interpolated at its Greville points by the v-basis
+    av = interpolate.BSpline.design_matrix(np.asarray(greville(b.knots_v, 3)), np.asarray(b.knots_v), 3).toarray()
+    ctrl = np.linalg.solve(av, grid.transpose(1, 0, 2).reshape(av.shape[0], -1)).reshape(av.shape[0], -1, 3).transpose(1, 0, 2)
+    return BSplineSurface(ctrl, t, b.knots_v, k + 1, b.degree_v)
 
 
 @pytest.fixture(scope="module")
@@ -146,13 +162,13 @@ def test_merge_auto_orientation(surface):
 
 def test_oriented_edges_match_evaluation(surface):
     edges = _orient._edges(surface)
-    t = jnp.linspace(0.0, 1.0, 17)
+    t = np.linspace(0.0, 1.0, 17)
     for op in _orient.ALL:
         s = _orient.orient_surface(surface, op)
         for d in "uv":
             for e in (0, 1):
-                uu, vv = (jnp.full_like(t, e), t) if d == "u" else (t, jnp.full_like(t, e))
-                np.testing.assert_allclose(_orient._oriented_edge(edges, op, d, e), s.evaluate(uu, vv), atol=1e-12)
+                uu, vv = (np.full_like(t, e), t) if d == "u" else (t, np.full_like(t, e))
+                np.testing.assert_allclose(_orient._oriented_edge(edges, op, d, e), ndbspline_surface(s, uu, vv), atol=1e-12)
 
 
 def test_merge_three_in_a_row_and_grid(surface):
@@ -177,8 +193,8 @@ def test_merge_trimmed_patch(surface):
 
 def test_merge_degree_policies(surface):
     a, b = split(surface, "u", 0.5)
-    b_up = elevate_degree(b, "u", 1)
-    np.testing.assert_allclose(grid_error(b_up, b), 0.0, atol=1e-12)
+    b_up = elevated(b)
+    assert grid_error(b_up, b) < 1e-12
     with pytest.raises(ValueError, match="degrees"):
         mg.merge([a, b_up], "u", 2, samples=S)
     up = mg.merge([a, b_up], "u", 2, samples=S, degrees="elevate")
@@ -187,7 +203,8 @@ def test_merge_degree_policies(surface):
     down_layout = mg.plan([a, b_up], "u", 2, samples=S, degrees="reduce")
     # the knot rules are the foundation's: elevation adds to every multiplicity; reduction drops
     # the end multiplicities and caps interior ones at the new degree
-    np.testing.assert_allclose(changed_degree_knots(b.knots_u, 3, 4), b_up.knots_u)
+    np.testing.assert_allclose(changed_degree_knots([0, 0, 0, 0, .4, .4, .7, 1, 1, 1, 1], 3, 4),
+                               [0, 0, 0, 0, 0, .4, .4, .4, .7, .7, 1, 1, 1, 1, 1])
     t = np.array([0, 0, 0, 0, 0, .3, .3, .6, 1, 1, 1, 1, 1.0])
     np.testing.assert_allclose(changed_degree_knots(t, 4, 2), [0, 0, 0, .3, .3, .6, 1, 1, 1])
     b_down_count = len(changed_degree_knots(b_up.knots_u, 4, 3)) - 4
@@ -212,13 +229,13 @@ def test_thesis_case6_degrees():
 
 
 # --- geometry ------------------------------------------------------------------------------
-def _plate(x0, x1, r, s, z=lambda x, y: 0.0 * x):
+def _plate(x0, x1, r, s, z=lambda x, y: 0.0 * x, y0=0.0, y1=1.0):
     """A plate over [x0, x1] × [0, 1], control points at the Greville abscissae, so x and y are
     linear in u and v (linear precision) whatever the control counts."""
     ku, kv = clamped_knots(r, 3), clamped_knots(s, 3)
     gu = np.array([np.mean(ku[i + 1 : i + 4]) for i in range(r)])
     gv = np.array([np.mean(kv[j + 1 : j + 4]) for j in range(s)])
-    x, y = np.meshgrid(x0 + (x1 - x0) * gu, gv, indexing="ij")
+    x, y = np.meshgrid(x0 + (x1 - x0) * gu, y0 + (y1 - y0) * gv, indexing="ij")
     return BSplineSurface(np.stack([x, y, z(x, y)], -1), ku, kv, 3, 3)
 
 
@@ -236,18 +253,76 @@ def test_seam_continuity(c):
     """A roof (crease at x = 1): the merged surface's derivatives jump across the seam exactly up
     to the order asked for — C⁰ keeps a kink, C² smooths S_u and S_uu."""
     a = _plate(0.0, 1.0, 5, 4, lambda x, y: 0.4 * x)
-    b = _plate(1.0, 2.0, 5, 4, lambda x, y: 0.4 * (2.0 - x))
+    b = _plate(1.0, 2.5, 5, 4, lambda x, y: 0.4 * (2.0 - x))
     merged = mg.merge([a, b], "u", c, samples=S)
     h = 1e-9
-    u = jnp.array([0.5 - h, 0.5 + h])
-    v = jnp.full(2, 0.37)
+    u = np.array([0.5 - h, 0.5 + h])
+    v = np.full(2, 0.37)
     jumps = []
     for nu in (1, 2):
-        d = merged.evaluate(u, v, nu, 0)
-        jumps.append(float(jnp.linalg.norm(d[1] - d[0]) / jnp.linalg.norm(d[0] + d[1])))
+        d = ndbspline_surface(merged, u, v, nu, 0)
+        jumps.append(float(np.linalg.norm(d[1] - d[0]) / np.linalg.norm(d[0] + d[1])))
     assert (jumps[0] > 0.1) == (c == 0)
     assert (jumps[1] > 0.1) == (c <= 1)
     assert jumps[0] < 1e-6 or c == 0
+
+
+def test_deviation_closed_form_and_brute_force():
+    """Offset plate: every distance is the offset. Roof: the projected distances agree with a
+    brute-force nearest point over a dense scipy sampling of the merged surface."""
+    a, b = _plate(0.0, 1.0, 5, 5), _plate(1.0, 2.0, 7, 6)
+    flat = mg.merge([a, b], "u", 2, samples=S)
+    lifted = a.with_ctrl(a.ctrl + jnp.array([0.0, 0.0, 0.3]))
+    report = mg.deviation([lifted], flat, samples=12, tolerance=0.25)
+    np.testing.assert_allclose(report.distances[0], 0.3, atol=1e-12)
+    assert (report.n_points, report.n_within, report.std) == (144, 0, pytest.approx(0.0, abs=1e-12))
+
+    roof_a = _plate(0.0, 1.0, 5, 4, lambda x, y: 0.4 * x)
+    roof_b = _plate(1.0, 2.5, 5, 4, lambda x, y: 0.4 * (2.0 - x))
+    merged = mg.merge([roof_a, roof_b], "u", 2, samples=S)
+    report = mg.deviation([roof_a, roof_b], merged, samples=12)
+    g = np.linspace(0, 1, 401)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    dense = ndbspline_surface(merged, uu.ravel(), vv.ravel())
+    cell = np.max(np.linalg.norm(np.diff(dense.reshape(401, 401, 3), axis=0), axis=-1))
+    from scipy.spatial import cKDTree
+    tree = cKDTree(dense)
+    for orig, d in zip([roof_a, roof_b], report.distances):
+        x = np.linspace(0, 1, 12)
+        xu, xv = np.meshgrid(x, x, indexing="ij")
+        brute = tree.query(ndbspline_surface(orig, xu.ravel(), xv.ravel()))[0].reshape(12, 12)
+        assert np.all(d <= brute + 1e-9) and np.all(d >= brute - cell)
+    assert report.max > 1e-3 and report.median <= report.max and report.mean == pytest.approx(np.mean(np.concatenate([x.ravel() for x in report.distances])))
+    assert report.row()["total points"] == 288
+
+
+@pytest.mark.parametrize("c", [0, 2])
+def test_refine_reduces_deviation(c):
+    """Edges of unequal length (1 vs 1.4, thesis case 4): parameter correction lowers the
+    deviation of the linear merge."""
+    bend = lambda x, y: 0.2 * np.sin(3.0 * y)  # noqa: E731
+    a = _plate(0.0, 1.0, 5, 4, bend)
+    b = _plate(1.0, 2.5, 5, 4, bend, y0=-0.2, y1=1.2)
+    linear = mg.deviation([a, b], mg.merge([a, b], "u", c, samples=S), samples=12)
+    corrected = mg.deviation([a, b], mg.merge([a, b], "u", c, samples=S, refine=True), samples=12)
+    assert corrected.mean < 0.8 * linear.mean and corrected.max < linear.max
+
+
+def test_overlap_rows_dropped():
+    """A flat patch running past x = 1 and a tilted one crossing it there (thesis §4.4.1)."""
+    a = _plate(0.0, 1.2, 5, 4)
+    b = _plate(0.9, 2.0, 5, 4, lambda x, y: 0.5 * (x - 1.0))
+    (lo_a, hi_a), (lo_b, hi_b) = mg.overlap_trims([a, b], "u", S)
+    assert lo_a == 0.0 and 0.6 < hi_a < 1.0 / 1.2 and hi_b == 1.0 and 0.1 / 1.1 < lo_b < 0.35
+    # kept whole, the merged surface folds back on itself (x runs to 1.2, then back to 0.9);
+    # with the overlapping rows dropped it runs straight through
+    g = np.linspace(0, 1, 200)
+    for overlap, monotone in (("keep", False), ("drop", True)):
+        merged = mg.merge([a, b], "u", 0, samples=S, overlap=overlap)
+        x = ndbspline_surface(merged, g, np.full_like(g, 0.5))[:, 0]
+        assert bool(np.all(np.diff(x) > 0)) == monotone
+    windows = [(lo_a, hi_a, 0, 1), (lo_b, hi_b, 0, 1)]
+    assert mg.deviation([a, b], merged, samples=12, windows=windows).max < 0.05
 
 
 # --- jit, vmap, grad --------------------------------------------------------------------------

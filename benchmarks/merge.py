@@ -1,0 +1,162 @@
+"""Merging patches: bsjax vs geomdl, and the seven cases of thesis §6.3 (Tables 6.3/6.4).
+
+    .venv/bin/python benchmarks/merge.py            # a few minutes on 2 cores
+    .venv/bin/python benchmarks/merge.py --quick    # fewer calls, fewer cases refined
+
+1. Speed: two 8×8 bicubic patches, 82×82 samples each, blending matrices pre-built (a
+   `MergeLayout`). bsjax merges them (discretise both with their stored matrices, refit with the
+   stored inverses, thesis eq. 3.7) under `jit`; geomdl's `fitting.approximate_surface` fits the
+   same 164×82 points with the same control counts (15×8) and degrees. Both run in this process;
+   both results are measured by the same closest-point deviation from the original patches.
+2. The seven cases (`bsjax.merge.cases`), merged with C² and C⁰, linear (thesis) and with the
+   nonlinear parameter-correction refit, deviations printed like thesis Tables 6.3/6.4 with the
+   thesis's numbers beside them. The merged surfaces are written to .3dm (bsjax.io) and a
+   deviation heat map to PNG in `--out`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from geomdl import fitting  # noqa: E402
+
+from bsjax import io  # noqa: E402
+from bsjax import merge as mg  # noqa: E402
+from bsjax.basis import BSplineSurface  # noqa: E402
+from bsjax.merge import cases  # noqa: E402
+
+# Thesis Tables 6.3/6.4: (Rhino C2, proposed C2, proposed C0) mean and std; None = not given.
+THESIS = {
+    1: ((0.2242, 0.2704), (0.3568, 0.2452), (0.0104, 0.0164)),
+    2: ((0.0778, 0.1708), (0.0837, 0.1093), (0.0458, 0.0621)),
+    3: ((0.0259, 0.0364), (0.0273, 0.0283), (0.0110, 0.0096)),
+    4: (None, (0.0215, 0.0263), (0.0233, 0.0228)),
+    5: (None, (0.0423, 0.0792), (0.0451, 0.0771)),
+    6: ((0.0126, 0.0125), (0.0139, 0.0117), (0.0157, 0.0154)),
+    7: (None, (0.0882, 0.1218), (0.0454, 0.0525)),
+}
+
+
+def timed(fn, calls: int, warmup: int = 3):
+    """(median, p99) seconds per call of `fn()` (which blocks until done)."""
+    for _ in range(warmup):
+        fn()
+    times = np.empty(calls)
+    for i in range(calls):
+        t0 = time.perf_counter()
+        fn()
+        times[i] = time.perf_counter() - t0
+    return float(np.median(times)), float(np.percentile(times, 99))
+
+
+def geomdl_fit(points: np.ndarray, r: int, s: int, k: int, l: int) -> BSplineSurface:
+    m, n, _ = points.shape
+    g = fitting.approximate_surface(points.reshape(-1, 3).tolist(), m, n, k, l, ctrlpts_size_u=r, ctrlpts_size_v=s)
+    ctrl = np.asarray(g.ctrlpts).reshape(r, s, 3)
+    return BSplineSurface(ctrl, np.asarray(g.knotvector_u), np.asarray(g.knotvector_v), k, l)
+
+
+def speed(calls: int, geomdl_calls: int) -> None:
+    a = cases._patch(0, 20, 0, 20, cases._hill, 8, 8)
+    b = cases._patch(20, 40, 0, 20, lambda x, y: cases._hill(x, y) + 0.02 * (x - 20.0) * np.sin(y / 3.0), 8, 8)
+    t0 = time.perf_counter()
+    layout = mg.plan([a, b], "u", 2, samples=82, orient="as_given")
+    jax.block_until_ready(layout)
+    t_plan = time.perf_counter() - t0
+    ctrls = [a.ctrl, b.ctrl]
+    apply = jax.jit(lambda lay, cs: lay.apply(cs))
+    t0 = time.perf_counter()
+    ctrl = apply(layout, ctrls).block_until_ready()
+    t_first = time.perf_counter() - t0
+    med, p99 = timed(lambda: apply(layout, ctrls).block_until_ready(), calls)
+    points = np.asarray(layout.points(ctrls))
+    r, s = layout.merged.ctrl_shape
+    t0 = time.perf_counter()
+    ours_geomdl = geomdl_fit(points, r, s, 3, 3)
+    g_first = time.perf_counter() - t0
+    g_med, g_p99 = timed(lambda: geomdl_fit(points, r, s, 3, 3), geomdl_calls, warmup=0)
+    dev_ours = mg.deviation([a, b], layout.surface(ctrl), samples=101)
+    dev_geomdl = mg.deviation([a, b], ours_geomdl, samples=101)
+    print("== Speed: merge two 8×8 bicubic patches, 82×82 samples each (164×82 points → 15×8 net)")
+    print(f"bsjax plan (revised blending matrices + pseudo-inverses, once): {t_plan * 1e3:9.1f} ms")
+    print(f"bsjax merge, jit compile (first call minus steady):            {(t_first - med) * 1e3:9.1f} ms")
+    print(f"bsjax merge, steady state:  median {med * 1e3:8.3f} ms   p99 {p99 * 1e3:8.3f} ms   ({calls} calls)")
+    print(f"geomdl approximate_surface: median {g_med * 1e3:8.1f} ms   p99 {g_p99 * 1e3:8.1f} ms   "
+          f"({geomdl_calls} calls, first {g_first * 1e3:.1f} ms)")
+    print(f"speed-up geomdl / bsjax (median): {g_med / med:8.0f}×")
+    print(f"deviation bsjax  C2: mean {dev_ours.mean:.5f}  std {dev_ours.std:.5f}  max {dev_ours.max:.5f}")
+    print(f"deviation geomdl   : mean {dev_geomdl.mean:.5f}  std {dev_geomdl.std:.5f}  max {dev_geomdl.max:.5f}")
+    print()
+
+
+def _fmt(x):
+    return "      -" if x is None else f"{x:7.4f}"
+
+
+def tables(out: Path, refine_cases, samples: int, dev_samples: int) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"== Seven cases (thesis §6.3.1): {samples}×{samples} merge samples per patch, deviation on "
+          f"{dev_samples}×{dev_samples} per original, closest point; millimetres")
+    head = (f"{'case':<4} {'':<18} {'Rhino C2':>8} {'thes. C2':>8} {'thes. C0':>8} | {'bsjax C2':>8} {'bsjax C0':>8}"
+            f" {'C2+corr':>8} {'C0+corr':>8}")
+    print(head)
+    print("-" * len(head))
+    heat = None
+    for c in cases.all_cases():
+        results = {}
+        for cont in (2, 0):
+            merged, _, rep = cases.run(c, cont, samples=samples, deviation_samples=dev_samples)
+            results[(cont, False)] = rep
+            io.save(merged, out / f"case{c.number}_C{cont}.3dm")
+            if c.number in refine_cases:
+                results[(cont, True)] = cases.run(c, cont, refine=True, samples=samples,
+                                                  deviation_samples=dev_samples)[2]
+            if c.number == 2 and cont == 2:
+                heat = results[(cont, False)]
+        io.save(c.originals, out / f"case{c.number}_originals.3dm")
+        th = THESIS[c.number]
+        rows = [("Total points", lambda r: f"{r.n_points:8d}", None),
+                ("Close points", lambda r: f"{r.n_within:8d}", None),
+                ("Average distance", lambda r: f"{r.mean:8.4f}", 0),
+                ("Median distance", lambda r: f"{r.median:8.4f}", None),
+                ("Standard deviation", lambda r: f"{r.std:8.4f}", 1),
+                ("Maximum distance", lambda r: f"{r.max:8.4f}", None)]
+        print(f"{c.number}: {c.name}")
+        for label, fmt, idx in rows:
+            thesis = "".join(f" {_fmt(None if t is None or idx is None else t[idx]):>8}" for t in th)
+            ours = " ".join(fmt(results[(cont, False)]) for cont in (2, 0))
+            corr = " ".join(fmt(results[(cont, True)]) if (cont, True) in results else f"{'':>8}" for cont in (2, 0))
+            print(f"     {label:<18}{thesis} | {ours} {corr}")
+    print(f"(close points: within {heat.tolerance} mm; 'corr' = nonlinear refit with parameter correction;"
+          f" .3dm files in {out})")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ax = mg.plot_deviation(heat, title="case 2, C² merge: distance to the merged surface (mm)")
+    ax.figure.tight_layout()
+    ax.figure.savefig(out / "case2_C2_deviation.png", dpi=110)
+    plt.close(ax.figure)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer calls; refine only cases 4 and 5")
+    parser.add_argument("--out", default="bsjax-out/merge", help="folder for .3dm files and the heat map")
+    args = parser.parse_args()
+    print(f"jax {jax.__version__}, backend {jax.default_backend()}, float64")
+    speed(calls=50 if args.quick else 300, geomdl_calls=1 if args.quick else 3)
+    tables(Path(args.out), (4, 5) if args.quick else (2, 4, 5, 7), samples=82, dev_samples=101)
+
+
+if __name__ == "__main__":
+    main()
