@@ -28,14 +28,17 @@ from bsjax import _checks
 class Settings(eqx.Module):
     """Training settings: learning rate and neighbourhood radius (lattice units) decay
     geometrically from `*_start` to `*_end`; `batch` samples per cycle (all when fewer);
-    `sweeps` Jacobi sweeps of the interior per cycle."""
+    `sweeps` Jacobi sweeps of the interior per cycle; `boundary_smoothing` final rounds of
+    Laplacian smoothing of the boundary nodes over their boundary neighbours, each followed by
+    re-projection onto the samples (evens out the surface quads before the interior solve)."""
 
     learning_rate_start: float = eqx.field(static=True, default=0.9)
     learning_rate_end: float = eqx.field(static=True, default=0.05)
     radius_start: float | None = eqx.field(static=True, default=None)  # None: max(shape) / 2
     radius_end: float = eqx.field(static=True, default=0.5)
-    batch: int = eqx.field(static=True, default=1024)
+    batch: int = eqx.field(static=True, default=512)
     sweeps: int = eqx.field(static=True, default=2)
+    boundary_smoothing: int = eqx.field(static=True, default=3)
 
 
 def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
@@ -76,11 +79,25 @@ def fit(points: Float[ArrayLike, "P 3"], shape: tuple[int, int, int], cycles: in
     if pts.shape[0] < 4:
         _checks.fail("points", "at least 4 distinct samples", pts.shape[0])
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit(pts, key, shape, int(cycles), settings)
+    return _fit(pts, _area_weights(pts), key, shape, int(cycles), settings)
 
 
-@functools.partial(jax.jit, static_argnums=(2, 3, 4))
-def _fit(points, key, shape, cycles, settings):
+def _area_weights(points, k: int = 6):
+    """Draw probability of each sample ∝ the surface area it stands for (squared mean distance to
+    its `k` nearest samples), so that a parameter grid crowded at poles does not crowd the lattice
+    there. Uniform when `points` is traced."""
+    if not _checks.is_concrete(points):
+        return jnp.full(points.shape[:1], 1.0 / points.shape[0], dtype=points.dtype)
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)
+    dist = cKDTree(p).query(p, k=min(k + 1, len(p)))[0][:, 1:]
+    w = np.mean(dist, axis=1) ** 2
+    return jnp.asarray(w / w.sum(), dtype=points.dtype)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _fit(points, weights, key, shape, cycles, settings):
     dtype = points.dtype
     n = int(np.prod(shape))
     bmask = boundary_mask(shape)
@@ -91,7 +108,7 @@ def _fit(points, key, shape, cycles, settings):
     nodes = lo + jnp.stack(axes, axis=-1) * (hi - lo)
     idx = [jnp.arange(s, dtype=dtype) for s in shape]
     r0 = settings.radius_start or max(shape) / 2.0
-    batch = min(settings.batch, points.shape[0])
+    batch = settings.batch
     frac = jnp.arange(cycles, dtype=dtype) / max(cycles - 1, 1)
     sigma = r0 * (settings.radius_end / r0) ** frac
     alpha = settings.learning_rate_start * (settings.learning_rate_end / settings.learning_rate_start) ** frac
@@ -99,7 +116,7 @@ def _fit(points, key, shape, cycles, settings):
 
     def cycle(nodes, xs):
         sig, lr, k = xs
-        x = points if batch == points.shape[0] else points[jax.random.randint(k, (batch,), 0, points.shape[0])]
+        x = points[jax.random.choice(k, points.shape[0], (batch,), p=weights)]
         wb = nodes.reshape(-1, 3)[bidx]
         d2 = jnp.sum(wb * wb, axis=-1)[None, :] - 2.0 * x @ wb.T
         win = bidx[jnp.argmin(d2, axis=1)]
@@ -113,6 +130,8 @@ def _fit(points, key, shape, cycles, settings):
 
     nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, keys))[0]
     nodes = _snap(nodes, bidx, points)
+    for _ in range(settings.boundary_smoothing):
+        nodes = _snap(jnp.where(bgrid, _boundary_mean(nodes, bgrid), nodes), bidx, points)
     return _harmonic_interior(nodes, bgrid, 4 * max(shape))
 
 
@@ -130,6 +149,19 @@ def _neighbour_mean(nodes):
     s = (p[2:, 1:-1, 1:-1] + p[:-2, 1:-1, 1:-1] + p[1:-1, 2:, 1:-1] + p[1:-1, :-2, 1:-1]
          + p[1:-1, 1:-1, 2:] + p[1:-1, 1:-1, :-2])
     return s / 6.0
+
+
+def _boundary_mean(nodes, bgrid):
+    """Mean of each node's face neighbours that are boundary nodes (the cube's surface graph)."""
+    w = bgrid.astype(nodes.dtype)
+    p = jnp.pad(nodes * w, ((1, 1), (1, 1), (1, 1), (0, 0)))
+    q = jnp.pad(w, ((1, 1), (1, 1), (1, 1), (0, 0)))
+    shifts = [(slice(2, None), slice(1, -1), slice(1, -1)), (slice(None, -2), slice(1, -1), slice(1, -1)),
+              (slice(1, -1), slice(2, None), slice(1, -1)), (slice(1, -1), slice(None, -2), slice(1, -1)),
+              (slice(1, -1), slice(1, -1), slice(2, None)), (slice(1, -1), slice(1, -1), slice(None, -2))]
+    total = sum(p[s] for s in shifts)
+    count = sum(q[s] for s in shifts)
+    return total / jnp.maximum(count, 1.0)
 
 
 def _jacobi(nodes, bgrid, sweeps):

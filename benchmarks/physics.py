@@ -1,0 +1,249 @@
+"""Mass-spring lattice step and VSOFM meshing: bsjax vs a vectorised numpy step vs warp-lang (CPU).
+
+Runs all implementations on the same lattice in the same process and prints sizes, compile
+time (separately), median and p99 per step, and ratios; thesis Table 6.6 (step) and 6.7 (VSOFM)
+beside them. float32 (no x64), like a haptic loop.
+
+    .venv/bin/python benchmarks/physics.py                 # everything (a few minutes)
+    .venv/bin/python benchmarks/physics.py --quick         # small sizes only
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bsjax import mss, shapes, vsofm
+
+THESIS_STEP_MS = {10: 0.1, 15: 0.4, 30: 3.0}  # Table 6.6, single iteration
+THESIS_VSOFM_S = {10: 2.44, 12: 3.471, 15: 7.88, 20: 28.48, 25: 76.9, 30: 213.0, 40: 958.0}  # Table 6.7
+
+
+def cube(n, spacing=0.01):
+    g = np.stack(np.meshgrid(*[np.arange(float(n))] * 3, indexing="ij"), -1) * spacing
+    return g.astype(np.float32)
+
+
+def stats(samples_ms):
+    a = np.asarray(samples_ms)
+    return float(np.median(a)), float(np.percentile(a, 99))
+
+
+def time_calls(fn, calls, per):
+    """Median/p99 of per-step time over `calls` calls that each run `per` steps."""
+    out = []
+    for _ in range(calls):
+        t = time.perf_counter()
+        fn()
+        out.append((time.perf_counter() - t) * 1e3 / per)
+    return stats(out)
+
+
+# --- bsjax ---------------------------------------------------------------------------------------------
+
+
+def bench_bsjax(lat, dt, chunk, calls):
+    state = mss.init(lat)
+    run = jax.jit(lambda s: mss.simulate(lat, s, dt, chunk, check_stability=False))
+    one = jax.jit(lambda s: mss.step(lat, s, dt))
+    t = time.perf_counter()
+    s = run(state)
+    jax.block_until_ready(s)
+    compile_s = time.perf_counter() - t
+    one(state).position.block_until_ready()
+    box = [s]
+
+    def scan_call():
+        box[0] = run(box[0])
+        box[0].position.block_until_ready()
+
+    def step_call():
+        box[0] = one(box[0])
+        box[0].position.block_until_ready()
+
+    return compile_s, time_calls(scan_call, calls, chunk), time_calls(step_call, calls * 5, 1)
+
+
+# --- numpy reference -----------------------------------------------------------------------------------
+
+
+def numpy_step(x, v, edges, rest, k, c, mass, dt):
+    """The same semi-implicit Euler step (eqs. 5.11–5.16) vectorised with numpy (bincount scatter)."""
+    i, j = edges[:, 0], edges[:, 1]
+    d = x[i] - x[j]
+    dv = v[i] - v[j]
+    l = np.sqrt(np.einsum("ij,ij->i", d, d))
+    inv = np.where(l > 0, 1.0 / np.where(l > 0, l, 1.0), 0.0)
+    coef = k * (1.0 - rest * inv) + c * np.einsum("ij,ij->i", dv, d) * inv * inv
+    f_edge = -coef[:, None] * d
+    n = len(x)
+    f = np.stack([np.bincount(i, f_edge[:, a], n) - np.bincount(j, f_edge[:, a], n) for a in range(3)], -1)
+    v = v + dt * f / mass[:, None]
+    return x + dt * v, v
+
+
+def bench_numpy(lat, dt, calls):
+    x = np.asarray(lat.rest_positions, np.float32)
+    v = np.zeros_like(x)
+    args = [np.asarray(a) for a in (lat.edges, lat.rest_length, lat.stiffness, lat.damping, lat.mass)]
+    box = [(x, v)]
+
+    def call():
+        box[0] = numpy_step(*box[0], *args, dt)
+
+    call()
+    return time_calls(call, calls, 1)
+
+
+# --- warp ----------------------------------------------------------------------------------------------
+
+
+def make_warp():
+    try:
+        import warp as wp
+    except ImportError:
+        return None
+    wp.config.quiet = True
+    wp.init()
+
+    @wp.kernel
+    def springs(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), e: wp.array(dtype=int, ndim=2),
+                rest: wp.array(dtype=float), k: wp.array(dtype=float), c: wp.array(dtype=float),
+                f: wp.array(dtype=wp.vec3)):
+        t = wp.tid()
+        i = e[t, 0]
+        j = e[t, 1]
+        d = x[i] - x[j]
+        dv = v[i] - v[j]
+        l = wp.length(d)
+        inv = float(0.0)
+        if l > 0.0:
+            inv = 1.0 / l
+        fs = -(k[t] * (1.0 - rest[t] * inv) + c[t] * wp.dot(dv, d) * inv * inv) * d
+        wp.atomic_add(f, i, fs)
+        wp.atomic_sub(f, j, fs)
+
+    @wp.kernel
+    def integrate(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), f: wp.array(dtype=wp.vec3),
+                  m: wp.array(dtype=float), dt: float):
+        t = wp.tid()
+        vv = v[t] + dt * f[t] / m[t]
+        v[t] = vv
+        x[t] = x[t] + dt * vv
+        f[t] = wp.vec3(0.0, 0.0, 0.0)
+
+    return wp, springs, integrate
+
+
+def bench_warp(warp, lat, dt, chunk, calls):
+    wp, springs, integrate = warp
+    dev = "cpu"
+    n = lat.n_nodes
+    x = wp.array(np.asarray(lat.rest_positions), dtype=wp.vec3, device=dev)
+    v = wp.zeros(n, dtype=wp.vec3, device=dev)
+    f = wp.zeros(n, dtype=wp.vec3, device=dev)
+    e = wp.array(np.asarray(lat.edges), dtype=int, device=dev)
+    arrs = [wp.array(np.asarray(a), dtype=float, device=dev) for a in (lat.rest_length, lat.stiffness, lat.damping)]
+    m = wp.array(np.asarray(lat.mass), dtype=float, device=dev)
+
+    def steps(count):
+        for _ in range(count):
+            wp.launch(springs, dim=lat.n_edges, inputs=[x, v, e, *arrs, f], device=dev)
+            wp.launch(integrate, dim=n, inputs=[x, v, f, m, dt], device=dev)
+        wp.synchronize()
+
+    t = time.perf_counter()
+    steps(1)
+    compile_s = time.perf_counter() - t
+    return compile_s, time_calls(lambda: steps(chunk), calls, chunk)
+
+
+# --- sections ------------------------------------------------------------------------------------------
+
+
+def lattice_section(sizes, calls):
+    warp = make_warp()
+    print("\n== lattice step: semi-implicit Euler, 26-neighbour hex lattice (edges + face + body diagonals), float32")
+    print(f"{'size':>5} {'nodes':>6} {'springs':>8} | {'bsjax scan ms/step':>19} {'p99':>6} {'1-step call':>11} "
+          f"{'compile s':>9} | {'numpy ms':>8} {'p99':>7} | {'warp ms':>7} {'p99':>6} {'load s':>6} | "
+          f"{'np/bsjax':>8} {'bsjax/warp':>10} | thesis ms")
+    for n in sizes:
+        lat = mss.hex_lattice(cube(n), material=mss.PLASTICINE)
+        dt = 0.5 * float(mss.stable_dt(lat))
+        chunk = 1000 if n <= 15 else 100
+        comp, (med, p99), (one, _) = bench_bsjax(lat, dt, chunk, calls)
+        np_med, np_p99 = bench_numpy(lat, dt, max(5, calls // 2))
+        line = (f"{n:>4}³ {lat.n_nodes:>6} {lat.n_edges:>8} | {med:>19.3f} {p99:>6.3f} {one:>11.3f} {comp:>9.2f} | "
+                f"{np_med:>8.3f} {np_p99:>7.3f} | ")
+        if warp is not None:
+            wcomp, (w_med, w_p99) = bench_warp(warp, lat, dt, chunk, calls)
+            line += f"{w_med:>7.3f} {w_p99:>6.3f} {wcomp:>6.2f} | {np_med / med:>8.1f} {med / w_med:>10.2f} | "
+        else:
+            line += f"{'n/a':>7} {'':>6} {'':>6} | {np_med / med:>8.1f} {'n/a':>10} | "
+        print(line + f"{THESIS_STEP_MS.get(n, '–')}", flush=True)
+    print("(bsjax scan ms/step: steady state inside a jitted lax.scan of 1000 (≤15³) or 100 steps; "
+          "1-step call: one jitted step per Python call, dispatch included)")
+
+
+def contact_section(calls):
+    print("\n== haptic case: 12³ jelly lattice + rigid sphere tool in penalty contact, float32")
+    lat = mss.hex_lattice(cube(12, 0.005), material=mss.JELLY, fixed=cube(12)[..., 2] == 0)
+    tool = mss.RigidSphere(jnp.array([0.0275, 0.0275, 0.06], jnp.float32), jnp.float32(0.01))
+    contact = mss.Contact(jnp.float32(50.0), jnp.float32(0.1))
+    dt = jnp.float32(1e-4)
+    state = mss.init(lat)
+    one = jax.jit(lambda s, t: mss.step(lat, s, dt, tools=(t,), contact=contact))
+    implicit = jax.jit(lambda s, t: mss.implicit_step(lat, s, jnp.float32(1e-3), tools=(t,), contact=contact,
+                                                      cg_iterations=10))
+    for name, fn in (("semi-implicit step (dt 0.1 ms)", one), ("implicit step, 10 CG (dt 1 ms)", implicit)):
+        t = time.perf_counter()
+        fn(state, tool).position.block_until_ready()
+        comp = time.perf_counter() - t
+        box = [state]
+
+        def call():
+            box[0] = fn(box[0], tool)
+            box[0].position.block_until_ready()
+
+        med, p99 = time_calls(call, calls * 20, 1)
+        ok = "yes" if med < 1.0 else "NO"
+        print(f"  {name:<32} median {med:.3f} ms  p99 {p99:.3f} ms  compile {comp:.2f} s  < 1 ms (1 kHz): {ok}")
+
+
+def vsofm_section(sizes):
+    print("\n== VSOFM: 300 cycles on the teardrop's 82×82 blending samples (thesis Table 6.7), float32")
+    surf = shapes.teardrop(np.float32)
+    pts = np.asarray(surf.blending(82, 82).points(surf.ctrl)).reshape(-1, 3)
+    print(f"{'size':>5} {'first call s':>12} {'again s':>8} {'inverted':>8} {'min scaled J':>12} "
+          f"{'boundary→samples max':>20} | thesis s")
+    for n in sizes:
+        t = time.perf_counter()
+        nodes = vsofm.fit(pts, (n, n, n))
+        nodes.block_until_ready()
+        first = time.perf_counter() - t
+        t = time.perf_counter()
+        nodes = vsofm.fit(pts, (n, n, n), key=jax.random.PRNGKey(1))
+        nodes.block_until_ready()
+        again = time.perf_counter() - t
+        rep = vsofm.report(pts, nodes)
+        print(f"{n:>4}³ {first:>12.2f} {again:>8.2f} {rep.inverted:>5}/{rep.n_elements:<6} "
+              f"{rep.min_scaled_jacobian:>9.3f} {rep.boundary_max:>20.4f} | {THESIS_VSOFM_S.get(n, '–')}", flush=True)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="small sizes only")
+    parser.add_argument("--calls", type=int, default=20)
+    args = parser.parse_args()
+    print(f"jax {jax.__version__}, devices {jax.devices()}, x64 {jax.config.jax_enable_x64}")
+    lattice_section((10, 15) if args.quick else (10, 15, 20, 30), args.calls)
+    contact_section(args.calls)
+    vsofm_section((10, 12) if args.quick else (10, 12, 15, 20, 30, 40))
+
+
+if __name__ == "__main__":
+    main()
