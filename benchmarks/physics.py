@@ -219,7 +219,7 @@ def vsofm_section(sizes):
     surf = shapes.teardrop(np.float32)
     pts = np.asarray(surf.blending(82, 82).points(surf.ctrl)).reshape(-1, 3)
     print(f"{'size':>5} {'first call s':>12} {'again s':>8} {'inverted':>8} {'min scaled J':>12} "
-          f"{'boundary→samples max':>20} | thesis s")
+          f"{'boundary→surface max':>20} | thesis s")
     for n in sizes:
         t = time.perf_counter()
         nodes = vsofm.fit(pts, (n, n, n))
@@ -231,7 +231,7 @@ def vsofm_section(sizes):
         again = time.perf_counter() - t
         rep = vsofm.report(pts, nodes)
         print(f"{n:>4}³ {first:>12.2f} {again:>8.2f} {rep.inverted:>5}/{rep.n_elements:<6} "
-              f"{rep.min_scaled_jacobian:>9.3f} {rep.boundary_max:>20.4f} | {THESIS_VSOFM_S.get(n, '–')}", flush=True)
+              f"{rep.min_scaled_jacobian:>9.3f} {rep.boundary_max:>20.2e} | {THESIS_VSOFM_S.get(n, '–')}", flush=True)
 
 
 def main():

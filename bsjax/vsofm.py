@@ -247,8 +247,10 @@ def corner_jacobians(nodes: Float[Array, "a b c 3"], scaled: bool = True) -> Flo
 
 class Report(eqx.Module):
     """Quality of a fitted lattice: `inverted` hexahedra (any corner Jacobian ≤ 0);
-    `min_scaled_jacobian`, `mean_scaled_jacobian` over all corners; boundary-to-sample distance
-    `boundary_max`, `boundary_mean` (m); `n_elements`."""
+    `min_scaled_jacobian`, `mean_scaled_jacobian` over all corners; boundary-to-surface
+    distance `boundary_max`, `boundary_mean` (to the least-squares plane of the 8 nearest samples,
+    an estimate of the distance to the sampled surface), `sample_max` (to the nearest sample);
+    `n_elements`."""
 
     inverted: int
     n_elements: int
@@ -256,19 +258,25 @@ class Report(eqx.Module):
     mean_scaled_jacobian: float
     boundary_max: float
     boundary_mean: float
+    sample_max: float
 
 
 def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) -> Report:
     """Element quality and boundary distance of a VSOFM result (numpy, concrete values)."""
     from scipy.spatial import cKDTree
 
-    nodes = np.asarray(nodes)
+    nodes = np.asarray(nodes, dtype=np.float64)
+    pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0)
     jac = np.asarray(corner_jacobians(jnp.asarray(nodes)))
     bad = np.any(jac <= 0, axis=-1)
     b = nodes[boundary_mask(nodes.shape[:3])]
-    dist = cKDTree(np.asarray(points).reshape(-1, 3)).query(b)[0]
+    dist, near = cKDTree(pts).query(b, k=min(8, len(pts)))
+    nb = pts[near]
+    d = nb - nb.mean(axis=1, keepdims=True)
+    normal = np.linalg.eigh(np.einsum("nki,nkj->nij", d, d))[1][:, :, 0]
+    plane = np.abs(np.einsum("ni,ni->n", b - nb.mean(axis=1), normal))
     return Report(int(bad.sum()), int(bad.size), float(jac.min()), float(jac.mean()),
-                  float(dist.max()), float(dist.mean()))
+                  float(plane.max()), float(plane.mean()), float(dist[:, 0].max()))
 
 
 def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):

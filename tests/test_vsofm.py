@@ -59,7 +59,10 @@ def test_teardrop_no_inverted_and_lattice_ready_for_mss():
     nodes = vsofm.fit(pts, (8, 8, 8), cycles=300)
     rep = vsofm.report(pts, nodes)
     assert rep.inverted == 0, rep
-    assert rep.boundary_max < 0.06  # within the sample spacing of the cloud
+    # on the sampled surface (its local sample plane); the pointed tip, where 8 samples fit no
+    # plane well, is the worst node
+    assert rep.boundary_mean < 1e-3 and rep.boundary_max < 0.06
+    assert rep.sample_max < 0.08  # and within the cloud's sample spacing (~0.1 at the equator)
     lat = vsofm.lattice(nodes, material=mss.JELLY)
     assert lat.n_nodes == 512 and lat.grid_shape == (8, 8, 8)
     assert float(mss.hex_volume(jnp.asarray(nodes))) > 0
