@@ -11,7 +11,7 @@ import struct
 import numpy as np
 import pytest
 
-from bsjax.device import HidDevice, HidField, HidLayout, Workspace
+from bsjax.device import HapticDevice, HidDevice, HidField, HidLayout, SimulatedDevice, Workspace
 from bsjax.device.hid import force_report, parse_report
 
 
@@ -63,6 +63,7 @@ def test_generic_layout_parses_positions_orientation_buttons_sequence():
 def test_device_reads_newest_drops_stale_and_short_reports_writes_forces():
     fake = FakeHid()
     dev = HidDevice(HidLayout.generic(0x1234, 0x5678), device=fake, workspace=Workspace(scale=10.0))
+    assert isinstance(dev, HapticDevice) and isinstance(SimulatedDevice(), HapticDevice)
     assert fake.opened == (0x1234, 0x5678) and fake.nonblocking == 1
     fake.queue += [generic_report(5, (0.01, 0, 0)), generic_report(6, (0.02, 0, 0)), b"\x01\x02",
                    generic_report(4, (0.05, 0, 0))]

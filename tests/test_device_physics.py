@@ -6,9 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from bsjax import shapes
+from bsjax import mss
 from bsjax.device import ServoLoop, SimulatedDevice
-from bsjax.device.physics import SculptModel
+from bsjax.device.physics import SculptModel, check_step
 from bsjax.device.protocol import DeviceSample
 
 
@@ -89,10 +89,12 @@ def test_tool_shape_changes_at_run_time(model):
     model.set_tool(radius=0.25)
 
 
-def test_unstable_step_and_small_grid_are_refused():
-    with pytest.raises(ValueError, match="unstable"):  # mss.check_dt's stability limit
-        SculptModel(shapes.plate(4, 4), grid=(4, 4), layers=2, fixed_layers=1, substeps=1, stiffness=1e5,
-                    proxy_grid=4)
+def test_unstable_step_and_small_grid_are_refused(model):
+    limit = float(mss.stable_dt(model.lattice, model.tool_stiffness))
+    assert model.dt < limit  # the default material runs inside the stability limit
+    check_step(model.lattice, 0.9 * limit, model.tool_stiffness)
+    with pytest.raises(ValueError, match="unstable"):  # what the constructor raises for a bad dt
+        check_step(model.lattice, 1.1 * limit, model.tool_stiffness)
     with pytest.raises(ValueError, match="grid"):
         SculptModel(grid=(4, 4))
 

@@ -13,7 +13,7 @@ import tty
 import numpy as np
 import pytest
 
-from bsjax.device import DeviceTimeout, Proxy, SerialDevice, ServoLoop, Workspace, frames
+from bsjax.device import DeviceTimeout, HapticDevice, Proxy, SerialDevice, ServoLoop, Workspace, frames
 
 
 class Emulator:
@@ -88,6 +88,7 @@ def _wait(predicate, timeout=2.0):
 
 def test_pose_in_force_out(emulator):
     with SerialDevice(emulator.path, workspace=Workspace(scale=10.0, offset=(0.0, 0.0, 1.0))) as dev:
+        assert isinstance(dev, HapticDevice)
         sample = dev.read()
         np.testing.assert_allclose(sample.position, (0.1, 0.2, 1.3), rtol=1e-5)
         assert sample.pressed and sample.sequence == int(sample.timestamp * 1000 + 0.5)

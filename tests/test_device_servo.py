@@ -6,7 +6,10 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from bsjax.device._shaping import ForceShaper, Watchdog
 from bsjax.device import DeviceError, Proxy, Recording, ServoLoop, SimulatedDevice, Workspace
 
 WALL = dict(point=(0.62, 0.0, 0.0), normal=(1.0, 0.0, 0.0), stiffness=30.0, damping=0.3, tool_radius=0.25)
@@ -210,3 +213,28 @@ def test_proxy_forces_plane_and_sphere():
     assert ball.force((0, 1.0, 0))[1] == pytest.approx(1.0)
     cave = Proxy.sphere((0, 0, 0), 1.0, 10.0, tool_radius=0.1, inside=True)
     assert cave.force((0, 0, 0.95))[2] == pytest.approx(-0.5) and cave.force((0, 0, 0.5)) == (0.0, 0.0, 0.0)
+
+
+finite_or_not = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(finite_or_not, finite_or_not, finite_or_not), min_size=1, max_size=40),
+       st.floats(0.1, 10.0), st.floats(1e-3, 5.0))
+def test_force_shaper_bounds_any_input(forces, max_force, step_max):
+    shape = ForceShaper(max_force, step_max)
+    last = (0.0, 0.0, 0.0)
+    for f in forces:
+        out = shape(*f)
+        assert all(math.isfinite(c) for c in out)
+        assert math.hypot(*out) <= max_force * (1 + 1e-12)
+        assert math.dist(out, last) <= step_max * (1 + 1e-12)
+        last = out
+
+
+def test_watchdog_ramps_linearly_and_counts_trips():
+    dog = Watchdog(ramp_time=0.02)
+    gains = [dog(True, 0.001) for _ in range(25)]
+    assert gains[9] == pytest.approx(0.5) and gains[-1] == 1.0 and dog.trips == 0
+    down = [dog(False, 0.001) for _ in range(25)]
+    assert down[9] == pytest.approx(0.5) and down[19] == 0.0 and dog.trips == 1

