@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 
 from bsjax.device.hid import HidDevice, HidLayout
 from bsjax.device.protocol import Workspace
@@ -89,9 +88,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             loop.start()
             print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
-            end = time.perf_counter() + args.duration if args.duration > 0 else float("inf")
-            while loop.running and time.perf_counter() < end:
-                time.sleep(0.05)
+            # One long wait: a main thread waking every few ms would take the GIL each time and,
+            # at normal priority, could be descheduled holding it (the servo would wait).
+            loop.finished.wait(args.duration if args.duration > 0 else None)
         except KeyboardInterrupt:
             interrupted = True
         finally:

@@ -121,11 +121,11 @@ def sculpt_script(equator: float = 0.62, tool_radius: float = 0.25, period: floa
     """A repeating push/pull session on a body of revolution about z (the teardrop).
 
     Each cycle of `period` seconds at azimuth `θ_k = k·45°`: approach from outside (0–25 %),
-    press the button and push `0.12` units into the surface (25–60 %), release and withdraw
+    press the button and push `0.2` units into the surface (25–60 %), release and withdraw
     (60–80 %), orbit to the next azimuth (80–100 %). Returns device coordinates (model / `scale`).
     """
     touch = equator + tool_radius
-    far, deep = touch + 0.35, touch - 0.12
+    far, deep = touch + 0.35, touch - 0.2
 
     def script(t: float):
         k, phase = divmod(t / period, 1.0)
