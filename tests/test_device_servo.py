@@ -4,13 +4,15 @@ import math
 import threading
 import time
 
+import matplotlib.image
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bsjax.device import DeviceError, Proxy, Recording, ServoLoop, SimulatedDevice, Workspace, plot_recording
+from bsjax.device import cli
 from bsjax.device._shaping import ForceShaper, Watchdog
-from bsjax.device import DeviceError, Proxy, Recording, ServoLoop, SimulatedDevice, Workspace
 
 WALL = dict(point=(0.62, 0.0, 0.0), normal=(1.0, 0.0, 0.0), stiffness=30.0, damping=0.3, tool_radius=0.25)
 
@@ -180,6 +182,21 @@ def test_record_and_replay_give_identical_forces(tmp_path):
     s = live.read()
     i = int(np.searchsorted(rec.sequence, s.sequence))
     assert abs(rec.time[i] - rec.time[0] - 0.1) < 0.05
+
+
+def test_plot_of_a_recorded_session(tmp_path):
+    loop = ServoLoop(SimulatedDevice(approach, workspace=Workspace()), Proxy.plane(**WALL), record=True)
+    loop.start()
+    time.sleep(0.3)
+    loop.stop()
+    plot_recording(loop.recording(), tmp_path / "session.png")
+    image = matplotlib.image.imread(tmp_path / "session.png")
+    assert image.shape[0] > 400 and image.shape[1] > 600 and image.std() > 0.01
+
+
+def test_cli_reports_a_missing_hid_device(capsys):
+    assert cli.main(["--hid", "ffff:fffe", "--proxy-only", "--duration", "0.1"]) == 2
+    assert "cannot open the device" in capsys.readouterr().err
 
 
 def test_recording_file_errors_name_the_file(tmp_path):

@@ -16,7 +16,7 @@ import json
 import sys
 
 from bsjax.device.hid import HidDevice, HidLayout
-from bsjax.device.protocol import Workspace
+from bsjax.device.protocol import DeviceError, Workspace
 from bsjax.device.proxy import Proxy
 from bsjax.device.serial import SerialDevice
 from bsjax.device.servo import ServoLoop
@@ -82,7 +82,12 @@ def main(argv: list[str] | None = None) -> int:
     print("bsjax haptics: building the model and compiling the physics…", flush=True)
     model = _model(args)
     interrupted = False
-    with _device(args) as device:
+    try:
+        device = _device(args)
+    except (OSError, ValueError, DeviceError) as err:
+        print(f"bsjax haptics: cannot open the device: {err}", file=sys.stderr)
+        return 2
+    with device:
         loop = ServoLoop(device, model, rate_hz=args.rate, max_force=args.max_force, physics_hz=args.physics_hz,
                          record=bool(args.record or args.plot), cpu=args.cpu)
         try:
