@@ -1,8 +1,8 @@
 """Haptic device bridge: devices, the serial frame, and the safe two-rate force loop (SPEC §8).
 
 ```python
-from bsjax.device import SimulatedDevice, ServoLoop
-from bsjax.device.physics import SculptModel
+import time
+from bsjax.device import SculptModel, ServoLoop, SimulatedDevice
 
 with SimulatedDevice() as dev, ServoLoop(dev, SculptModel(), max_force=3.0) as loop:
     time.sleep(10)
@@ -12,6 +12,7 @@ print(loop.stats.report())
 
 from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
 from bsjax.device.hid import HidDevice, HidField, HidLayout
+from bsjax.device.physics import PhysicsModel, SculptModel
 from bsjax.device.protocol import (
     BUTTON_PRESS, DeviceError, DeviceSample, DeviceTimeout, HapticDevice, Workspace,
 )
@@ -24,7 +25,7 @@ from bsjax.device.telemetry import ServoStats, plot_recording
 
 __all__ = [
     "BUTTON_PRESS", "Decoded", "DeviceError", "DeviceSample", "DeviceTimeout", "Frame", "HapticDevice",
-    "HidDevice", "HidField", "HidLayout", "Proxy", "Recorder", "Recording", "SerialDevice", "ServoLoop",
-    "ServoStats", "SimulatedDevice", "Workspace", "decode_frames", "encode_force", "encode_frame",
+    "HidDevice", "HidField", "HidLayout", "PhysicsModel", "Proxy", "Recorder", "Recording", "SerialDevice", "ServoLoop",
+    "SculptModel", "ServoStats", "SimulatedDevice", "Workspace", "decode_frames", "encode_force", "encode_frame",
     "encode_pose", "plot_recording", "sculpt_script",
 ]
