@@ -124,7 +124,9 @@ class ServoLoop:
         if not self._static and callable(getattr(self.model, "warmup", None)):
             self.model.warmup()
         self._reset_counters()
-        self.error = None
+        if self._recorder is not None:
+            self._recorder = Recorder(int(self.rate_hz) * 16)  # one recording per start()
+        self.error = self.physics_error = None
         self.finished.clear()
         if self.switch_interval is not None:
             self._saved_switch = sys.getswitchinterval()
@@ -147,7 +149,9 @@ class ServoLoop:
     def stop(self) -> ServoStats:
         """Stop both threads, write zero force, restore the switch interval; return the stats.
 
-        Raises `DeviceError` (chained to the cause) if the servo thread died of an exception.
+        Raises `DeviceError` (chained to the cause) if the servo thread died of an exception. A
+        failed physics update stops only the physics thread (the watchdog ramps the force to
+        zero); it is counted in `stats.physics_errors` and kept in `physics_error`.
         """
         self._running = False
         for thread in (self._servo, self._physics):
