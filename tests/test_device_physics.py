@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from bsjax import mss
+from bsjax import collide, mss
 from bsjax.device import ServoLoop, SimulatedDevice
 from bsjax.device.physics import SculptModel, check_step
 from bsjax.device.protocol import DeviceSample
@@ -73,6 +73,23 @@ def test_proxy_normal_faces_the_tool_side_and_latches(model):
     model.reset()
     cavity = model.update(at(0.2))
     assert cavity.normal[0] < -0.8 and cavity.force((0.45, 0.0, 0.0))[0] < 0  # from inside: pushes in
+
+
+def test_contact_proxy_renders_the_distributed_spring_force(model):
+    model.reset()
+    model.update(at(0.95))  # approach from outside
+    proxy = model.update(at(0.8))  # 0.07 into the wall
+    c, radius = np.array([0.8, 0.0, 0.0]), 0.25
+    # reference: bsjax.collide on the same surface and grid, paper 002 eq. 3.3 (F = k Σ d_i)
+    contact = collide.contacts(model.dense, model.ctrl, collide.Sphere(c, radius), method="dense")
+    depth = np.asarray(contact.depth)
+    assert depth.max() > 0
+    expected = model.contact_stiffness * depth.sum()
+    rendered = np.array(proxy.force(c))
+    assert np.linalg.norm(rendered) == pytest.approx(expected, rel=1e-6)
+    assert rendered[0] > 0.9 * np.linalg.norm(rendered)  # pushes the tool back out (+x)
+    closer = np.linalg.norm(proxy.force(c - np.array([0.01, 0.0, 0.0])))
+    assert closer == pytest.approx(expected + model.proxy_stiffness * 0.01 * rendered[0] / np.linalg.norm(rendered))
 
 
 def test_tool_shape_changes_at_run_time(model):

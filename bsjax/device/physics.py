@@ -17,16 +17,18 @@ ellipsoid at the stylus pose) gets a penalty force `k_tool · depth` away from t
 a push from outside, a pull when the tool sits inside the body and moves out. When the button is
 released the deformation is set: rest lengths become the current lengths (plastic set).
 
-Haptic proxy: the refit surface is sampled on a denser grid; the sample nearest the tool centre
-and its normal give a plane proxy (normal towards the side the tool came from, latched while in
-contact, so passing through the wall keeps pushing back — the "surface normal" method of 002
-§3.2.3), with the tool's support distance along that normal as the proxy's `tool_radius`. While the
+Haptic proxy: the refit surface is sampled on a denser grid. In contact, `bsjax.collide`
+(`contacts` with an `Ellipsoid` tool, `contact_force`) gives the distributed-spring force of 002
+§3.2 (`F = k Σ d_i` along `Σ N_i d_i`, surface-normal method) and the proxy is the plane along
+that direction placed so that it renders exactly `F` at the tool centre. Out of contact, the
+sample nearest the tool centre and its normal give the plane. The normal points to the side the
+tool came from, latched while in contact (so passing through the wall keeps pushing back, 002
+§3.2.3); the proxy's `tool_radius` is the tool's support distance along the normal. While the
 button is held, the plane is moved back by the nodes' summed reaction on the tool (times
 `reaction_gain`, over the proxy stiffness), so the user feels the material give way but push back.
 
 `SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`).
-Collision is local to this module (ellipsoid penalty on the nodes, nearest-sample proxy); it does
-not use `bsjax.collide`.
+The tool's push on the lattice nodes (ellipsoid penalty) is local to this module.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bsjax import mss, shapes
+from bsjax import collide, mss, shapes
 from bsjax._tensor import safe_norm
 from bsjax.device.protocol import DeviceSample
 from bsjax.device.proxy import Proxy
@@ -125,6 +127,8 @@ class SculptModel:
     - `proxy_stiffness`, `proxy_damping`: the haptic proxy, N and N·s per model unit.
     - `proxy_grid`: samples per direction of the surface grid the proxy is taken from.
     - `reaction_gain`: newtons felt per unit of the summed tool force on the nodes while sculpting.
+    - `contact_stiffness`: N per model unit of depth per contact sample of the `proxy_grid`
+      (the distributed springs of 002 §3.2; the force grows with the contact area, Fig. 4).
     - `thickness`: lattice depth of an open (not closed-in-v) surface.
     """
 
@@ -133,7 +137,7 @@ class SculptModel:
                  stiffness: float = 10.0, damping: float = 0.05, drag: float = 2.0,
                  tool_stiffness: float = 100.0, tool_radius: float = 0.25, tool_axes=None,
                  proxy_stiffness: float = 30.0, proxy_damping: float = 0.3, proxy_grid: int = 40,
-                 reaction_gain: float = 0.2,
+                 reaction_gain: float = 0.2, contact_stiffness: float = 4.0,
                  fixed_layers: int = 2, thickness: float = 0.2):
         surface = shapes.teardrop() if surface is None else surface
         m, n = grid
@@ -150,7 +154,7 @@ class SculptModel:
         self.grid, self.layers, self.substeps = (m, n), layers, int(substeps)
         self.dt = 1.0 / (physics_hz * substeps)
         self.proxy_stiffness, self.proxy_damping = float(proxy_stiffness), float(proxy_damping)
-        self.reaction_gain = float(reaction_gain)
+        self.reaction_gain, self.contact_stiffness = float(reaction_gain), float(contact_stiffness)
         params_u = np.linspace(0.0, 1.0, m + 2)[1:-1] if not surface.periodic_u else np.arange(m) / m
         params_v = np.arange(n) / n if surface.periodic_v else np.linspace(0.0, 1.0, n)
         self.blending, self.dense, pts, nrm = jax.jit(lambda pu, pv: _build_blendings(surface, pu, pv, m, n, proxy_grid))(
@@ -228,7 +232,11 @@ class SculptModel:
         support = safe_norm(axes * (nq @ rot))  # ellipsoid support distance along nq
         # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
         reaction = safe_norm(jnp.sum(self._tool_push(x, *tool), axis=0))
-        return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None]])
+        # Distributed springs of 002 §3.2 (eq. 3.3, surface-normal method) through bsjax.collide.
+        contact = collide.contacts(self.dense, ctrl, collide.Ellipsoid(centre, axes, rot))
+        spring = self.sign * collide.contact_force(contact, self.contact_stiffness)
+        hit = contact.hit.astype(x.dtype)
+        return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None], spring, hit[None]])
 
     def _settle_impl(self, carry):
         state, _, _ = carry
@@ -266,14 +274,22 @@ class SculptModel:
             self._state, self.ctrl = state, ctrl
             self.ticks += 1
         q, normal, support, reaction = out[:3], out[3:6], float(out[6]), float(out[7])
+        spring, hit = out[8:11], out[11] > 0
         gap = float(np.dot(np.asarray(sample.position) - q, normal))
         if self._side is None or abs(gap) >= support:  # out of contact: the tool's side may change
             self._side = 1.0 if gap >= 0 else -1.0
         if not np.all(np.isfinite(out)):
             return Proxy(stamp=time.perf_counter())  # no contact model rather than a NaN force
         n = self._side * normal
+        magnitude = float(np.linalg.norm(spring))
+        if hit and magnitude > 0:
+            # In contact: the plane along the distributed-spring direction, placed so that the
+            # servo renders exactly that force at the current tool centre and extrapolates it
+            # with the proxy stiffness until the next physics tick.
+            n = self._side * spring / magnitude
+            q = np.asarray(sample.position) - n * (support - magnitude / self.proxy_stiffness)
         # While sculpting, the surface yields under the tool; shifting the plane back by
-        # reaction / k makes the servo render the nodes' reaction on top of the local contact.
+        # reaction / k makes the servo render the nodes' reaction on top of the contact force.
         q = q - n * (self.reaction_gain * reaction / self.proxy_stiffness)
         return Proxy.plane(q, n, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
 
