@@ -10,6 +10,8 @@ cells and vmapped triangle–triangle tests. Each query also has a dense referen
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -72,11 +74,15 @@ class SurfaceContact(eqx.Module):
     apart: Bool[Array, ""]
 
 
-def _unless_apart(apart, full):
-    """`full()` unless the broad phase certified separation; then an all-zero result (early exit)."""
-    shapes = jax.eval_shape(full)
-    empty = lambda: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-    out = jax.lax.cond(apart, empty, full)
+def _unless_apart(apart, query, *args):
+    """`query(*args)` unless the broad phase certified separation; then an all-zero result.
+
+    `lax.cond` skips the narrow phase at run time (the early exit of thesis §3.3.3.1); under
+    `vmap` both branches run and the result is selected.
+    """
+    shapes = jax.eval_shape(query, *args)
+    empty = lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+    out = jax.lax.cond(apart, empty, query, *args)
     return eqx.tree_at(lambda c: c.apart, out, apart)
 
 
@@ -109,10 +115,11 @@ def contacts(blending, ctrl: Float[Array, "r s 3"], tool: AbstractTool, *, metho
     ctrl = jnp.asarray(ctrl)
     tool = tool.cast(ctrl.dtype)
     query = _point_contact if isinstance(tool, Point) else _solid_contact
-    full = lambda: query(blending, ctrl, tool, method == "window")
+    query = functools.partial(query, use_window=method == "window")
     if method == "dense":
-        return full()
-    return _unless_apart(tool.hull_apart(ctrl.reshape(-1, 3)), full)
+        return query(blending, ctrl, tool)
+    apart = tool.hull_apart(jax.lax.stop_gradient(ctrl).reshape(-1, 3))  # a decision: no gradient
+    return _unless_apart(apart, query, blending, ctrl, tool)
 
 
 def points_normals(blending, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:
@@ -124,7 +131,7 @@ def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
     points, normals = points_normals(blending, ctrl)
     inside = tool.value(points) < 0
     if use_window:
-        window_mask, window = sample_window(blending, ctrl, tool)
+        window_mask, window = sample_window(blending, jax.lax.stop_gradient(ctrl), jax.lax.stop_gradient(tool))
         inside = inside & window_mask
     else:
         window = parametric_window(jnp.ones(inside.shape, bool), blending.params_u, blending.params_v)
@@ -214,8 +221,9 @@ def surface_contacts(
     ctrl_a, ctrl_b = jnp.asarray(ctrl_a), jnp.asarray(ctrl_b)
     if method == "dense":
         return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
-    apart = hulls_apart(ctrl_a.reshape(-1, 3), ctrl_b.reshape(-1, 3))
-    return _unless_apart(apart, lambda: _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, int(capacity)))
+    apart = hulls_apart(jax.lax.stop_gradient(ctrl_a).reshape(-1, 3), jax.lax.stop_gradient(ctrl_b).reshape(-1, 3))
+    query = functools.partial(_hierarchy_surfaces, capacity=int(capacity))
+    return _unless_apart(apart, query, blending_a, ctrl_a, blending_b, ctrl_b)
 
 
 def _vertex_mask(faces, tri_hit, shape):

@@ -101,9 +101,14 @@ def nodal_forces(
     p, f = points.reshape(-1, 3), forces.reshape(-1, 3)
     d2 = jnp.sum((p[:, None, :] - nodes[None, :, :]) ** 2, -1)
     neg, idx = jax.lax.top_k(-jax.lax.stop_gradient(d2), k)
-    dist = jnp.sqrt(jnp.maximum(-neg, 0))
-    exact = dist <= jnp.finfo(dist.dtype).eps
-    inv = jnp.where(exact, 1, 0) if k == 1 else jnp.where(jnp.any(exact, 1, keepdims=True), exact * 1.0, 1 / jnp.where(exact, 1, dist))
-    w = jnp.ones_like(dist) if k == 1 else inv / jnp.sum(inv, 1, keepdims=True)
+    if k == 1:
+        w = jnp.ones(neg.shape, f.dtype)
+    else:
+        dist = jnp.sqrt(jnp.maximum(-neg, 0))
+        exact = dist <= jnp.finfo(dist.dtype).eps
+        # inverse-distance weights; a point sitting on a node gives it everything
+        inv = jnp.where(exact, 0, 1 / jnp.where(exact, 1, dist))
+        inv = jnp.where(jnp.any(exact, 1, keepdims=True), exact.astype(dist.dtype), inv)
+        w = (inv / jnp.sum(inv, 1, keepdims=True)).astype(f.dtype)
     contrib = (w[..., None] * f[:, None, :]).reshape(-1, 3)
     return jax.ops.segment_sum(contrib, idx.reshape(-1), num_segments=nodes.shape[0])

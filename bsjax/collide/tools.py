@@ -260,9 +260,10 @@ class Implicit(AbstractTool):
     **Fields:** `fn` (static): `fn(x (3,)) -> scalar`, or `fn(x, params)` when `params` is given
     (then the tool is differentiable in `params`); optional bounding sphere `center`, `radius`
     for the broad phase; `solver` settings.
-    Depth: distance to the closest point of `fn = 0`, found by an optimistix Newton solve of the
-    Lagrange conditions `y − x + λ∇f(y) = 0, f(y) = 0` (differentiated implicitly); where the
-    solve fails the first-order estimate `|f| / |∇f|` is used.
+    Depth: distance to the closest point of `fn = 0`: a start point on the surface along the
+    gradient ray (doubling and bisection), refined by an optimistix Newton solve of the Lagrange
+    conditions `y − x + λ∇f(y) = 0, f(y) = 0` (differentiated implicitly); the start point is
+    kept where Newton fails or lands on a farther stationary point.
     """
 
     fn: Callable = eqx.field(static=True)
@@ -296,7 +297,7 @@ class Implicit(AbstractTool):
         f, grad = jax.value_and_grad(self._f)(x)
         g2 = jnp.sum(grad * grad)
         safe = jnp.where(g2 > 0, g2, 1)
-        y0 = x - jnp.where(g2 > 0, f / safe, 0) * grad
+        y0 = jax.lax.stop_gradient(self._march(x, f, grad, g2))
 
         def residual(z, args):
             y, lam = z[:3], z[3]
@@ -305,16 +306,47 @@ class Implicit(AbstractTool):
 
         eps = jnp.finfo(x.dtype).eps
         rtol, atol = max(self.solver.rtol, float(10 * eps)), max(self.solver.atol, float(100 * eps))
+        lam0 = jax.lax.stop_gradient(-jnp.dot(y0 - x, grad) / safe)
         sol = optx.root_find(
-            residual, optx.Newton(rtol=rtol, atol=atol), jnp.concatenate([y0, jnp.zeros(1, x.dtype)]),
+            residual, optx.Newton(rtol=rtol, atol=atol), jnp.concatenate([y0, lam0[None]]),
             max_steps=self.solver.max_steps, throw=False,
         )
+        y = sol.value[:3]
+        # accept the Newton point unless it failed or wandered off to a farther stationary point
         ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(sol.value))
-        y = jnp.where(ok, sol.value[:3], y0)
-        first_order = jnp.abs(f) / jnp.sqrt(safe)
-        depth = jnp.where(ok, safe_norm(y - x), first_order)
+        ok = ok & (safe_norm(y - x) <= safe_norm(y0 - x) * (1 + 1e-6) + atol)
+        y = jnp.where(ok, y, y0)
+        depth = safe_norm(y - x)
         normal = unit(jax.grad(self._f)(y))
         return depth, normal
+
+    def _march(self, x, f, grad, g2):
+        """Start point: the first zero of `f` along the gradient ray from `x`.
+
+        Geometric march (×1.25 per step from 1e-4 of the first-order distance `|f|/|∇f|`, which
+        overshoots the first crossing by at most 25 %, so thin far parts are not jumped to),
+        then bisection of the last bracket.
+        """
+        g = unit(grad)
+        sign = jnp.where(f < 0, 1.0, -1.0).astype(x.dtype)
+        first = jnp.abs(f) / jnp.sqrt(jnp.where(g2 > 0, g2, 1))
+        start = jnp.maximum(1e-4 * first, jnp.finfo(x.dtype).eps)
+        side = lambda t: sign * self._f(x + sign * t * g) < 0  # still on x's side of the surface
+
+        def grow(_, hi):
+            return jnp.where(side(hi), 1.25 * hi, hi)
+
+        hi = jax.lax.fori_loop(0, 80, grow, start)
+        lo = jnp.where(hi > start, hi / 1.25, 0)
+
+        def bisect(_, bracket):
+            lo, hi = bracket
+            mid = 0.5 * (lo + hi)
+            inside = side(mid)
+            return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, 50, bisect, (lo, hi))
+        return x + sign * 0.5 * (lo + hi) * g
 
     def bound(self):
         return None if self.center is None else (self.center, self.radius)

@@ -1,0 +1,365 @@
+"""Collision queries and contact forces: closed forms, dense references, trimesh and python-fcl."""
+
+import fcl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+from scipy.optimize import brentq
+
+from bsjax import shapes
+from bsjax.basis import BSplineSurface
+from bsjax.collide import (
+    Ellipsoid, Implicit, Plane, Point, Sphere, TriangleMesh, contact_force, contacts, nodal_forces,
+    sample_forces, surface_contacts, tessellate,
+)
+from helpers import check_grad, random_surface
+
+_contacts = jax.jit(contacts, static_argnames="method")
+_surfaces = jax.jit(surface_contacts, static_argnames=("capacity", "method"))
+
+PLATE = shapes.plate(6, 6)
+PLATE_B = PLATE.blending(21, 21)
+
+
+def _cylinder(radius=1.0):
+    """Exact quarter cylinder (rational quadratic arc × line): axis z, angle 0..90°, z in [0, 1]."""
+    w = np.sqrt(0.5)
+    arc = np.array([[radius, 0.0], [radius, radius], [0.0, radius]])
+    ctrl = np.stack([np.concatenate([arc, np.full((3, 1), z)], 1) for z in (0.0, 1.0)], 1)
+    return BSplineSurface(ctrl, [0, 0, 0, 1, 1, 1], [0, 0, 1, 1], 2, 1, weights=np.array([[1, 1], [w, w], [1, 1]]))
+
+
+CYL = _cylinder()
+CYL_B = CYL.blending(21, 11)
+
+
+def _bumpy(seed, r=6, s=5):
+    return random_surface(np.random.default_rng(seed), r, s, 3, 2)
+
+
+# --- analytic cases ---------------------------------------------------------------------------
+
+def test_sphere_on_plate_closed_form():
+    h, radius = 0.05, 0.3
+    c = _contacts(PLATE_B, PLATE.ctrl, Sphere([0.5, 0.5, h], radius))
+    pts = np.asarray(PLATE_B.points(PLATE.ctrl))
+    rho2 = (pts[..., 0] - 0.5) ** 2 + (pts[..., 1] - 0.5) ** 2
+    inside = rho2 < radius**2 - h**2
+    np.testing.assert_array_equal(np.asarray(c.mask), inside)
+    expect = np.where(inside, np.sqrt(np.maximum(radius**2 - rho2, 0)) - h, 0)
+    np.testing.assert_allclose(np.asarray(c.depth), expect, atol=1e-12)
+    assert float(c.depth.max()) == pytest.approx(radius - h, abs=1e-12)  # u = v = 0.5 is sampled
+    assert bool(c.hit) and not bool(c.apart)
+    # contact area ≈ π (R² − h²): count samples in the disc times the (non-uniform) cell areas
+    fine = PLATE.blending(101, 101)
+    cf = _contacts(fine, PLATE.ctrl, Sphere([0.5, 0.5, h], radius))
+    p = np.asarray(fine.points(PLATE.ctrl))
+    cell = np.abs(np.gradient(p[..., 0], axis=0) * np.gradient(p[..., 1], axis=1))
+    area = float((cell * np.asarray(cf.mask)).sum())
+    assert area == pytest.approx(np.pi * (radius**2 - h**2), rel=0.03)
+
+
+def test_ellipsoid_on_plate_closed_form_and_rotation():
+    center, radii = np.array([0.45, 0.55, 0.1]), np.array([0.3, 0.2, 0.15])
+    c = _contacts(PLATE_B, PLATE.ctrl, Ellipsoid(center, radii))
+    pts = np.asarray(PLATE_B.points(PLATE.ctrl))
+    q = ((pts[..., 0] - center[0]) / radii[0]) ** 2 + ((pts[..., 1] - center[1]) / radii[1]) ** 2
+    inside = q + (center[2] / radii[2]) ** 2 < 1
+    np.testing.assert_array_equal(np.asarray(c.mask), inside)
+    # along +z the surface of the ellipsoid is at z = c_z ± c √(1 − q): the closer root
+    expect = np.where(inside, radii[2] * np.sqrt(np.maximum(1 - q, 0)) - center[2], 0)
+    np.testing.assert_allclose(np.asarray(c.depth), expect, atol=1e-12)
+    # the same solid described with a rotation of 90° about z and swapped semi-axes
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    c2 = _contacts(PLATE_B, PLATE.ctrl, Ellipsoid(center, radii[[1, 0, 2]], rot))
+    np.testing.assert_allclose(np.asarray(c2.depth), np.asarray(c.depth), atol=1e-12)
+
+
+def test_sphere_on_cylinder_max_depth_and_ray_roots():
+    h, radius = 0.04, 0.25
+    axis = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    centre = (1.0 + h) * axis + np.array([0, 0, 0.5])
+    c = _contacts(CYL_B, CYL.ctrl, Sphere(centre, radius))
+    assert float(c.depth.max()) == pytest.approx(radius - h, abs=1e-12)  # R − h at the arc middle
+    assert int(np.argmax(np.asarray(c.depth)).item()) == 10 * 11 + 5
+    pts, nrm = np.asarray(c.points), np.asarray(c.normals)
+    f = lambda t, x, n: np.sum((x + t * n - centre) ** 2) - radius**2
+    for i, j in zip(*np.nonzero(np.asarray(c.mask))):
+        x, n = pts[i, j], nrm[i, j]
+        roots = [brentq(f, 0, 2 * radius, args=(x, n)), brentq(f, -2 * radius, 0, args=(x, n))]
+        assert float(c.depth[i, j]) == pytest.approx(min(abs(r) for r in roots), abs=1e-10)
+
+
+def test_plane_and_point_on_cylinder():
+    # plane x + y = s√2 with the solid beyond it (normal towards the axis): max depth 1 − s
+    s = 0.9
+    n = -np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    c = _contacts(CYL_B, CYL.ctrl, Plane(-n * s, n * 3.0))  # non-unit normal is normalised
+    pts = np.asarray(CYL_B.points(CYL.ctrl))
+    signed = pts[..., :2] @ (-n[:2]) - s
+    np.testing.assert_array_equal(np.asarray(c.mask), signed > 0)
+    np.testing.assert_allclose(np.asarray(c.depth), np.maximum(signed, 0), atol=1e-12)
+    assert float(c.depth.max()) == pytest.approx(1 - s, abs=1e-12)
+    # a point tool just behind the cylinder wall (opposite the surface normal) is in contact
+    mid_normal = np.asarray(CYL.normal(jnp.array(0.5), jnp.array(0.5)))
+    probe = np.asarray(CYL.evaluate(jnp.array(0.5), jnp.array(0.5))) - 0.01 * mid_normal
+    cp = _contacts(CYL_B, CYL.ctrl, Point(probe))
+    assert bool(cp.hit) and int(cp.mask.sum()) == 3
+    assert float(cp.depth.sum()) == pytest.approx(0.01, abs=2e-3)  # tessellation error of the arc
+    assert not bool(_contacts(CYL_B, CYL.ctrl, Point(probe + 0.02 * mid_normal)).hit)
+    assert not bool(_contacts(CYL_B, CYL.ctrl, Point(probe, reach=0.001)).hit)
+
+
+def test_point_on_plate_depth_and_reach():
+    c = _contacts(PLATE_B, PLATE.ctrl, Point([0.37, 0.61, -0.02]))
+    assert bool(c.hit) and float(c.depth.sum()) == pytest.approx(0.02, abs=1e-12)
+    f = contact_force(c, 100.0)
+    np.testing.assert_allclose(np.asarray(f), [0, 0, 2.0], atol=1e-10)  # Hooke: k · depth along +z
+    assert not bool(_contacts(PLATE_B, PLATE.ctrl, Point([0.37, 0.61, 0.02])).hit)
+    far = _contacts(PLATE_B, PLATE.ctrl, Point([0.37, 0.61, -0.02], reach=0.01))
+    assert not bool(far.hit) and bool(far.apart)  # the broad phase certifies it
+
+
+def test_implicit_torus_projection_depth():
+    big, small = 0.3, 0.1
+
+    def torus(x, params):
+        rho = jnp.sqrt(jnp.sum((x[:2] - 0.5) ** 2) + 1e-30)
+        return (rho - params[0]) ** 2 + x[2] ** 2 - params[1] ** 2
+
+    tool = Implicit(torus, params=jnp.array([big, small]))
+    c = _contacts(PLATE_B, PLATE.ctrl, tool)
+    pts = np.asarray(PLATE_B.points(PLATE.ctrl))
+    rho = np.hypot(pts[..., 0] - 0.5, pts[..., 1] - 0.5)
+    inside = np.abs(rho - big) < small
+    np.testing.assert_array_equal(np.asarray(c.mask), inside)
+    np.testing.assert_allclose(np.asarray(c.depth), np.where(inside, small - np.abs(rho - big), 0), atol=1e-8)
+    # differentiable in the tool's parameters: d Σ depth / d small = number of contacts
+    g = jax.grad(lambda p: contacts(PLATE_B, PLATE.ctrl, Implicit(torus, params=p)).depth.sum())(jnp.array([big, small]))
+    assert float(g[1]) == pytest.approx(inside.sum(), rel=1e-6)
+
+
+def test_triangle_mesh_tool_matches_trimesh():
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    mesh.apply_translation([0.5, 0.5, 0.15])
+    c = _contacts(PLATE_B, PLATE.ctrl, TriangleMesh.from_trimesh(mesh))
+    pts = np.asarray(PLATE_B.points(PLATE.ctrl)).reshape(-1, 3)
+    inside = mesh.contains(pts)
+    np.testing.assert_array_equal(np.asarray(c.mask).reshape(-1), inside)
+    dist = trimesh.proximity.ProximityQuery(mesh).signed_distance(pts)  # > 0 inside
+    np.testing.assert_allclose(np.asarray(c.depth).reshape(-1), np.where(inside, dist, 0), atol=1e-9)
+
+
+# --- broad phase, window and hierarchy against the dense references -------------------------
+
+TOOLS = [
+    Sphere([0.5, 0.4, 0.05], 0.25),
+    Ellipsoid([0.3, 0.6, 0.0], [0.3, 0.1, 0.2], np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0] * np.array([1, 1, 1])),
+    Plane([0.0, 0.0, 0.05], [0.2, -0.1, 1.0]),
+]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_window_method_matches_dense(seed):
+    surf = _bumpy(seed)
+    b = surf.blending(19, 23)
+    for tool in TOOLS:
+        if isinstance(tool, Ellipsoid) and np.linalg.det(np.asarray(tool.rotation)) < 0:
+            continue
+        w = _contacts(b, surf.ctrl, tool)
+        d = _contacts(b, surf.ctrl, tool, method="dense")
+        assert int(d.mask.sum()) > 0
+        np.testing.assert_array_equal(np.asarray(w.mask), np.asarray(d.mask))
+        np.testing.assert_allclose(np.asarray(w.depth), np.asarray(d.depth), atol=1e-14)
+
+
+def test_closed_surface_window_and_early_exit():
+    drop = shapes.teardrop()
+    b = drop.blending(17, 16)
+    for tool in (Sphere([0.6, 0.1, -0.2], 0.3), Plane([0, 0, -0.6], [0, 0, 1.0]), Ellipsoid([0, 0, 0.9], [0.2, 0.2, 0.3])):
+        w = _contacts(b, drop.ctrl, tool)
+        d = _contacts(b, drop.ctrl, tool, method="dense")
+        assert bool(d.hit)
+        np.testing.assert_array_equal(np.asarray(w.mask), np.asarray(d.mask))
+        np.testing.assert_allclose(np.asarray(w.depth), np.asarray(d.depth), atol=1e-14)
+    for far in (Sphere([3.0, 0, 0], 0.5), Plane([0, 0, -1.5], [0, 0, 1.0]), Ellipsoid([0, 0, 3.0], [0.2, 0.2, 0.3])):
+        c = _contacts(b, drop.ctrl, far)
+        assert bool(c.apart) and not bool(c.hit) and not bool(c.mask.any())
+
+
+def _fcl_masks(va, fa, vb, fb):
+    objs = []
+    for v, f in ((va, fa), (vb, fb)):
+        model = fcl.BVHModel()
+        model.beginModel(len(v), len(f))
+        model.addSubModel(np.asarray(v, np.float64), np.asarray(f, np.int64))
+        model.endModel()
+        objs.append(fcl.CollisionObject(model, fcl.Transform()))
+    res = fcl.CollisionResult()
+    fcl.collide(objs[0], objs[1], fcl.CollisionRequest(num_max_contacts=100000, enable_contact=True), res)
+    ma, mb = np.zeros(len(va), bool), np.zeros(len(vb), bool)
+    for con in res.contacts:
+        ma[fa[con.b1]] = True
+        mb[fb[con.b2]] = True
+    return ma, mb
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_surfaces_hierarchy_matches_dense_and_fcl(seed):
+    rng = np.random.default_rng(seed)
+    a = _bumpy(seed)
+    b = _bumpy(seed + 10, 5, 6)
+    ctrl_b = np.asarray(b.ctrl).copy()
+    ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * rng.uniform(0.5, 1.5) + 0.05 * rng.normal(size=ctrl_b.shape[:2])
+    ba, bb = a.blending(13, 11), b.blending(10, 14)
+    hier = _surfaces(ba, a.ctrl, bb, jnp.asarray(ctrl_b), capacity=512)
+    dense = _surfaces(ba, a.ctrl, bb, jnp.asarray(ctrl_b), method="dense")
+    assert bool(dense.hit) and not bool(hier.overflow)
+    np.testing.assert_array_equal(np.asarray(hier.mask_a), np.asarray(dense.mask_a))
+    np.testing.assert_array_equal(np.asarray(hier.mask_b), np.asarray(dense.mask_b))
+    va, fa = tessellate(ba.points(a.ctrl))
+    vb, fb = tessellate(bb.points(jnp.asarray(ctrl_b)))
+    ma, mb = _fcl_masks(np.asarray(va), np.asarray(fa), np.asarray(vb), np.asarray(fb))
+    np.testing.assert_array_equal(np.asarray(dense.mask_a).reshape(-1), ma)
+    np.testing.assert_array_equal(np.asarray(dense.mask_b).reshape(-1), mb)
+    # moved apart: certified by the control hulls, no contact
+    far = _surfaces(ba, a.ctrl, bb, jnp.asarray(ctrl_b) + jnp.array([0, 0, 5.0]), capacity=512)
+    assert bool(far.apart) and not bool(far.hit)
+
+
+def test_closed_surface_against_plate_hierarchy():
+    drop = shapes.teardrop()
+    plate = shapes.plate(4, 4, size=2.0)
+    ctrl_p = jnp.asarray(plate.ctrl) + jnp.array([-1.0, -1.0, 0.3])
+    bd, bp = drop.blending(15, 17), plate.blending(9, 9)
+    hier = _surfaces(bd, drop.ctrl, bp, ctrl_p, capacity=512)
+    dense = _surfaces(bd, drop.ctrl, bp, ctrl_p, method="dense")
+    assert bool(hier.hit) and not bool(hier.overflow)
+    np.testing.assert_array_equal(np.asarray(hier.mask_a), np.asarray(dense.mask_a))
+    np.testing.assert_array_equal(np.asarray(hier.mask_b), np.asarray(dense.mask_b))
+    small = _surfaces(bd, drop.ctrl, bp, ctrl_p, capacity=4)
+    assert bool(small.overflow)  # never a silent truncation
+
+
+# --- jit / vmap / gradients -------------------------------------------------------------------
+
+def test_vmap_over_tool_poses():
+    surf = _bumpy(5)
+    b = surf.blending(15, 15)
+    centres = jnp.array([[0.5, 0.5, 0.0], [0.2, 0.7, 0.1], [0.5, 0.5, 3.0], [0.8, 0.3, -0.05]])
+    batched = jax.jit(jax.vmap(lambda c: contacts(b, surf.ctrl, Sphere(c, 0.2)).depth))(centres)
+    for k in range(4):
+        np.testing.assert_allclose(np.asarray(batched[k]), np.asarray(_contacts(b, surf.ctrl, Sphere(centres[k], 0.2)).depth), atol=1e-14)
+    assert float(batched[2].sum()) == 0.0
+
+
+def test_gradients_match_finite_differences():
+    surf = _bumpy(6)
+    b = surf.blending(15, 15)
+    ctrl = jnp.asarray(surf.ctrl)
+    centre = jnp.array([0.47, 0.52, 0.06])
+    depth_c = jax.jit(lambda c: contacts(b, ctrl, Sphere(c, 0.23)).depth.sum())
+    check_grad(depth_c, centre, rtol=1e-4)
+    depth_r = jax.jit(lambda r: contacts(b, ctrl, Sphere(centre, r[0])).depth.sum())
+    check_grad(depth_r, jnp.array([0.23]), rtol=1e-4)
+    depth_p = jax.jit(lambda p: contacts(b, p, Sphere(centre, 0.23)).depth.sum())
+    check_grad(depth_p, ctrl, rtol=1e-4)
+    ell = jax.jit(lambda x: contacts(b, ctrl, Ellipsoid(x[:3], x[3:])).depth.sum())
+    check_grad(ell, jnp.array([0.5, 0.45, 0.05, 0.3, 0.2, 0.12]), rtol=1e-4)
+    force = jax.jit(lambda c: contact_force(contacts(b, ctrl, Sphere(c, 0.23)), 50.0)[2])
+    check_grad(force, centre, rtol=1e-4)
+    probe = jax.jit(lambda c: contact_force(contacts(b, ctrl, Sphere(c, 0.23)), 50.0, "probe_normal")[0])
+    check_grad(probe, centre, rtol=1e-4)
+    # no contact: gradients are exactly zero, not NaN
+    g = jax.grad(lambda c: contact_force(contacts(b, ctrl, Sphere(c, 0.1)), 50.0).sum())(jnp.array([0.5, 0.5, 2.0]))
+    assert np.all(np.asarray(g) == 0)
+
+
+def test_gradient_steps_push_surface_out_of_sphere():
+    b = PLATE.blending(15, 15)
+    tool = Sphere([0.5, 0.5, 0.1], 0.25)
+    loss = jax.jit(lambda p: jnp.sum(contacts(b, p, tool).depth ** 2))
+    step = jax.jit(lambda p: p - 2.0 * jax.grad(loss)(p))
+    ctrl = jnp.asarray(PLATE.ctrl)
+    start = float(loss(ctrl))
+    for _ in range(40):
+        ctrl = step(ctrl)
+    assert start > 1e-3 and float(loss(ctrl)) < 1e-3 * start
+    assert float(jnp.min(ctrl[1:-1, 1:-1, 2])) < -0.01  # the middle control points moved down
+
+
+# --- forces -----------------------------------------------------------------------------------
+
+def test_forces_spring_sum_direction_and_reaction():
+    tool = Sphere([0.5, 0.5, 0.1], 0.25)
+    c = _contacts(PLATE_B, PLATE.ctrl, tool)
+    k = 200.0
+    total = float(c.depth.sum())
+    for method in ("surface_normal", "probe_normal"):
+        f = np.asarray(contact_force(c, k, method))
+        np.testing.assert_allclose(f, [0, 0, k * total], atol=1e-9)
+        reaction = np.asarray(sample_forces(c, k, method)).sum((0, 1))
+        np.testing.assert_allclose(reaction, -f, atol=1e-9)
+    # damping resists the tool moving into the surface, per contact spring
+    v = jnp.array([0.0, 0.0, -0.3])
+    f_d = np.asarray(contact_force(c, k, damping=2.0, velocity=v))
+    np.testing.assert_allclose(f_d[2], k * total + 2.0 * 0.3 * int(c.mask.sum()), rtol=1e-12)
+    # probe on a sharp edge: the probe normal keeps pointing away from the tool centre
+    tilted = _contacts(PLATE_B, PLATE.ctrl, Sphere([-0.1, 0.5, 0.05], 0.2))
+    f_p = np.asarray(contact_force(tilted, k, "probe_normal"))
+    assert f_p[0] < 0 and f_p[2] > 0
+    with pytest.raises(ValueError, match="method"):
+        contact_force(c, k, "bogus")
+    with pytest.raises(ValueError, match="stiffness"):
+        contact_force(c, -1.0)
+
+
+def test_nodal_forces_nearest_nodes_and_conservation():
+    rng = np.random.default_rng(7)
+    points = rng.uniform(size=(40, 3))
+    forces = rng.normal(size=(40, 3))
+    nodes = rng.uniform(size=(12, 3))
+    got = np.asarray(nodal_forces(jnp.asarray(points), jnp.asarray(forces), jnp.asarray(nodes)))
+    nearest = np.argmin(((points[:, None] - nodes[None]) ** 2).sum(-1), 1)
+    expect = np.zeros((12, 3))
+    np.add.at(expect, nearest, forces)
+    np.testing.assert_allclose(got, expect, atol=1e-12)
+    spread = np.asarray(nodal_forces(jnp.asarray(points), jnp.asarray(forces), jnp.asarray(nodes), k=3))
+    np.testing.assert_allclose(spread.sum(0), forces.sum(0), atol=1e-12)
+    assert np.count_nonzero(np.abs(spread).sum(1)) >= np.count_nonzero(np.abs(expect).sum(1))
+
+
+# --- bad input --------------------------------------------------------------------------------
+
+def test_bad_inputs_raise_clear_errors():
+    with pytest.raises(ValueError, match="radius"):
+        Sphere([0, 0, 0], -1.0)
+    with pytest.raises(ValueError, match="center"):
+        Sphere([0, np.nan, 0], 1.0)
+    with pytest.raises(ValueError, match="center"):
+        Sphere([0, 0], 1.0)
+    with pytest.raises(ValueError, match="normal"):
+        Plane([0, 0, 0], [0, 0, 0])
+    np.testing.assert_allclose(np.asarray(Plane([0, 0, 0], [0, 0, 5.0]).normal), [0, 0, 1])
+    with pytest.raises(ValueError, match="radii"):
+        Ellipsoid([0, 0, 0], [1, 0, 1])
+    with pytest.raises(ValueError, match="rotation"):
+        Ellipsoid([0, 0, 0], [1, 1, 1], np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValueError, match="position"):
+        Point([np.inf, 0, 0])
+    with pytest.raises(ValueError, match="reach"):
+        Point([0, 0, 0], reach=-1.0)
+    with pytest.raises(ValueError, match="faces"):
+        TriangleMesh(np.zeros((3, 3)), [[0, 1, 3]])
+    with pytest.raises(TypeError, match="fn"):
+        Implicit(3.0)
+    with pytest.raises(ValueError, match="ctrl"):
+        contacts(PLATE_B, jnp.zeros((5, 6, 3)), Sphere([0, 0, 0], 1.0))
+    with pytest.raises(ValueError, match="method"):
+        contacts(PLATE_B, PLATE.ctrl, Sphere([0, 0, 0], 1.0), method="fast")
+    with pytest.raises(ValueError, match="capacity"):
+        surface_contacts(PLATE_B, PLATE.ctrl, PLATE_B, PLATE.ctrl, capacity=0)
+    with pytest.raises(TypeError, match="tool"):
+        contacts(PLATE_B, PLATE.ctrl, "sphere")
