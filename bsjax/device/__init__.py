@@ -12,7 +12,6 @@ print(loop.stats.report())
 
 from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
 from bsjax.device.hid import HidDevice, HidField, HidLayout
-from bsjax.device.physics import PhysicsModel, SculptModel
 from bsjax.device.protocol import (
     BUTTON_PRESS, DeviceError, DeviceSample, DeviceTimeout, HapticDevice, Workspace,
 )
@@ -29,3 +28,13 @@ __all__ = [
     "SculptModel", "ServoStats", "SimulatedDevice", "Workspace", "decode_frames", "encode_force", "encode_frame",
     "encode_pose", "plot_recording", "sculpt_script",
 ]
+
+
+def __getattr__(name: str):
+    # The physics model pulls in bsjax.mss and bsjax.collide: loaded on first use, so that the
+    # devices, the frame codec and the servo loop import quickly (e.g. `bsjax haptics --proxy-only`).
+    if name in ("SculptModel", "PhysicsModel"):
+        from bsjax.device import physics
+
+        return getattr(physics, name)
+    raise AttributeError(f"module 'bsjax.device' has no attribute {name!r}")
