@@ -312,13 +312,17 @@ def test_overlap_rows_dropped():
     """A flat patch running past x = 1 and a tilted one crossing it there (thesis §4.4.1)."""
     a = _plate(0.0, 1.2, 5, 4)
     b = _plate(0.9, 2.0, 5, 4, lambda x, y: 0.5 * (x - 1.0))
-    (lo_a, hi_a), (lo_b, hi_b) = mg.overlap_trims([a, b], "u", S)
+    (lo_a, hi_a), (lo_b, hi_b) = mg.overlap_trims([a, b], "u", S, method="dense")
     assert lo_a == 0.0 and 0.6 < hi_a < 1.0 / 1.2 and hi_b == 1.0 and 0.1 / 1.1 < lo_b < 0.35
+    # bsjax.collide finds the crossing itself (x = 1): the rows just before / after it are kept
+    (_, hi_c), (lo_c, _) = mg.overlap_trims([a, b], "u", S, method="collide")
+    step = 1.0 / (S - 1)
+    assert 1.0 / 1.2 - 2 * step < hi_c < 1.0 / 1.2 and 0.1 / 1.1 < lo_c < 0.1 / 1.1 + 2 * step
     # kept whole, the merged surface folds back on itself (x runs to 1.2, then back to 0.9);
     # with the overlapping rows dropped it runs straight through
     g = np.linspace(0, 1, 200)
     for overlap, monotone in (("keep", False), ("drop", True)):
-        merged = mg.merge([a, b], "u", 0, samples=S, overlap=overlap)
+        merged = mg.merge([a, b], "u", 0, samples=S, overlap=overlap, overlap_method="dense")
         x = ndbspline_surface(merged, g, np.full_like(g, 0.5))[:, 0]
         assert bool(np.all(np.diff(x) > 0)) == monotone
     windows = [(lo_a, hi_a, 0, 1), (lo_b, hi_b, 0, 1)]

@@ -45,13 +45,16 @@ def _finish(layout: MergeLayout, ctrls, refine_fit: bool) -> BSplineSurface:
 
 def merge(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: int = 2, *,
           samples=82, cross_knots: str = "average", degrees=None, orient: str = "auto",
-          trim=None, overlap: str = "keep", refine: bool = False) -> BSplineSurface:
+          trim=None, overlap: str = "keep", overlap_method: str = "collide",
+          refine: bool = False) -> BSplineSurface:
     """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
 
     **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
     `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`), plus
     - `overlap`: `"keep"`, or `"drop"` to find intersecting patches' overlapping sample rows and
-      leave them out (§4.4.1; dense distance test, `overlap_trims`). Not with `trim`.
+      leave them out (§4.4.1, `overlap_trims`). Not with `trim`.
+    - `overlap_method`: `"collide"` (bsjax.collide's surface contacts) or `"dense"` (a distance
+      test between the sample grids).
     - `refine`: also run the nonlinear refit with parameter correction (`refine`).
 
     **Returns:** the merged surface: degree `(k, l)`, `r = Σ r_i − (N − 1)` control points along
@@ -68,7 +71,7 @@ def merge(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: 
         oriented = [orient_surface(s, op[0] if direction == "u" else op)
                     for s, op in zip(surfaces, _flat_ops(probe, direction))]
         m = samples if isinstance(samples, int) else samples[0 if direction == "u" else 1]
-        trim = overlap_trims(oriented, direction, m)
+        trim = overlap_trims(oriented, direction, m, method=overlap_method)
     layout = plan(surfaces, direction, continuity, samples=samples, cross_knots=cross_knots,
                   degrees=degrees, orient=orient, trim=trim)
     return _finish(layout, [s.ctrl for s in surfaces], refine)

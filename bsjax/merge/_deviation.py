@@ -13,11 +13,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
-from scipy.spatial import cKDTree
 
 from bsjax import _checks
 from bsjax.basis import BSplineSurface
-from bsjax.merge import _fast
 
 
 def _gauss_newton_step(surface: BSplineSurface, points, uv):
@@ -55,17 +53,43 @@ def project(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Arr
 _project_jit = eqx.filter_jit(project)
 
 
+def _nearest(points, candidates, chunk: int = 256):
+    """Index of the nearest candidate for every point, in chunks so memory stays `chunk × G`."""
+    n = points.shape[0]
+    pad = (-n) % chunk
+    padded = jnp.concatenate([points, jnp.zeros((pad, 3), points.dtype)]).reshape(-1, chunk, 3)
+    c2 = jnp.sum(candidates**2, -1)
+
+    def one(block):
+        return jnp.argmin(c2[None, :] - 2.0 * block @ candidates.T, axis=1)
+
+    return jax.lax.map(one, padded).reshape(-1)[:n]
+
+
+def _candidate_count(surface: BSplineSurface) -> int:
+    return int(np.clip(4 * max(surface.shape) + 1, 33, 129))
+
+
+@eqx.filter_jit
+def _closest(surface: BSplineSurface, points, grid, steps: int):
+    cu, cv = (x.reshape(-1) for x in jnp.meshgrid(grid, grid, indexing="ij"))
+    idx = _nearest(points, surface.evaluate(cu, cv))
+    uv = project(surface, points, jnp.stack([cu[idx], cv[idx]], -1), steps)
+    return uv, jnp.linalg.norm(surface.evaluate(uv[:, 0], uv[:, 1]) - points, axis=-1)
+
+
 def closest_parameters(surface: BSplineSurface, points, candidates: int | None = None, steps: int = 8):
-    """Global closest-point parameters: best of a `candidates²` sample grid, then `project`."""
+    """Global closest points on `surface`: the best of a `candidates²` parameter grid (default
+    `4·max(r, s) + 1`, 33…129), then `project`. **Returns:** `(uv (N, 2), distances (N,))`."""
     pts = jnp.asarray(points, surface.ctrl.dtype).reshape(-1, 3)
-    r, s = surface.shape
-    g = candidates or int(min(257, 8 * max(r, s) + 1))
-    grid = _fast.blending(surface, g, g)
-    cand = np.asarray(grid.points(surface.ctrl)).reshape(-1, 3)
-    _, idx = cKDTree(cand).query(np.asarray(pts))
-    pu, pv = np.asarray(grid.params_u), np.asarray(grid.params_v)
-    uv0 = np.stack([pu[idx // g], pv[idx % g]], -1).astype(np.asarray(pts).dtype)
-    return _project_jit(surface, pts, jnp.asarray(uv0), steps)
+    g = candidates or _candidate_count(surface)
+    return _closest(surface, pts, jnp.linspace(0.0, 1.0, g, dtype=pts.dtype), steps)
+
+
+@eqx.filter_jit
+def _sample(surface: BSplineSurface, pu, pv):
+    u, v = jnp.meshgrid(pu, pv, indexing="ij")
+    return surface.evaluate(u, v)
 
 
 class Deviation(eqx.Module):
@@ -101,7 +125,7 @@ def deviation(originals: Sequence[BSplineSurface] | BSplineSurface, merged: BSpl
       thesis uses 101², i.e. 20402 points for two patches).
     - `merged`: the merged surface.
     - `tolerance`: distance under which a point counts as "close" (same units as the geometry).
-    - `candidates`: size of the merged surface's starting grid (default `8·max(r, s) + 1`).
+    - `candidates`: size of the merged surface's starting grid (default `4·max(r, s) + 1`).
     - `windows`: per original `None` or `(u0, u1, v0, v1)`: sample only that parameter window
       (the kept part of a trimmed or intersecting patch).
 
@@ -124,10 +148,8 @@ def deviation(originals: Sequence[BSplineSurface] | BSplineSurface, merged: BSpl
         u0, u1, v0, v1 = (0.0, 1.0, 0.0, 1.0) if w is None else map(float, w)
         pu = np.linspace(u0, u1, samples)
         pv = np.linspace(v0, v1, samples)
-        pts = _fast.blending(s, params_u=pu, params_v=pv).points(s.ctrl).astype(merged.ctrl.dtype)
-        flat = pts.reshape(-1, 3)
-        uv = closest_parameters(merged, flat, candidates)
-        d = jnp.linalg.norm(_fast.evaluate(merged, uv[:, 0], uv[:, 1]) - flat, axis=-1)
+        pts = _sample(s, jnp.asarray(pu, s.ctrl.dtype), jnp.asarray(pv, s.ctrl.dtype))
+        _, d = closest_parameters(merged, pts.astype(merged.ctrl.dtype).reshape(-1, 3), candidates)
         dists.append(np.asarray(d).reshape(samples, samples))
     return summarize(dists, tolerance)
 

@@ -54,15 +54,17 @@ def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
                           orient_ctrl(surface.weights, op))
 
 
-def _edges(surface: BSplineSurface, count: int = 17) -> dict:
-    """The four boundary curves, sampled at `count` parameters in one evaluation."""
-    t = np.linspace(0.0, 1.0, count)
-    z, o = np.zeros(count), np.ones(count)
-    u = np.concatenate([z, o, t, t])
-    v = np.concatenate([t, t, z, o])
-    pts = np.asarray(_fast.evaluate(surface, jnp.asarray(u, surface.ctrl.dtype), jnp.asarray(v, surface.ctrl.dtype)))
-    return {("u", 0): pts[:count], ("u", 1): pts[count : 2 * count],
-            ("v", 0): pts[2 * count : 3 * count], ("v", 1): pts[3 * count :]}
+def _edges(surface: BSplineSurface, count: int = 17, samples: int = 33) -> dict:
+    """The four boundary curves at `count` parameters, read off the patch's sample grid (the same
+    blending matrices the merge builds) and resampled linearly."""
+    grid = np.asarray(_fast.blending(surface, samples, samples).points(surface.ctrl))
+    t, x = np.linspace(0.0, 1.0, count), np.linspace(0.0, 1.0, samples)
+
+    def resample(curve):
+        return np.stack([np.interp(t, x, curve[:, i]) for i in range(3)], -1)
+
+    return {("u", 0): resample(grid[0]), ("u", 1): resample(grid[-1]),
+            ("v", 0): resample(grid[:, 0]), ("v", 1): resample(grid[:, -1])}
 
 
 def _oriented_edge(edges: dict, op: Orientation, direction: str, end: int) -> np.ndarray:

@@ -7,7 +7,8 @@ millimetres, each patch about 20 mm × 20 mm with a few mm of relief:
 2. different curvatures, similar (uniform) knot vectors (the edges differ by up to 0.4 mm);
 3. similar curvature, different knot vectors;
 4. similar curvature, different knot vectors and dimensions (24 mm vs 20 mm edges);
-5. intersecting and trimmed (the first patch runs 3 mm past the second and crosses it);
+5. intersecting and trimmed (the first patch runs 3 mm past the second and cuts through it;
+   the overlapping rows are found and dropped);
 6. different degrees: a 6×6 bicubic and an 8×12 patch of degrees 4×5, merged along v;
 7. four patches in a 2×2 grid with different curvatures and knot vectors.
 
@@ -94,8 +95,8 @@ def case(number: int) -> Case:
         b = _patch(20, 34, -2, 22, _hill, 5, 8, knots_v=_knots([0.15, 0.35, 0.55, 0.8]))
         return Case(4, [a, b], "u")
     if number == 5:
-        # the first patch runs 3 mm past x = 20, rising, and cuts through the second
-        a = _patch(0, 23, 0, 20, lambda x, y: _hill(x, y) + 0.25 * np.maximum(x - 19.0, 0.0) ** 2, 7, 6)
+        # the first patch runs 3 mm past x = 20, tilted, and cuts through the second at x ≈ 21.5
+        a = _patch(0, 23, 0, 20, lambda x, y: _hill(x, y) + 0.3 * (x - 21.5), 7, 6)
         b = _patch(20, 40, 0, 20, _hill, 6, 6)
         return Case(5, [a, b], "u", {"overlap": "drop"})
     if number == 6:
@@ -121,7 +122,7 @@ def all_cases() -> list[Case]:
 
 
 def run(c: Case, continuity: int, *, refine: bool = False, samples: int = 82, deviation_samples: int = 101,
-        tolerance: float = 0.1):
+        tolerance: float = 0.1, overlap_method: str = "collide"):
     """Merge case `c` with C^continuity and measure it.
 
     **Returns:** `(merged surface, layout, Deviation)`; for case 5 the deviation is measured on the
@@ -136,7 +137,7 @@ def run(c: Case, continuity: int, *, refine: bool = False, samples: int = 82, de
         ctrls = [[s.ctrl for s in row] for row in c.patches]
     else:
         if options.pop("overlap", "keep") == "drop":
-            trims = mg.overlap_trims(c.patches, c.direction, samples)
+            trims = mg.overlap_trims(c.patches, c.direction, samples, method=overlap_method)
             options["trim"] = trims
             windows = [(lo, hi, 0.0, 1.0) if c.direction == "u" else (0.0, 1.0, lo, hi) for lo, hi in trims]
         layout = mg.plan(c.patches, c.direction, continuity, samples=samples, orient="as_given", **options)
