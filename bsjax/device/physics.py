@@ -186,7 +186,6 @@ class SculptModel:
         self.tool_axes = np.full(3, float(tool_radius)) if tool_axes is None else np.asarray(tool_axes, float)
         self.set_tool(axes=self.tool_axes)
         self._tick = jax.jit(self._tick_impl)
-        self._settle = jax.jit(self._settle_impl)
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
         self._lock = threading.Lock()
@@ -219,8 +218,9 @@ class SculptModel:
         state = mss.step(self.lattice, state, self.dt, external_force=push, rest_length=rest)
         return state, rest, rest_seam
 
-    def _tick_impl(self, carry, centre, axes, rot, pressing):
+    def _tick_impl(self, carry, centre, axes, rot, pressing, settle):
         tool = (centre, axes, rot, pressing)
+        carry = self._settled(carry, settle)
         carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tool), carry)
         m, n = self.grid
         x = carry[0].position
@@ -239,16 +239,20 @@ class SculptModel:
         hit = contact.hit.astype(x.dtype)
         return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None], spring, hit[None]])
 
-    def _settle_impl(self, carry):
-        state, _, _ = carry
-        x = state.position
+    def _settled(self, carry, settle):
+        """Plastic set (on button release): rest lengths ← current lengths when `settle`."""
 
-        def lengths(lattice):
+        def lengths(lattice, x):
             e = lattice.edges
             return safe_norm(x[e[:, 0]] - x[e[:, 1]])
 
-        seam = lengths(self.seam) if self.seam is not None else carry[2]
-        return state, lengths(self.lattice), seam
+        def set_shape(carry):
+            state, _, rest_seam = carry
+            x = state.position
+            seam = lengths(self.seam, x) if self.seam is not None else rest_seam
+            return state, lengths(self.lattice, x), seam
+
+        return jax.lax.cond(settle, set_shape, lambda c: c, carry)
 
     # --- model interface ----------------------------------------------------------------------
     def _tool_args(self, position, orientation):
@@ -256,20 +260,19 @@ class SculptModel:
         return (jnp.asarray(position, dt), jnp.asarray(self.tool_axes, dt), jnp.asarray(quat_to_matrix(orientation), dt))
 
     def warmup(self) -> None:
-        """Compile the tick and the settle (both shapes are fixed, so this happens once)."""
+        """Compile the tick (all shapes are fixed, so this happens once)."""
         centre, axes, rot = self._tool_args(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0))
-        out = self._tick(self._state, centre, axes, rot, jnp.asarray(0.0, self.dtype))
-        jax.block_until_ready(out)
-        jax.block_until_ready(self._settle(self._state))
+        jax.block_until_ready(self._tick(self._state, centre, axes, rot, jnp.asarray(0.0, self.dtype),
+                                         jnp.asarray(False)))
 
     def update(self, sample: DeviceSample) -> Proxy:
         """One physics tick with the tool at `sample`; returns the plane proxy for the servo."""
         pressed = sample.pressed
         with self._lock:
             centre, axes, rot = self._tool_args(sample.position, sample.orientation)
-            state, ctrl, out = self._tick(self._state, centre, axes, rot, jnp.asarray(float(pressed), self.dtype))
-            if self._was_pressed and not pressed:
-                state = self._settle(state)
+            settle = jnp.asarray(self._was_pressed and not pressed)  # released: set the shape first
+            state, ctrl, out = self._tick(self._state, centre, axes, rot, jnp.asarray(float(pressed), self.dtype),
+                                          settle)
             self._was_pressed = pressed
             out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
             self._state, self.ctrl = state, ctrl
