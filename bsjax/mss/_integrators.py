@@ -15,7 +15,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _tensor
-from bsjax.mss._forces import _inv_length, edge_sum, spring_forces, tool_forces
+from bsjax.mss._forces import _dot3, _inv_length, edge_sum, spring_forces, tool_forces
 from bsjax.mss._lattice import Lattice, State
 
 METHODS = ("semi_implicit", "implicit")
@@ -153,7 +153,7 @@ def _tangent_pair(h, damped=True):
     def pair(dx, dw, rest, k, c):
         inv, _ = _inv_length(dx)
         lam = _transverse(rest, inv)
-        along = jnp.sum(dx * dw, axis=0) * inv * inv  # (ê·dw)/l, so along·dx = (ê·dw) ê
+        along = _dot3(dx, dw) * inv * inv  # (ê·dw)/l, so along·dx = (ê·dw) ê
         axial = (h * c + h * h * k) if damped else h * h * k
         return (axial - h * h * k * lam) * along * dx + h * h * k * lam * dw
     return pair
