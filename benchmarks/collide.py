@@ -1,0 +1,167 @@
+"""Collision benchmark: the thesis's experiments (SPEC §3, Tables 1–2) against python-fcl.
+
+Same process, same surfaces: bsjax (jitted, steady state, `block_until_ready`) and python-fcl on
+the tessellated 82×82 (…) sample grid, once rebuilding the BVH every query (the surface deforms
+every frame, so a real loop must) and once with a BVH built beforehand. Both sides do the whole
+query: bsjax returns the per-sample mask, depth and normals; fcl all contacts.
+
+    .venv/bin/python benchmarks/collide.py            # float32, the full tables (a few minutes)
+    .venv/bin/python benchmarks/collide.py --quick    # fewer sizes
+    .venv/bin/python benchmarks/collide.py --x64      # float64
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+THESIS_TABLE1 = {4: ("<1", "<1", "2"), 8: ("<1", "3", "4"), 12: ("4", "5", "10"), 16: ("6", "12", "22"), 20: ("10", "17", "31")}
+THESIS_TABLE2 = {28: ("<1", "~1", "1"), 82: ("~1", "3", "4"), 244: ("3", "6", "15")}
+THESIS_SURF = {4: "6", 8: "15", 20: "91"}
+
+
+def timeit(fn, n, warm=2):
+    for _ in range(warm):
+        fn()
+    times = []
+    for _ in range(n):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    t = np.array(times) * 1e3
+    return float(np.median(t)), float(np.percentile(t, 99))
+
+
+def bumpy(size: int, seed: int, dtype):
+    from bsjax.basis import BSplineSurface, clamped_knots
+
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(0, 1, size), np.linspace(0, 1, size), indexing="ij")
+    ctrl = np.stack([x, y, 0.02 * rng.normal(size=x.shape)], -1).astype(dtype)
+    knots = clamped_knots(size, 3, dtype)
+    return BSplineSurface(ctrl, knots, knots, 3, 3)
+
+
+def fcl_mesh(points, faces, build=True):
+    import fcl
+
+    model = fcl.BVHModel()
+    model.beginModel(len(points), len(faces))
+    model.addSubModel(points, faces)
+    model.endModel()
+    return fcl.CollisionObject(model, fcl.Transform())
+
+
+def fcl_query(obj, other):
+    import fcl
+
+    req = fcl.CollisionRequest(num_max_contacts=100000, enable_contact=True)
+    res = fcl.CollisionResult()
+    return fcl.collide(obj, other, req, res)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--x64", action="store_true")
+    parser.add_argument("--calls", type=int, default=300)
+    args = parser.parse_args(argv)
+    import jax
+
+    if args.x64:
+        jax.config.update("jax_enable_x64", True)
+    import fcl
+    import jax.numpy as jnp
+
+    from bsjax.collide import Plane, Point, Sphere, contacts, surface_contacts
+    from bsjax.collide.hierarchy import tessellate
+
+    dtype = np.float64 if args.x64 else np.float32
+    print(f"bsjax collide benchmark — jax {jax.__version__} on {jax.devices()[0].platform}, "
+          f"{'float64' if args.x64 else 'float32'}; fcl {getattr(fcl, '__version__', '')}; times in ms (median / p99)")
+    tools = {
+        "point": (Point([0.5, 0.5, -0.005]), lambda: fcl.CollisionObject(fcl.Sphere(1e-6), fcl.Transform(np.array([0.5, 0.5, -0.005])))),
+        "sphere": (Sphere([0.5, 0.5, 0.1], 0.15), lambda: fcl.CollisionObject(fcl.Sphere(0.15), fcl.Transform(np.array([0.5, 0.5, 0.1])))),
+        "plane": (Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]), lambda: fcl.CollisionObject(fcl.Halfspace(np.array([0.0, 0.0, 1.0]), 0.0), fcl.Transform())),
+    }
+    rows = []
+
+    def run(net, m, kind, label, thesis):
+        surf = bumpy(net, 0, dtype)
+        b = surf.blending(m, m)
+        ctrl = jnp.asarray(surf.ctrl)
+        tool, fcl_tool = tools[kind]
+        query = jax.jit(lambda c, t: contacts(b, c, t))
+        t0 = time.perf_counter()
+        jax.block_until_ready(query(ctrl, tool))
+        compile_s = time.perf_counter() - t0
+        med, p99 = timeit(lambda: jax.block_until_ready(query(ctrl, tool)), args.calls)
+        a_u, a_v = np.asarray(b.a_u[0], np.float64), np.asarray(b.a_v[0], np.float64)
+        p = np.asarray(surf.ctrl, np.float64)
+        faces = np.asarray(tessellate(b.points(ctrl))[1], np.int64)
+        other = fcl_tool()
+
+        def fcl_rebuild():  # the surface deformed: sample it and rebuild the BVH
+            pts = np.einsum("ai,ijc,bj->abc", a_u, p, a_v).reshape(-1, 3)
+            return fcl_query(fcl_mesh(pts, faces), other)
+
+        pts = np.einsum("ai,ijc,bj->abc", a_u, p, a_v).reshape(-1, 3)
+        prebuilt = fcl_mesh(pts, faces)
+        n_fcl = max(10, args.calls // 10)
+        f_med, f_p99 = timeit(fcl_rebuild, n_fcl)
+        g_med, _ = timeit(lambda: fcl_query(prebuilt, other), args.calls)
+        contacts_n = int(query(ctrl, tool).mask.sum())
+        rows.append((label, kind, med, p99, compile_s, f_med, g_med))
+        print(f"{label:<22} {kind:<6} bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, {contacts_n:5d} samples in contact)"
+              f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x) | thesis {thesis}")
+
+    nets = [4, 8, 20] if args.quick else [4, 8, 12, 16, 20]
+    print("\nTable 1 — control net r×r at 82×82 samples")
+    for net in nets:
+        for k, kind in enumerate(("point", "sphere", "plane")):
+            run(net, 82, kind, f"{net}x{net} net, 82x82", THESIS_TABLE1[net][k])
+    print("\nTable 2 — 8×8 net, maximum samples m×m")
+    for m in ([28, 244] if args.quick else [28, 82, 244]):
+        for k, kind in enumerate(("point", "sphere", "plane")):
+            run(8, m, kind, f"8x8 net, {m}x{m}", THESIS_TABLE2[m][k])
+
+    print("\nB-spline vs B-spline — both deformable, 82×82 samples each")
+    for net in ([4, 20] if args.quick else [4, 8, 12, 16, 20]):
+        a = bumpy(net, 1, dtype)
+        b_surf = bumpy(net, 2, dtype)
+        ctrl_b = np.asarray(b_surf.ctrl).copy()
+        ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 0.8 + ctrl_b[..., 2]
+        ctrl_b[..., 0] = 0.1 + 0.8 * ctrl_b[..., 0]
+        bl = a.blending(82, 82)
+        ca, cb = jnp.asarray(a.ctrl), jnp.asarray(ctrl_b)
+        query = jax.jit(lambda x, y: surface_contacts(bl, x, bl, y))
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(query(ca, cb))
+        compile_s = time.perf_counter() - t0
+        med, p99 = timeit(lambda: jax.block_until_ready(query(ca, cb)), args.calls // 2)
+        a_u, a_v = np.asarray(bl.a_u[0], np.float64), np.asarray(bl.a_v[0], np.float64)
+        pa, pb = np.asarray(a.ctrl, np.float64), np.asarray(ctrl_b, np.float64)
+        fa = np.asarray(tessellate(bl.points(ca))[1], np.int64)
+        fb = np.asarray(tessellate(bl.points(cb))[1], np.int64)
+
+        def fcl_rebuild():
+            xa = np.einsum("ai,ijc,bj->abc", a_u, pa, a_v).reshape(-1, 3)
+            xb = np.einsum("ai,ijc,bj->abc", a_u, pb, a_v).reshape(-1, 3)
+            return fcl_query(fcl_mesh(xa, fa), fcl_mesh(xb, fb))
+
+        oa = fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, pa, a_v).reshape(-1, 3), fa)
+        ob = fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, pb, a_v).reshape(-1, 3), fb)
+        f_med, _ = timeit(fcl_rebuild, max(10, args.calls // 10))
+        g_med, _ = timeit(lambda: fcl_query(oa, ob), max(10, args.calls // 10))
+        print(f"{net}x{net} vs {net}x{net}, 82x82  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
+              f"{int(res.pair_hit.sum())} contact cell pairs, overflow {bool(res.overflow)})"
+              f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x)"
+              f" | thesis {THESIS_SURF.get(net, '—')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

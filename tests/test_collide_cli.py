@@ -1,0 +1,28 @@
+"""`bsjax collide` end to end on a surface file."""
+
+import json
+
+import pytest
+
+from bsjax import io, shapes
+from bsjax.collide_cli import main
+
+
+def test_cli_sphere_report(tmp_path, capsys):
+    path = tmp_path / "plate.json"
+    io.save(shapes.plate(6, 6), path)
+    out = tmp_path / "report.json"
+    code = main([str(path), "--sphere", "0.5", "0.5", "0.05", "0.3", "--samples", "15", "15", "--json", str(out)])
+    assert code == 0
+    report = json.loads(out.read_text())
+    assert report["hit"] and report["samples_in_contact"] > 0
+    assert report["max_depth"] == pytest.approx(0.25, abs=1e-6)  # R − h at the sampled centre
+    assert report["force_surface_normal"][2] == pytest.approx(100.0 * report["total_depth"], rel=1e-6)
+    assert "samples_in_contact" in capsys.readouterr().out
+
+
+def test_cli_errors(tmp_path, capsys):
+    assert main([str(tmp_path / "missing.json"), "--point", "0", "0", "0"]) == 1
+    assert "missing.json" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "x.json")])  # no tool
