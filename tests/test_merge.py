@@ -161,8 +161,8 @@ def test_merge_auto_orientation(surface):
 
 
 def test_oriented_edges_match_evaluation(surface):
-    edges = _orient._edges(surface)
-    t = np.linspace(0.0, 1.0, 17)
+    edges = _orient._edges(surface, count=S, samples=(S, S))
+    t = np.linspace(0.0, 1.0, S)
     for op in _orient.ALL:
         s = _orient.orient_surface(surface, op)
         for d in "uv":

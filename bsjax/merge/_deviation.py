@@ -173,8 +173,9 @@ def plot_deviation(report: Deviation, ax=None, title: str | None = None):
 
     if ax is None:
         _, ax = plt.subplots(figsize=(2.4 * len(report.distances) + 1.2, 2.6))
-    strip = np.concatenate([np.vstack([d, np.full((d.shape[0] // 20 + 1, d.shape[1]), np.nan)])
-                            for d in report.distances], axis=0).T
+    gap = np.full((report.distances[0].shape[0] // 20 + 1, report.distances[0].shape[1]), np.nan)
+    parts = [p for d in report.distances for p in (gap, d)][1:]
+    strip = np.concatenate(parts, axis=0).T
     image = ax.imshow(strip, origin="lower", cmap="viridis", vmin=0.0, vmax=max(report.max, 1e-12),
                       aspect="auto")
     ax.figure.colorbar(image, ax=ax, label="distance")

@@ -259,7 +259,8 @@ def plan(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: i
         _checks.fail("surfaces", "a list of 2 or more patches", len(surfaces))
     for i, s in enumerate(surfaces):
         _check_patch(s, f"surfaces[{i}]")
-    ops = _orient.orient_row(surfaces, direction) if orient == "auto" else [_orient.IDENTITY] * len(surfaces)
+    ops = (_orient.orient_row(surfaces, direction, _samples(samples)) if orient == "auto"
+           else [_orient.IDENTITY] * len(surfaces))
     grid = [[s] for s in surfaces] if direction == "u" else [surfaces]
     ogrid = [[op] for op in ops] if direction == "u" else [ops]
     cont = list(continuity) if isinstance(continuity, (tuple, list)) else continuity

@@ -54,13 +54,14 @@ def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
                           orient_ctrl(surface.weights, op))
 
 
-def _edges(surface: BSplineSurface, count: int = 17, samples: int = 33) -> dict:
-    """The four boundary curves at `count` parameters, read off the patch's sample grid (the same
-    blending matrices the merge builds) and resampled linearly."""
-    grid = np.asarray(_fast.blending(surface, samples, samples).points(surface.ctrl))
-    t, x = np.linspace(0.0, 1.0, count), np.linspace(0.0, 1.0, samples)
+def _edges(surface: BSplineSurface, count: int = 17, samples: tuple[int, int] = (33, 33)) -> dict:
+    """The four boundary curves at `count` parameters, read off the patch's `samples` grid (the
+    same blending matrices the merge builds) and resampled linearly."""
+    grid = np.asarray(_fast.blending(surface, *samples).points(surface.ctrl))
+    t = np.linspace(0.0, 1.0, count)
 
     def resample(curve):
+        x = np.linspace(0.0, 1.0, len(curve))
         return np.stack([np.interp(t, x, curve[:, i]) for i in range(3)], -1)
 
     return {("u", 0): resample(grid[0]), ("u", 1): resample(grid[-1]),
@@ -86,11 +87,12 @@ def _pick(gaps: list[float]) -> int:
     return int(np.argmax(g <= g.min() + 1e-9 * (1.0 + abs(g.min()))))
 
 
-def orient_row(surfaces: list[BSplineSurface], direction: str) -> list[Orientation]:
+def orient_row(surfaces: list[BSplineSurface], direction: str, samples: tuple[int, int] = (33, 33)) -> list[Orientation]:
     """Orientations that make the `direction = 1` edge of patch i meet the `direction = 0` edge of
     patch i + 1 (same sense along the shared edge), chosen by the smallest mean edge gap.
+    The edges are read off each patch's `samples` grid.
     """
-    edges = [_edges(s) for s in surfaces]
+    edges = [_edges(s, samples=samples) for s in surfaces]
     pairs = list(itertools.product(ALL, repeat=2))
     gaps = [_gap(_oriented_edge(edges[0], a, direction, 1), _oriented_edge(edges[1], b, direction, 0))
             for a, b in pairs]
