@@ -118,7 +118,9 @@ class Blending(eqx.Module):
             _checks.fail("points", f"shape {(m, n, 3)}", points.shape)
         if self.refit_u is None or self.refit_v is None:
             _checks.fail(
-                "Blending.refit", "a full grid with m >= r and n >= s samples",
+                "Blending.refit",
+                "a full grid with m >= r and n >= s samples whose blending matrices have full "
+                "column rank (a closed direction samples its seam twice)",
                 f"grid {self.grid_shape} for control net {self.ctrl_shape}",
             )
         if self.weights is None:
@@ -175,6 +177,7 @@ def _params(params, count, name, count_name, dtype):
         return jnp.linspace(0.0, 1.0, count, dtype=dtype)
     _checks.check_ndim(params, name, 1)
     _checks.check_finite(params, name)
+    _checks.check_range(params, name, 0.0, 1.0)
     return jnp.asarray(params, dtype=dtype)
 
 
@@ -183,8 +186,11 @@ def _stack(knots, degree, periodic, n_ctrl, params):
 
 
 def _pinv(a):
-    """`(A^T A)^{-1} A^T` via SVD, computed once; `None` when the system is under-determined."""
+    """`(A^T A)^{-1} A^T` via SVD, computed once; `None` when `A` lacks full column rank (fewer
+    distinct samples than control points — a closed direction samples its seam twice)."""
     if a.shape[0] < a.shape[1]:
+        return None
+    if _checks.is_concrete(a) and np.linalg.matrix_rank(np.asarray(a)) < a.shape[1]:
         return None
     return jnp.linalg.pinv(a)
 

@@ -61,6 +61,24 @@ def check_degree(degree: Any, name: str, n_ctrl: int | None = None, n_name: str 
         fail(name, f"a degree smaller than the {n_ctrl} control points along {n_name}", degree)
 
 
+def check_monotone(x: Any, name: str) -> None:
+    """A concrete 1-D `x` must be finite and non-decreasing."""
+    if not is_concrete(x):
+        return
+    t = np.asarray(x, dtype=np.float64)
+    check_finite(t, name)
+    if np.any(np.diff(t) < 0):
+        fail(name, "a non-decreasing knot vector", f"a decrease at index {int(np.argmax(np.diff(t) < 0))}")
+
+
+def check_range(x: Any, name: str, lo: float, hi: float) -> None:
+    """All entries of a concrete `x` must lie in `[lo, hi]`."""
+    if is_concrete(x):
+        a = np.asarray(x, dtype=np.float64)
+        if a.size and (a.min() < lo or a.max() > hi):
+            fail(name, f"values in [{lo}, {hi}]", f"[{a.min()}, {a.max()}]")
+
+
 def check_knots(knots: Any, degree: int, n_ctrl: int, name: str) -> None:
     """A clamped, non-decreasing knot vector of length `n_ctrl + degree + 1` on [0, 1]."""
     check_ndim(knots, name, 1)
@@ -68,10 +86,8 @@ def check_knots(knots: Any, degree: int, n_ctrl: int, name: str) -> None:
         fail(name, f"length n_ctrl + degree + 1 = {n_ctrl + degree + 1}", len(knots))
     if not is_concrete(knots):
         return
+    check_monotone(knots, name)
     t = np.asarray(knots, dtype=np.float64)
-    check_finite(t, name)
-    if np.any(np.diff(t) < 0):
-        fail(name, "a non-decreasing knot vector", f"a decrease at index {int(np.argmax(np.diff(t) < 0))}")
     if np.any(t[: degree + 1] != t[0]) or np.any(t[-degree - 1 :] != t[-1]):
         fail(name, f"a clamped knot vector ({degree + 1} equal knots at each end)", t.tolist())
     if t[0] != 0.0 or t[-1] != 1.0:

@@ -8,7 +8,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _tensor
-from bsjax.basis import _float_dtype, direction_matrix
+from bsjax.basis import _check_nu, _float_dtype, direction_matrix
 
 
 def _as_float(x, dtype=None):
@@ -83,6 +83,8 @@ class BSplineSurface(eqx.Module):
         Differentiable in the control net, the weights and in `u`, `v`.
         **Returns:** `u.shape + (3,)`.
         """
+        _check_nu(nu, "nu")
+        _check_nu(nv, "nv")
         u, v = jnp.asarray(u, self.ctrl.dtype), jnp.asarray(v, self.ctrl.dtype)
         if u.shape != v.shape:
             _checks.fail("v", f"the shape of u {u.shape}", v.shape)

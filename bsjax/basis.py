@@ -100,6 +100,7 @@ def basis_functions(knots: Float[Array, " L"], degree: int, t: Float[Array, ""],
 
     **Returns:** `(L − degree − 1,)`; at most `degree + 1` entries are non-zero.
     """
+    _check_nu(nu)
     L = knots.shape[0]
     n_ctrl = L - degree - 1
     if nu > degree:
@@ -133,6 +134,7 @@ def blending_matrix(
     """
     _checks.check_ndim(knots, "knots", 1)
     _checks.check_degree(degree, "degree", len(knots) - degree - 1, "the knot vector")
+    _checks.check_monotone(knots, "knots")
     _checks.check_ndim(params, "params", 1)
     _check_nu(nu)
     dtype = _float_dtype(knots, params)
@@ -174,9 +176,9 @@ def direction_matrix(knots, degree: int, periodic: bool, n_ctrl: int, params, nu
     return blending_matrix(knots, degree, params, nu)
 
 
-def _check_nu(nu: int) -> None:
+def _check_nu(nu: int, name: str = "nu") -> None:
     if isinstance(nu, bool) or not isinstance(nu, (int, np.integer)) or nu < 0:
-        _checks.fail("nu", "a derivative order (int >= 0)", nu)
+        _checks.fail(name, "a derivative order (int >= 0)", nu)
 
 
 # The surface and blending objects live in their own files; re-exported here so that

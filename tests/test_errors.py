@@ -81,7 +81,7 @@ def test_non_int_degree_is_a_type_error(surface):
 @pytest.mark.parametrize("call, name", [
     (lambda s: s.evaluate(np.zeros(3), np.zeros(4)), "v"),
     (lambda s: s.evaluate(0.5, 0.5, -1, 0), "nu"),
-    (lambda s: s.evaluate(0.5, 0.5, 0, -2), "nu"),  # blending_matrix names its own argument `nu`
+    (lambda s: s.evaluate(0.5, 0.5, 0, -2), "nv"),
     (lambda s: s.normal(np.zeros((2, 2)), np.zeros(4)), "v"),
     (lambda s: s.rows("w", np.zeros(3)), "direction"),
     (lambda s: s.with_ctrl(np.zeros((R, S + 1, 3))), "ctrl"),

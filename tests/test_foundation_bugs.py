@@ -20,7 +20,7 @@ def test_rational_evaluate_rejects_bad_derivative_order():
         surface.evaluate(0.5, 0.5, -1, 0)
     with pytest.raises(ValueError, match="^nu"):
         surface.evaluate(0.5, 0.5, 1.5, 0)
-    with pytest.raises(ValueError, match="^nu"):
+    with pytest.raises(ValueError, match="^nv"):
         surface.evaluate(0.5, 0.5, 0, -1)
 
 
