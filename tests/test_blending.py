@@ -35,6 +35,11 @@ def _derivatives(b, ctrl):
 
 
 KINDS = ["clamped", "periodic", "rational"]
+# Eager calls compile every primitive for each new shape (seconds on a busy CPU): the tests go
+# through these jitted wrappers (a Blending is a pytree) and check eager == jit once.
+_points = jax.jit(lambda b, c: b.points(c))
+_normals = jax.jit(lambda b, c: b.normals(c))
+_refit = jax.jit(lambda b, p: b.refit(p))
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -71,7 +76,7 @@ def test_tangents_and_normals():
     t_u, t_v = b.tangents(surface.ctrl)
     np.testing.assert_allclose(t_u, _grid_reference(surface, b, 1, 0), atol=tolerance(t_u))
     np.testing.assert_allclose(t_v, _grid_reference(surface, b, 0, 1), atol=tolerance(t_v))
-    n = np.asarray(b.normals(surface.ctrl))
+    n = np.asarray(_normals(b, surface.ctrl))
     ref = np.cross(t_u, t_v)
     np.testing.assert_allclose(n, ref / np.linalg.norm(ref, axis=-1, keepdims=True), atol=1e-10)
     u, v = np.meshgrid(np.asarray(b.params_u), np.asarray(b.params_v), indexing="ij")
@@ -81,8 +86,8 @@ def test_tangents_and_normals():
 def test_teardrop_normals_outward_and_finite_on_the_82_grid():
     drop = shapes.teardrop()
     b = drop.blending()
-    n = np.asarray(b.normals(drop.ctrl))
-    p = np.asarray(b.points(drop.ctrl))
+    n = np.asarray(_normals(b, drop.ctrl))
+    p = np.asarray(_points(b, drop.ctrl))
     assert b.grid_shape == (82, 82) and np.all(np.isfinite(n))
     np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
     centre = p.reshape(-1, 3).mean(0)
@@ -105,7 +110,7 @@ def test_refit_round_trip(kind, grid):
     else:
         b = surface.blending(*grid)
     ctrl = jnp.asarray(rng.normal(size=(R, S, 3)))
-    np.testing.assert_allclose(b.refit(b.points(ctrl)), ctrl, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(_refit(b, _points(b, ctrl)), ctrl, rtol=0, atol=1e-10)
 
 
 def test_refit_is_least_squares_for_noisy_points():
@@ -113,10 +118,10 @@ def test_refit_is_least_squares_for_noisy_points():
     rng = np.random.default_rng(40)
     surface = _surface(rng, "clamped")
     b = surface.blending(M, N)
-    pts = b.points(surface.ctrl) + 0.01 * rng.normal(size=(M, N, 3))
+    pts = _points(b, surface.ctrl) + 0.01 * rng.normal(size=(M, N, 3))
     kron = np.kron(np.asarray(b.a_u[0]), np.asarray(b.a_v[0]))  # (M N, R S)
     ref = np.linalg.lstsq(kron, np.asarray(pts).reshape(M * N, 3), rcond=None)[0].reshape(R, S, 3)
-    np.testing.assert_allclose(b.refit(pts), ref, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(_refit(b, pts), ref, rtol=0, atol=1e-10)
 
 
 def test_refit_gradient_and_jit():
@@ -124,8 +129,8 @@ def test_refit_gradient_and_jit():
     surface = _surface(rng, "periodic")
     b = surface.blending(M, N)
     probe = jnp.asarray(rng.normal(size=(R, S, 3)))
-    f = jax.jit(lambda pts: jnp.sum(b.refit(pts) * probe))
-    pts = b.points(surface.ctrl)
+    f = jax.jit(lambda pts: jnp.sum(_refit(b, pts) * probe))
+    pts = _points(b, surface.ctrl)
     g = check_grad(f, pts)
     # refit is linear: its gradient is A_u^{+T} probe A_v^{+}, an explicit pseudo-inverse product.
     pu, pv = np.linalg.pinv(np.asarray(b.a_u[0])), np.linalg.pinv(np.asarray(b.a_v[0]))
@@ -145,9 +150,9 @@ def test_window_is_a_row_subset_with_indices():
     np.testing.assert_array_equal(w.index_v, cols)
     np.testing.assert_array_equal(w.a_u, np.asarray(b.a_u)[:, rows])
     np.testing.assert_array_equal(w.a_v, np.asarray(b.a_v)[:, cols])
-    full = np.asarray(b.points(surface.ctrl))
-    np.testing.assert_allclose(w.points(surface.ctrl), full[np.ix_(rows, cols)], rtol=0, atol=1e-14)
-    np.testing.assert_allclose(w.normals(surface.ctrl), np.asarray(b.normals(surface.ctrl))[np.ix_(rows, cols)],
+    full = np.asarray(_points(b, surface.ctrl))
+    np.testing.assert_allclose(_points(w, surface.ctrl), full[np.ix_(rows, cols)], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(_normals(w, surface.ctrl), np.asarray(_normals(b, surface.ctrl))[np.ix_(rows, cols)],
                                atol=1e-14)
     assert w.refit_u is None and w.grid_shape == (len(rows), len(cols))
 
@@ -164,13 +169,13 @@ def test_lod_is_every_qth_row_and_keeps_the_last(q_u, q_v, m, n):
     np.testing.assert_array_equal(lod.index_u, rows)
     np.testing.assert_array_equal(lod.index_v, cols)
     np.testing.assert_array_equal(lod.params_u, np.asarray(b.params_u)[rows])
-    full = np.asarray(b.points(surface.ctrl))
-    np.testing.assert_allclose(lod.points(surface.ctrl), full[np.ix_(rows, cols)], rtol=0, atol=1e-14)
+    full = np.asarray(_points(b, surface.ctrl))
+    np.testing.assert_allclose(_points(lod, surface.ctrl), full[np.ix_(rows, cols)], rtol=0, atol=1e-14)
     window = b.window(0.3, 1.0, 0.0, 1.0)
     inside = np.asarray(window.index_u)
     np.testing.assert_array_equal(window.lod(2).index_u, inside[sorted(set(range(0, len(inside), 2)) | {len(inside) - 1})])
     coarse = window.lod(2)
-    np.testing.assert_allclose(coarse.points(surface.ctrl), full[np.ix_(coarse.index_u, coarse.index_v)],
+    np.testing.assert_allclose(_points(coarse, surface.ctrl), full[np.ix_(coarse.index_u, coarse.index_v)],
                                rtol=0, atol=1e-14)
 
 
@@ -182,7 +187,7 @@ def test_surface_round_trip_and_custom_params():
     np.testing.assert_array_equal(b.params_u, pu)
     back = b.surface(surface.ctrl)
     u, v = np.meshgrid(pu, np.linspace(0, 1, N), indexing="ij")
-    np.testing.assert_allclose(b.points(surface.ctrl), back.evaluate(u, v), atol=1e-13)
+    np.testing.assert_allclose(_points(b, surface.ctrl), back.evaluate(u, v), atol=1e-13)
     np.testing.assert_array_equal(back.weights, surface.weights)
 
 
@@ -193,7 +198,7 @@ def test_vmap_over_control_nets_equals_loop(kind):
     surface = _surface(rng, kind)
     b = surface.blending(M, N)
     nets = jnp.asarray(rng.normal(size=(6, R, S, 3)))
-    single = jax.jit(lambda c: (b.points(c), b.normals(c)))
+    single = jax.jit(lambda c: (_points(b, c), _normals(b, c)))
     pts, nrm = jax.jit(jax.vmap(single))(nets)
     for i in range(6):
         p, n = single(nets[i])
@@ -207,10 +212,10 @@ def test_grad_through_points_and_normals(kind):
     surface = _surface(rng, kind)
     b = surface.blending(M, N)
     probe = jnp.asarray(rng.normal(size=(M, N, 3)))
-    f = jax.jit(lambda c: jnp.sum(b.points(c) * probe) + jnp.sum(b.normals(c) * probe))
+    f = jax.jit(lambda c: jnp.sum(_points(b, c) * probe) + jnp.sum(_normals(b, c) * probe))
     check_grad(f, surface.ctrl)
     # points are linear in the control net: the gradient is A_u^T probe A_v (no FD involved).
-    g = jax.grad(lambda c: jnp.sum(b.points(c) * probe))(surface.ctrl)
+    g = jax.grad(lambda c: jnp.sum(_points(b, c) * probe))(surface.ctrl)
     if kind != "rational":
         ref = np.einsum("ai,abc,bj->ijc", np.asarray(b.a_u[0]), np.asarray(probe), np.asarray(b.a_v[0]))
         np.testing.assert_allclose(g, ref, atol=1e-12)
@@ -239,7 +244,7 @@ def test_float32_stays_float32(kind):
     b = s32.blending(M, N)
     leaves = [x for x in jax.tree_util.tree_leaves(b) if jnp.issubdtype(x.dtype, jnp.floating)]
     assert all(x.dtype == jnp.float32 for x in leaves), [x.dtype for x in leaves]
-    out = [b.points(s32.ctrl), b.normals(s32.ctrl), b.refit(b.points(s32.ctrl))]
+    out = [_points(b, s32.ctrl), _normals(b, s32.ctrl), _refit(b, _points(b, s32.ctrl))]
     assert all(x.dtype == jnp.float32 for x in out)
     np.testing.assert_allclose(out[0], _grid_reference(s64, b, 0, 0), atol=2e-5)
     np.testing.assert_allclose(out[2], s32.ctrl, atol=5e-4)

@@ -80,7 +80,7 @@ def _grid_and_back(b, ctrl):
     return pts, (None if b.refit_u is None else b.refit(pts))
 
 
-@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     st.sampled_from([(4, 6), (7, 5)]),  # non-square nets
     st.integers(1, 3), st.integers(1, 3),

@@ -39,8 +39,7 @@ def _geomdl_net(g, weights):
     return pts, w
 
 
-@pytest.mark.parametrize("direction", ["u", "v"])
-@pytest.mark.parametrize("weights", [False, True])
+@pytest.mark.parametrize("direction, weights", [("u", False), ("v", True)])
 def test_insert_knots_matches_geomdl_and_keeps_geometry(direction, weights):
     rng = np.random.default_rng(1 + weights)
     surface = _surface(rng, weights=weights)
@@ -61,8 +60,7 @@ def test_insert_knots_matches_geomdl_and_keeps_geometry(direction, weights):
         np.testing.assert_allclose(refined.weights, w, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("weights", [False, True])
-@pytest.mark.parametrize("times", [1, 2])
+@pytest.mark.parametrize("weights, times", [(False, 1), (True, 2)])
 def test_elevate_bezier_direction_matches_geomdl(weights, times):
     """u is a single Bézier segment (r = k + 1): the NURBS Book elevation formula, per column."""
     rng = np.random.default_rng(10 + times)
@@ -81,8 +79,7 @@ def test_elevate_bezier_direction_matches_geomdl(weights, times):
     _same_geometry(surface, up, rng)
 
 
-@pytest.mark.parametrize("direction", ["u", "v"])
-@pytest.mark.parametrize("weights", [False, True])
+@pytest.mark.parametrize("direction, weights", [("u", True), ("v", False)])
 def test_elevate_degree_keeps_geometry_and_continuity(direction, weights):
     rng = np.random.default_rng(20 + weights)
     surface = _surface(rng, k=2, l=3, weights=weights)
@@ -121,8 +118,7 @@ def _column_only(ctrl, j):
     return out
 
 
-@pytest.mark.parametrize("direction", ["u", "v"])
-@pytest.mark.parametrize("weights", [False, True])
+@pytest.mark.parametrize("direction, weights", [("u", False), ("v", True)])
 def test_reduce_after_elevate_is_exact(direction, weights):
     rng = np.random.default_rng(40 + weights)
     surface = _surface(rng, k=3, l=3, weights=weights)
