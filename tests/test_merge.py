@@ -329,6 +329,20 @@ def test_overlap_rows_dropped():
     assert mg.deviation([a, b], merged, samples=12, windows=windows).max < 0.05
 
 
+def test_float32_merge_keeps_dtype():
+    a = _plate(0.0, 1.0, 5, 4, lambda x, y: 0.4 * x)
+    b = _plate(1.0, 2.5, 5, 4, lambda x, y: 0.4 * (2.0 - x))
+
+    def f32(s):
+        return BSplineSurface(np.asarray(s.ctrl, np.float32), np.asarray(s.knots_u, np.float32),
+                              np.asarray(s.knots_v, np.float32), 3, 3)
+
+    single = mg.merge([f32(a), f32(b)], "u", 2, samples=S)
+    double = mg.merge([a, b], "u", 2, samples=S)
+    assert single.ctrl.dtype == single.knots_u.dtype == jnp.float32
+    np.testing.assert_allclose(single.ctrl, double.ctrl, atol=2e-5)
+
+
 # --- jit, vmap, grad --------------------------------------------------------------------------
 _apply = jax.jit(lambda layout, ctrls: layout.apply(ctrls))
 
