@@ -68,6 +68,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--x64", action="store_true")
     parser.add_argument("--calls", type=int, default=300)
+    parser.add_argument("--tables", default="1,2,s", help="which experiments: 1, 2, s (surface vs surface)")
+    parser.add_argument("--capacity", type=int, default=2048, help="surface_contacts capacity")
     args = parser.parse_args(argv)
     import jax
 
@@ -112,24 +114,25 @@ def main(argv=None) -> int:
         prebuilt = fcl_mesh(pts, faces)
         n_fcl = max(10, args.calls // 10)
         f_med, f_p99 = timeit(fcl_rebuild, n_fcl)
-        g_med, _ = timeit(lambda: fcl_query(prebuilt, other), args.calls)
+        g_med, _ = timeit(lambda: fcl_query(prebuilt, other), n_fcl)
         contacts_n = int(query(ctrl, tool).mask.sum())
         rows.append((label, kind, med, p99, compile_s, f_med, g_med))
         print(f"{label:<22} {kind:<6} bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, {contacts_n:5d} samples in contact)"
               f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x) | thesis {thesis}")
 
+    tables = set(args.tables.split(","))
     nets = [4, 8, 20] if args.quick else [4, 8, 12, 16, 20]
     print("\nTable 1 — control net r×r at 82×82 samples")
-    for net in nets:
+    for net in nets if "1" in tables else []:
         for k, kind in enumerate(("point", "sphere", "plane")):
             run(net, 82, kind, f"{net}x{net} net, 82x82", THESIS_TABLE1[net][k])
     print("\nTable 2 — 8×8 net, maximum samples m×m")
-    for m in ([28, 244] if args.quick else [28, 82, 244]):
+    for m in ([28, 244] if args.quick else [28, 82, 244]) if "2" in tables else []:
         for k, kind in enumerate(("point", "sphere", "plane")):
             run(8, m, kind, f"8x8 net, {m}x{m}", THESIS_TABLE2[m][k])
 
     print("\nB-spline vs B-spline — both deformable, 82×82 samples each")
-    for net in ([4, 20] if args.quick else [4, 8, 12, 16, 20]):
+    for net in ([4, 20] if args.quick else [4, 8, 12, 16, 20]) if "s" in tables else []:
         a = bumpy(net, 1, dtype)
         b_surf = bumpy(net, 2, dtype)
         ctrl_b = np.asarray(b_surf.ctrl).copy()
@@ -137,7 +140,7 @@ def main(argv=None) -> int:
         ctrl_b[..., 0] = 0.1 + 0.8 * ctrl_b[..., 0]
         bl = a.blending(82, 82)
         ca, cb = jnp.asarray(a.ctrl), jnp.asarray(ctrl_b)
-        query = jax.jit(lambda x, y: surface_contacts(bl, x, bl, y))
+        query = jax.jit(lambda x, y: surface_contacts(bl, x, bl, y, capacity=args.capacity))
         t0 = time.perf_counter()
         res = jax.block_until_ready(query(ca, cb))
         compile_s = time.perf_counter() - t0
@@ -156,7 +159,7 @@ def main(argv=None) -> int:
         ob = fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, pb, a_v).reshape(-1, 3), fb)
         f_med, _ = timeit(fcl_rebuild, max(10, args.calls // 10))
         g_med, _ = timeit(lambda: fcl_query(oa, ob), max(10, args.calls // 10))
-        print(f"{net}x{net} vs {net}x{net}, 82x82  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
+        print(f"{net}x{net} vs {net}x{net}, 82x82 (capacity {args.capacity})  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
               f"{int(res.pair_hit.sum())} contact cell pairs, overflow {bool(res.overflow)})"
               f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x)"
               f" | thesis {THESIS_SURF.get(net, '—')}")

@@ -144,7 +144,7 @@ def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
     )
 
 
-_POINT_CELLS = 64
+_BLOCK = 6  # samples per side of the neighbourhood searched first by the point tool
 
 
 def _nearest_triangle(x, tris):
@@ -154,34 +154,53 @@ def _nearest_triangle(x, tris):
     return k, closest[k], bary[k]
 
 
-def _nearest_all(x, tris, dtype):
-    k, closest, bary = _nearest_triangle(x, tris.reshape(-1, 3, 3))
-    return k.astype(dtype), closest, bary
+def _nearest_on_grid(x, points):
+    """Nearest triangle of the grid's tessellation: `(vertex indices (3,), closest, bary)`.
+
+    The 5 × 5 cells around the nearest sample are searched first; the result is certified when
+    no other cell's corner ball (centre: corner mean, radius: farthest corner) comes closer, and
+    otherwise every triangle is searched (`lax.cond`, rarely taken).
+    """
+    m, n = points.shape[:2]
+    corners = jnp.stack([points[:-1, :-1], points[1:, :-1], points[:-1, 1:], points[1:, 1:]], -2)
+    centre = corners.mean(-2)
+    radius = jnp.max(safe_norm(corners - centre[..., None, :]), -1)
+    bound = jax.lax.stop_gradient(safe_norm(x - centre) - radius)
+
+    def search(block):
+        tris, faces = cell_triangles(block)
+        k, closest, bary = _nearest_triangle(x, tris.reshape(-1, 3, 3))
+        return faces.reshape(-1, 3)[k], closest, bary
+
+    if m <= _BLOCK and n <= _BLOCK:
+        return search(points)
+    bu, bv = min(_BLOCK, m), min(_BLOCK, n)
+    near = jnp.argmin(jax.lax.stop_gradient(jnp.sum((points - x) ** 2, -1)).reshape(-1))
+    i0 = jnp.clip(near // n - bu // 2, 0, m - bu).astype(jnp.int32)
+    j0 = jnp.clip(near % n - bv // 2, 0, n - bv).astype(jnp.int32)
+    block = jax.lax.dynamic_slice(points, (i0, j0, jnp.zeros((), jnp.int32)), (bu, bv, 3))
+    face, closest, bary = search(block)
+    rows, cols = face // bv + i0, face % bv + j0
+    face = rows * n + cols
+    r, c = jnp.arange(m - 1)[:, None], jnp.arange(n - 1)[None, :]
+    inside = (r >= i0) & (r < i0 + bu - 1) & (c >= j0) & (c < j0 + bv - 1)
+    outside_bound = jnp.min(jnp.where(inside, jnp.inf, bound))
+    certain = safe_norm(x - closest) <= outside_bound
+    return jax.lax.cond(certain, lambda: (face.astype(jnp.int32), closest, bary),
+                        lambda: _cast_face(search(points)))
+
+
+def _cast_face(result):
+    face, closest, bary = result
+    return face.astype(jnp.int32), closest, bary
 
 
 def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
     points, normals = points_normals(blending, ctrl)
     m, n = points.shape[:2]
-    tris, faces = cell_triangles(points)
-    tris, faces = tris.reshape(-1, 2, 3, 3), faces.reshape(-1, 2, 3)
     x = tool.position
-    # candidate cells by a lower bound on their distance (corner-ball bound); exact fallback
-    # over every triangle when a cell outside the candidates could still be nearer
-    corners = tris.reshape(-1, 6, 3)
-    centre = corners.mean(1)
-    bound = jax.lax.stop_gradient(safe_norm(x - centre) - jnp.max(safe_norm(corners - centre[:, None]), 1))
-    k_cells = min(_POINT_CELLS, bound.shape[0])
-    neg, cand = jax.lax.top_k(-bound, k_cells)
-    k_loc, closest, bary = _nearest_triangle(x, tris[cand].reshape(-1, 3, 3))
-    best = safe_norm(x - closest)
-    next_bound = -jax.lax.top_k(-bound, min(k_cells + 1, bound.shape[0]))[0][-1]
-    certain = (k_cells == bound.shape[0]) | (best <= next_bound)
-    k_loc = k_loc.astype(cand.dtype)
-    k_glob = cand[k_loc // 2] * 2 + k_loc % 2
-    k, closest, bary = jax.lax.cond(
-        certain, lambda: (k_glob, closest, bary), lambda: _nearest_all(x, tris, cand.dtype)
-    )
-    tri, face = tris.reshape(-1, 3, 3)[k], faces.reshape(-1, 3)[k]
+    face, closest, bary = _nearest_on_grid(x, points)
+    tri = points.reshape(-1, 3)[face]
     face_normal = unit(jnp.cross(tri[1] - tri[0], tri[2] - tri[0]))
     offset = x - closest
     dist = safe_norm(offset)
