@@ -219,13 +219,15 @@ def test_thesis_case6_degrees():
     a = random_surface(rng, 6, 6, 3, 3)
     b = random_surface(rng, 8, 12, 4, 5)
     b = b.with_ctrl(b.ctrl + jnp.array([0.0, 1.0, 0.0]))
-    up = mg.plan([a, b], "v", 2, samples=S, degrees="elevate", orient="as_given")
-    # elevation raises every knot's multiplicity: 6 ctrl, 3 spans → 6 + 3·d
-    assert (up.merged.degree_u, up.merged.degree_v) == (4, 5)
-    assert up.merged.ctrl_shape == (max(6 + 3, 8), (6 + 3 * 2) + 12 - 1)
-    down = mg.plan([a, b], "v", 2, samples=S, degrees="reduce", orient="as_given")
-    assert (down.merged.degree_u, down.merged.degree_v) == (3, 3)
-    assert down.merged.ctrl_shape == (max(6, 8 - 1), 6 + (12 - 2) - 1)  # −d per reduced patch
+    # the merged basis (no matrices needed): elevation raises every knot's multiplicity,
+    # 6 ctrl over 3 spans → 6 + 3·d
+    k, l, ku, kv = mg.merged_knots([[a, b]], (0, 2), degrees="elevate")
+    assert (k, l, len(ku) - k - 1, len(kv) - l - 1) == (4, 5, max(6 + 3, 8), (6 + 3 * 2) + 12 - 1)
+    assert np.sum(kv == 0.5) == l - 2  # C² seam
+    k, l, ku, kv = mg.merged_knots([[a, b]], (0, 2), degrees="reduce")
+    assert (k, l, len(ku) - k - 1, len(kv) - l - 1) == (3, 3, max(6, 8 - 1), 6 + (12 - 2) - 1)  # −d per reduced patch
+    with pytest.raises(ValueError, match="degrees"):
+        mg.merged_knots([[a, b]], 2)
 
 
 # --- geometry ------------------------------------------------------------------------------

@@ -10,7 +10,8 @@ seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made unif
 * `merge(surfaces, direction, continuity)` / `merge_grid(rows, continuity)`: one call.
 * `plan(...)` / `plan_grid(...)` → `MergeLayout`: all the fixed work once; `layout.apply(ctrls)`
   is then jittable and differentiable in the input control nets.
-* `merge_knots`, `average_knots`, `cross_knots`, `common_degree`: the knot and degree rules.
+* `merge_knots`, `average_knots`, `cross_knots`, `common_degree`, `merged_knots`: the knot and
+  degree rules (the merged basis without building matrices).
 * `deviation(originals, merged)` → `Deviation` (mean, median, std, max, close points) by
   closest-point projection; `plot_deviation` draws the heat map.
 * `refine(layout, ctrls)` (or `merge(..., refine=True)`): nonlinear refit with parameter
@@ -25,14 +26,14 @@ from bsjax import _checks
 from bsjax.basis import BSplineSurface
 from bsjax.merge._deviation import Deviation, closest_parameters, deviation, plot_deviation, project
 from bsjax.merge._knots import average_knots, combine_knots, cross_knots, merge_knots
-from bsjax.merge._layout import MergeLayout, common_degree, plan, plan_grid
+from bsjax.merge._layout import MergeLayout, common_degree, merged_knots, plan, plan_grid
 from bsjax.merge._nonlinear import refine
 from bsjax.merge._orient import orient_row, orient_surface
 from bsjax.merge._overlap import contact_masks, overlap_trims
 
 __all__ = [
     "merge", "merge_grid", "merge_knots", "average_knots", "combine_knots", "cross_knots",
-    "common_degree", "plan", "plan_grid", "MergeLayout", "refine", "deviation", "Deviation",
+    "common_degree", "merged_knots", "plan", "plan_grid", "MergeLayout", "refine", "deviation", "Deviation",
     "plot_deviation", "project", "closest_parameters", "orient_row", "orient_surface",
     "contact_masks", "overlap_trims",
 ]

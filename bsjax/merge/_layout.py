@@ -179,20 +179,19 @@ def _affine(p, lo, hi, a, b):
     return a + (b - a) * (p - lo) / (hi - lo)
 
 
-def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=None,
-                 orientations=None, trim=None, direction="u", flat=False) -> MergeLayout:
-    """Plan the merge of an `R × C` grid of (already oriented) patches; see `plan`."""
-    R, C = len(grid), len(grid[0])
-    flat_s = [s for row in grid for s in row]
-    ops = orientations or [[_orient.IDENTITY] * C for _ in range(R)]
-    oriented = [[_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(grid, ops)]
+def merged_knots(oriented, continuity=2, *, cross="average", degrees=None, windows=None):
+    """Degrees and knot vectors of the merged surface of an `R × C` grid of oriented patches
+    (thesis §4.3.3, §4.4.2, §4.4.3) — the merged basis, without building any matrix.
+
+    **Returns:** `(k, l, knots_u, knots_v)` (float64 knot vectors).
+    """
+    R, C = len(oriented), len(oriented[0])
     o_flat = [s for row in oriented for s in row]
     k, l, ku, kv = common_degree(o_flat, degrees)
     cu, cv = _continuity_pair(continuity)
-    m, n = _samples(samples)
-    win = _windows(trim, grid, direction)
-    ku = [_knots.window_knots(t, k, w[0], w[1]) for t, w in zip(ku, [w for row in win for w in row])]
-    kv = [_knots.window_knots(t, l, w[2], w[3]) for t, w in zip(kv, [w for row in win for w in row])]
+    win = [w for row in windows for w in row] if windows else [(0.0, 1.0, 0.0, 1.0)] * len(o_flat)
+    ku = [_knots.window_knots(t, k, w[0], w[1]) for t, w in zip(ku, win)]
+    kv = [_knots.window_knots(t, l, w[2], w[3]) for t, w in zip(kv, win)]
     ku_grid = [ku[r * C : (r + 1) * C] for r in range(R)]
     kv_grid = [kv[r * C : (r + 1) * C] for r in range(R)]
     if R > 1:
@@ -203,6 +202,19 @@ def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=Non
         knots_v = _merged_direction(kv_grid, l, cv)
     else:
         knots_v = _knots.cross_knots([row[0] for row in kv_grid], l, max(len(t) for t in kv) - l - 1, cross)
+    return k, l, knots_u, knots_v
+
+
+def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=None,
+                 orientations=None, trim=None, direction="u", flat=False) -> MergeLayout:
+    """Plan the merge of an `R × C` grid of (already oriented) patches; see `plan`."""
+    R, C = len(grid), len(grid[0])
+    ops = orientations or [[_orient.IDENTITY] * C for _ in range(R)]
+    oriented = [[_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(grid, ops)]
+    o_flat = [s for row in oriented for s in row]
+    m, n = _samples(samples)
+    win = _windows(trim, grid, direction)
+    k, l, knots_u, knots_v = merged_knots(oriented, continuity, cross=cross, degrees=degrees, windows=win)
 
     dtype = o_flat[0].ctrl.dtype
     blends = [[_fast.blending(s, m, n) for s in row] for row in oriented]
