@@ -8,12 +8,13 @@ the refit `P = A_u^+ M (A_v^+)^T` (eq. 3.7, `A^+ = (A^T A)^{-1} A^T`).
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _tensor
-from bsjax.basis import _float_dtype, direction_matrix
+from bsjax.basis import _float_dtype, direction_matrices
 
 _ORDERS = 3  # basis, first and second derivative matrices are stored
 
@@ -182,7 +183,7 @@ def _params(params, count, name, count_name, dtype):
 
 
 def _stack(knots, degree, periodic, n_ctrl, params):
-    return jnp.stack([direction_matrix(knots, degree, periodic, n_ctrl, params, nu) for nu in range(_ORDERS)])
+    return direction_matrices(knots, degree, periodic, n_ctrl, params, tuple(range(_ORDERS)))
 
 
 def _pinv(a):
@@ -192,7 +193,10 @@ def _pinv(a):
         return None
     if _checks.is_concrete(a) and np.linalg.matrix_rank(np.asarray(a)) < a.shape[1]:
         return None
-    return jnp.linalg.pinv(a)
+    return _jit_pinv(a)
+
+
+_jit_pinv = jax.jit(jnp.linalg.pinv)
 
 
 def _every(count: int, q: int) -> np.ndarray:

@@ -11,6 +11,8 @@ each end; the periodic (closed) basis is the uniform one of thesis eq. 3.3, on [
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -132,15 +134,17 @@ def blending_matrix(
 
     **Returns:** `(m, n_ctrl)`.
     """
-    _checks.check_ndim(knots, "knots", 1)
-    _checks.check_degree(degree, "degree", len(knots) - degree - 1, "the knot vector")
-    _checks.check_monotone(knots, "knots")
-    _checks.check_ndim(params, "params", 1)
+    _check_clamped_args(knots, degree, params)
     _check_nu(nu)
     dtype = _float_dtype(knots, params)
-    knots = jnp.asarray(knots, dtype=dtype)
-    params = jnp.asarray(params, dtype=dtype)
-    return jax.vmap(lambda t: basis_functions(knots, degree, t, nu))(params)
+    return _rows(jnp.asarray(knots, dtype=dtype), degree, jnp.asarray(params, dtype=dtype), (nu,))[0]
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3))
+def _rows(knots, degree: int, params, orders: tuple[int, ...]):
+    """`basis_functions` of each derivative order in `orders` at every parameter, stacked
+    `(len(orders), m, n_ctrl)`; compiled once per shape (the blending-matrix kernel)."""
+    return jnp.stack([jax.vmap(lambda t: basis_functions(knots, degree, t, nu))(params) for nu in orders])
 
 
 def periodic_blending_matrix(
@@ -155,12 +159,14 @@ def periodic_blending_matrix(
     """
     _checks.check_ndim(params, "params", 1)
     _check_nu(nu)
+    return _periodic_rows(n_ctrl, degree, params, (nu,))[0]
+
+
+def _periodic_rows(n_ctrl, degree, params, orders):
     dtype = _float_dtype(params)
     knots = periodic_knots(n_ctrl, degree, dtype=dtype)
     params = jnp.asarray(params, dtype=dtype)
-    t = params - jnp.floor(params)
-    unwrapped = jax.vmap(lambda x: basis_functions(knots, degree, x, nu))(t)
-    return fold_periodic(unwrapped, n_ctrl)
+    return jax.vmap(fold_periodic, in_axes=(0, None))(_rows(knots, degree, params - jnp.floor(params), orders), n_ctrl)
 
 
 def fold_periodic(unwrapped: Float[Array, "m n_plus_k"], n_ctrl: int) -> Float[Array, "m n_ctrl"]:
@@ -174,6 +180,25 @@ def direction_matrix(knots, degree: int, periodic: bool, n_ctrl: int, params, nu
     if periodic:
         return periodic_blending_matrix(n_ctrl, degree, params, nu)
     return blending_matrix(knots, degree, params, nu)
+
+
+def direction_matrices(knots, degree: int, periodic: bool, n_ctrl: int, params, orders=(0, 1, 2)):
+    """`direction_matrix` for several derivative orders in one compiled call, `(len(orders), m, n_ctrl)`."""
+    for nu in orders:
+        _check_nu(nu)
+    if periodic:
+        _checks.check_ndim(params, "params", 1)
+        return _periodic_rows(n_ctrl, degree, params, tuple(orders))
+    _check_clamped_args(knots, degree, params)
+    dtype = _float_dtype(knots, params)
+    return _rows(jnp.asarray(knots, dtype=dtype), degree, jnp.asarray(params, dtype=dtype), tuple(orders))
+
+
+def _check_clamped_args(knots, degree, params) -> None:
+    _checks.check_ndim(knots, "knots", 1)
+    _checks.check_degree(degree, "degree", len(knots) - degree - 1, "the knot vector")
+    _checks.check_monotone(knots, "knots")
+    _checks.check_ndim(params, "params", 1)
 
 
 def _check_nu(nu: int, name: str = "nu") -> None:
