@@ -116,11 +116,11 @@ def test_broadcasting_jit_vmap():
     rng = np.random.default_rng(4)
     a = rng.normal(size=(5, 1, 3, 3))
     b = rng.normal(size=(1, 4, 3, 3))
-    out = triangles_intersect(a, b)
+    out = _intersect(a, b)
     assert out.shape == (5, 4) and out.dtype == jnp.bool_
     loop = np.array([[_fcl_hit(a[i, 0], b[0, j]) for j in range(4)] for i in range(5)])
     np.testing.assert_array_equal(np.asarray(out), loop)
-    vm = jax.vmap(jax.vmap(triangles_intersect, (None, 0)), (0, None))(a[:, 0], b[0])
+    vm = jax.jit(jax.vmap(jax.vmap(triangles_intersect, (None, 0)), (0, None)))(a[:, 0], b[0])
     np.testing.assert_array_equal(np.asarray(vm), loop)
     with pytest.raises(ValueError, match="t1, t2"):
         triangles_intersect(np.zeros((3, 2)), np.zeros((3, 3)))

@@ -173,20 +173,21 @@ def _nearest_on_grid(x, points):
         return faces.reshape(-1, 3)[k], closest, bary
 
     if m <= _BLOCK and n <= _BLOCK:
-        return search(points)
+        return _cast_face(search(points))
     bu, bv = min(_BLOCK, m), min(_BLOCK, n)
     near = jnp.argmin(jax.lax.stop_gradient(jnp.sum((points - x) ** 2, -1)).reshape(-1))
     i0 = jnp.clip(near // n - bu // 2, 0, m - bu).astype(jnp.int32)
     j0 = jnp.clip(near % n - bv // 2, 0, n - bv).astype(jnp.int32)
     block = jax.lax.dynamic_slice(points, (i0, j0, jnp.zeros((), jnp.int32)), (bu, bv, 3))
     face, closest, bary = search(block)
+    face = face.astype(jnp.int32)
     rows, cols = face // bv + i0, face % bv + j0
     face = rows * n + cols
-    r, c = jnp.arange(m - 1)[:, None], jnp.arange(n - 1)[None, :]
+    r, c = jnp.arange(m - 1, dtype=jnp.int32)[:, None], jnp.arange(n - 1, dtype=jnp.int32)[None, :]
     inside = (r >= i0) & (r < i0 + bu - 1) & (c >= j0) & (c < j0 + bv - 1)
     outside_bound = jnp.min(jnp.where(inside, jnp.inf, bound))
     certain = safe_norm(x - closest) <= outside_bound
-    return jax.lax.cond(certain, lambda: (face.astype(jnp.int32), closest, bary),
+    return jax.lax.cond(certain, lambda: (face, closest, bary),
                         lambda: _cast_face(search(points)))
 
 
