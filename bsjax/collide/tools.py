@@ -105,7 +105,8 @@ class Point(AbstractTool):
 
     **Fields:** `position (3,)`; `reach` (≥ 0, default ∞): the deepest penetration that still
     counts as contact (use a finite reach for open surfaces, whose back side is unbounded).
-    Contact is decided against the two triangles of the nearest grid cell (thesis §3.4).
+    Contact is decided against the nearest triangle of the tessellated grid (thesis §3.4 tests
+    the point against the two triangles of the final cell); the depth is the distance to it.
     """
 
     position: Float[Array, "3"]
