@@ -21,7 +21,9 @@ from jaxtyping import Array, Bool, Float, Int
 from bsjax import _checks
 from bsjax._tensor import safe_norm, unit
 from bsjax.collide.broad import hulls_apart, parametric_window, sample_window
-from bsjax.collide.hierarchy import block_order, cell_triangles, levels_for, sphere_hierarchy, traverse
+from bsjax.collide.hierarchy import (
+    block_order, candidate_triangles, cell_triangles, levels_for, sphere_hierarchy, traverse,
+)
 from bsjax.collide.tools import AbstractTool, Point
 from bsjax.collide.triangles import closest_point_on_triangle, triangles_intersect
 
@@ -254,18 +256,16 @@ def _vertex_mask(faces, tri_hit, shape):
 
 def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity):
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
-    ta, fa = cell_triangles(pa)
-    tb, fb = cell_triangles(pb)
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
     leaf_a, leaf_b, valid, overflow, count = traverse(sphere_hierarchy(pa, lev_a), sphere_hierarchy(pb, lev_b), capacity)
     cell_a = _cells(leaf_a, lev_a, pa.shape)
     cell_b = _cells(leaf_b, lev_b, pb.shape)
-    tri_a = ta[cell_a[:, 0], cell_a[:, 1]]  # (K, 2, 3, 3)
-    tri_b = tb[cell_b[:, 0], cell_b[:, 1]]
+    tri_a, face_a = candidate_triangles(pa, cell_a)  # (K, 2, 3, 3): only the candidate cells
+    tri_b, face_b = candidate_triangles(pb, cell_b)
     hits = triangles_intersect(tri_a[:, :, None], tri_b[:, None, :]) & valid[:, None, None]
-    mask_a = _vertex_mask(fa[cell_a[:, 0], cell_a[:, 1]], jnp.any(hits, 2), pa.shape[:2])
-    mask_b = _vertex_mask(fb[cell_b[:, 0], cell_b[:, 1]], jnp.any(hits, 1), pb.shape[:2])
+    mask_a = _vertex_mask(face_a, jnp.any(hits, 2), pa.shape[:2])
+    mask_b = _vertex_mask(face_b, jnp.any(hits, 1), pb.shape[:2])
     pair_hit = jnp.any(hits, (1, 2))
     return SurfaceContact(
         hit=jnp.any(pair_hit), mask_a=mask_a, mask_b=mask_b, cells_a=cell_a, cells_b=cell_b,

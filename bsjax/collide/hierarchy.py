@@ -118,6 +118,20 @@ def cell_triangles(points: Float[Array, "m n 3"]) -> tuple[Array, Array]:
     return points.reshape(-1, 3)[faces], faces
 
 
+def candidate_triangles(points: Float[Array, "m n 3"], cells: Int[Array, "K 2"]) -> tuple[Array, Array]:
+    """`cell_triangles` of the listed cells only: `(triangles (K, 2, 3, 3), vertex indices (K, 2, 3))`."""
+    m, n = points.shape[:2]
+    i, j = cells[:, 0], cells[:, 1]
+    i00, i10, i01, i11 = i * n + j, (i + 1) * n + j, i * n + j + 1, (i + 1) * n + j + 1
+    flat = points.reshape(-1, 3)
+    p00, p10, p01, p11 = flat[i00], flat[i10], flat[i01], flat[i11]
+    main_short = jnp.sum((p11 - p00) ** 2, -1) <= jnp.sum((p10 - p01) ** 2, -1)
+    split_main = jnp.stack([jnp.stack([i00, i10, i11], -1), jnp.stack([i00, i11, i01], -1)], -2)
+    split_anti = jnp.stack([jnp.stack([i00, i10, i01], -1), jnp.stack([i10, i11, i01], -1)], -2)
+    faces = jnp.where(main_short[:, None, None], split_main, split_anti)
+    return flat[faces], faces
+
+
 def tessellate(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[Array, "F 3"]]:
     """The triangle mesh of a sample grid: `(vertices (m·n, 3), faces (2(m−1)(n−1), 3))`."""
     _, faces = cell_triangles(points)
