@@ -1,9 +1,12 @@
-"""`bsjax demo`: the thesis's shapes through the blending-matrix pipeline, written to files.
+"""`bsjax demo`: the spoon case study of the thesis (§7.3), end to end.
 
-Steps (each prints its progress): build the blending matrices of the built-in shapes at 82×82
-(the thesis's standard resolution), evaluate points and normals, check the least-squares refit,
-and write a PNG picture, the exact surfaces (.3dm, .json) and a tessellation (.glb), plus a JSON
-report. Later capabilities (collision, merging, physics) add their steps here.
+1. The built-in shapes (teardrop, spoon bowl, spoon handle) through their blending matrices at
+   82×82 (points, normals, refit).
+2. Bend the spoon handle: plasticine mass-spring lattice, one end clamped by a plane, pushed by a
+   sphere; merge the bent handle and the bowl into one patch, with a deviation report.
+3. Throw a jelly (B-spline sphere + 12³ VSOFM lattice) into the bowl tilted 0°, 10°, 20° and
+   report the spill; then `jax.grad` through the simulation finds the tilt that keeps it in.
+4. Pictures (PNG), surfaces (.3dm, .json, .glb) and a JSON report in the output folder.
 """
 
 from __future__ import annotations
@@ -14,9 +17,14 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 SAMPLES = 82
+
+# Sizes of the full case study and of the quick one the test suite runs (same code path).
+FULL = {"bend_steps": 200, "relax_steps": 3000, "lattice": 12, "cycles": 300, "seconds": 0.3, "opt_steps": 8}
+QUICK = {"bend_steps": 40, "relax_steps": 100, "lattice": 6, "cycles": 60, "seconds": 0.05, "opt_steps": 2}
 
 
 def _timed(fn, *args, repeat: int = 50):
@@ -64,13 +72,124 @@ def shapes_step(out: Path, report: dict) -> dict:
     return named
 
 
-def run(out: Path) -> dict:
+def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
+    """Bend the handle (mass-spring, plane clamp, sphere push), attach and merge the bowl."""
+    from bsjax import merge, spoon
+
+    t0 = time.perf_counter()
+    bent, info = spoon.bend_handle(handle, steps=sizes["bend_steps"], relax_steps=sizes["relax_steps"])
+    info["seconds"] = time.perf_counter() - t0
+    print(f"  handle: {info['lattice_nodes']} nodes, {info['springs']} springs, {info['fixed_nodes']} clamped; "
+          f"neck lifted {1e3 * info['neck_lift_m']:.1f} mm ({info['seconds']:.1f} s)")
+    placed = spoon.attach_bowl(bent, bowl)
+    t0 = time.perf_counter()
+    merged = merge.merge([bent, placed], direction="u", continuity=1)
+    merge_s = time.perf_counter() - t0
+    dev = merge.deviation([bent, placed], merged, samples=41, tolerance=5e-4)
+    print(f"  merged handle + bowl → one {merged.shape} patch (C¹ seam) in {1e3 * merge_s:.0f} ms; "
+          f"deviation mean {1e3 * dev.mean:.3f} mm, max {1e3 * dev.max:.3f} mm over {dev.n_points} points")
+    report["bend"] = info
+    report["merge"] = {"control_net": list(merged.shape), "continuity": 1, "seconds": merge_s, **dev.row(),
+                       "tolerance_m": dev.tolerance}
+    return bent, placed, merged, dev
+
+
+def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(0.0, 10.0, 20.0)):
+    """Throw a jelly (sphere surface + 12³ VSOFM lattice) into the tilted bowl; optimise the tilt."""
+    from bsjax import mss, shapes, spoon, vsofm
+
+    rot, origin = spoon.bowl_frame(bent, bowl)
+    patch = merged.blending(params_u=np.linspace(0.5, 1.0, 160), params_v=np.linspace(0.0, 1.0, 80), m=160, n=80)
+    local = (patch.points(merged.ctrl) - origin) @ rot  # world → bowl frame
+    hm = spoon.height_map(local, (-0.01, -0.035), (0.075, 0.035))
+    ball = shapes.sphere(radius=0.007)
+    centre = np.array([0.032, 0.0, 0.004])
+    samples = np.asarray(ball.blending(40, 40).points(ball.ctrl)).reshape(-1, 3) + centre
+    t0 = time.perf_counter()
+    shape = (sizes["lattice"],) * 3
+    nodes = vsofm.fit(samples, shape, cycles=sizes["cycles"])
+    vs_s = time.perf_counter() - t0
+    quality = vsofm.report(samples, nodes)
+    lattice = vsofm.lattice(nodes, material=mss.JELLY, node_damping=5e-6)
+    dt = 0.9 * float(mss.stable_dt(lattice, 2.0))
+    steps = max(int(sizes["seconds"] / dt) // 50, 1) * 50
+    print(f"  jelly: {shape[0]}³ VSOFM lattice in {vs_s:.2f} s ({quality.inverted} inverted hexahedra); "
+          f"{lattice.n_edges} springs; {steps} steps of {1e3 * dt:.3f} ms")
+    throw = (0.0, -0.45, 0.0)  # thrown sideways: untilted, it flies over the far rim
+
+    def outcome(tilt):
+        state, risk = spoon.drop(lattice, hm, tilt, dt, steps, 2.0, 0.002, velocity=throw)
+        return spoon.spill(hm, state.position), risk, state.position
+
+    run = jax.jit(outcome)
+    rows, finals = [], {}
+    for deg in tilts:
+        sp, risk, pos = run(jnp.deg2rad(deg))
+        rows.append({"tilt_deg": deg, "spill_fraction": float(sp), "spill_risk": float(risk)})
+        finals[deg] = np.asarray(pos)
+        print(f"  tilt {deg:4.1f}°: spilled {100 * float(sp):5.1f} % of the jelly, spill risk {float(risk):.4f}")
+    risk_grad = jax.jit(jax.value_and_grad(lambda t: outcome(t)[1]))
+    tilt, history = jnp.asarray(0.0), []
+    max_step = np.deg2rad(4.0)  # the landscape is steep where the jelly starts to spill: clip steps
+    print("  jax.grad through the drop: gradient descent on the tilt …")
+    for k in range(sizes["opt_steps"]):
+        value, g = risk_grad(tilt)
+        history.append({"tilt_deg": float(jnp.rad2deg(tilt)), "spill_risk": float(value), "d_risk_d_tilt": float(g)})
+        print(f"    step {k}: tilt {history[-1]['tilt_deg']:6.2f}°  risk {float(value):.4f}  d/dθ {float(g):+.4f}")
+        tilt = tilt - jnp.clip(0.5 * g, -max_step, max_step)
+    tilt = jnp.deg2rad(min(history, key=lambda h: h["spill_risk"])["tilt_deg"])  # best visited
+    sp, risk, pos = run(tilt)
+    best = {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_fraction": float(sp), "spill_risk": float(risk)}
+    finals[best["tilt_deg"]] = np.asarray(pos)
+    print(f"  best tilt {best['tilt_deg']:.2f}°: spilled {100 * best['spill_fraction']:.1f} %, risk {best['spill_risk']:.4f}")
+    report["jelly"] = {"lattice": list(shape), "vsofm_seconds": vs_s, "inverted_hexahedra": quality.inverted,
+                       "min_scaled_jacobian": quality.min_scaled_jacobian, "dt": dt, "steps": steps,
+                       "throw_velocity": list(throw), "tilts": rows, "optimisation": history, "best": best}
+    return hm, finals
+
+
+def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
+    """spoon.png: the bent handle and bowl, the merged spoon coloured by deviation, the jelly."""
+    from bsjax import plot
+
+    fig, axes = plot.figure(3, size=4.5)
+    for surface, colour in ((bent, None), (placed, None)):
+        plot.draw_surface(axes[0], surface.blending(40, 12).points(surface.ctrl), surface.ctrl,
+                          title="bent handle + bowl (two patches)")
+    grid = merged.blending(82, 82)
+    plot.draw_surface(axes[1], grid.points(merged.ctrl), None, title=f"merged {merged.shape}, C¹ seam")
+    ax = axes[2]
+    x = np.asarray(jnp.linspace(hm.origin[0], hm.origin[0] + hm.spacing[0] * (hm.z.shape[0] - 1), hm.z.shape[0]))
+    y = np.asarray(jnp.linspace(hm.origin[1], hm.origin[1] + hm.spacing[1] * (hm.z.shape[1] - 1), hm.z.shape[1]))
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    Z = np.where(np.asarray(hm.mask) > 0, np.asarray(hm.z), np.nan)
+    ax.plot_surface(X, Y, Z, color="#cccccc", alpha=0.5, linewidth=0)
+    for (deg, pos), c in zip(finals.items(), ("#1f77b4", "#2ca02c", "#d62728", "#9467bd")):
+        ax.scatter(pos[::3, 0], pos[::3, 1], pos[::3, 2], s=1, color=c, label=f"{deg:.1f}°")
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("jelly after the throw, per tilt (bowl frame)", fontsize=9)
+    plot.save(fig, out / "spoon.png")
+
+
+def run(out: Path, quick: bool = False) -> dict:
     jax.config.update("jax_enable_x64", True)  # the demo works in float64 (geometry precision)
     out.mkdir(parents=True, exist_ok=True)
-    report: dict = {"jax_backend": jax.default_backend(), "float64": True}
+    sizes = QUICK if quick else FULL
+    report: dict = {"jax_backend": jax.default_backend(), "float64": True, "quick": quick, "sizes": sizes}
     t0 = time.perf_counter()
-    print(f"[1/1] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
-    shapes_step(out, report)
+    print(f"[1/4] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
+    named = shapes_step(out, report)
+    print("[2/4] bend the spoon handle (plasticine lattice, plane clamp, sphere push) and merge the bowl …")
+    bent, placed, merged, dev = bend_and_merge_step(out, report, named["spoon_handle"], named["spoon_bowl"], sizes)
+    from bsjax import io
+
+    io.save([bent, placed, merged], out / "spoon.3dm")
+    io.save(merged, out / "spoon.glb")
+    io.save(merged, out / "spoon.json")
+    print("[3/4] jelly thrown into the tilted bowl; jax.grad finds the tilt that keeps it in …")
+    hm, finals = jelly_step(out, report, bent, placed, merged, sizes)
+    print("[4/4] pictures …")
+    pictures_step(out, bent, placed, merged, dev, hm, finals)
     report["total_seconds"] = time.perf_counter() - t0
     (out / "report.json").write_text(json.dumps(report, indent=2))
     return report
@@ -79,9 +198,10 @@ def run(out: Path) -> dict:
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="bsjax demo", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="bsjax-out", help="output folder (default ./bsjax-out)")
+    parser.add_argument("--quick", action="store_true", help="small sizes (a 6³ jelly, short runs) for tests")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    report = run(out)
+    report = run(out, quick=args.quick)
     files = sorted(p.name for p in out.iterdir())
     print(f"\nwrote {len(files)} files to {out}/: {', '.join(files)}")
     print(f"done in {report['total_seconds']:.1f} s")

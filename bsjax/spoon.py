@@ -38,7 +38,7 @@ class _Ball(eqx.Module):
 # --- 1. bending the handle -------------------------------------------------------------------
 def bend_handle(handle: BSplineSurface, push: float = 0.012, clamp_x: float = -0.085,
                 samples: tuple[int, int] = (25, 8), dt: float = 1e-3, steps: int = 200,
-                yield_strain: float = 0.01, node_damping: float = 3e-3):
+                yield_strain: float = 0.01, node_damping: float = 3e-3, relax_steps: int = 3000):
     """Bend the handle plastically: nodes behind the plane `x = clamp_x` are fixed (the clamp),
     a 6 mm sphere rises `push` metres under the handle near the neck; then the lattice relaxes
     to rest and the control net is refit from the nodes.
@@ -60,7 +60,7 @@ def bend_handle(handle: BSplineSurface, push: float = 0.012, clamp_x: float = -0
     plastic, state = mss.simulate_plastic(lattice, mss.init(lattice), dt, steps, mss.Plasticity(yield_strain),
                                           tool_path=[path], contact=mss.Contact(5e3, 1.0), method="implicit")
     rest, taken, converged = mss.relax(plastic, mss.State(state.position, jnp.zeros_like(state.velocity)), dt,
-                                       method="implicit", tol=1e-10, max_steps=3000)
+                                       method="implicit", tol=1e-10, max_steps=relax_steps)
     ctrl = blending.refit(rest.position.reshape(m, n, 3))
     lift_neck = float(jnp.mean(rest.position.reshape(m, n, 3)[-1, :, 2] - nodes.reshape(m, n, 3)[-1, :, 2]))
     info = {"lattice_nodes": m * n, "springs": int(edges.shape[0]), "steps": steps, "dt": dt,

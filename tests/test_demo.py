@@ -1,24 +1,40 @@
-"""`bsjax demo` runs end to end through the CLI and writes what it promises."""
+"""`bsjax demo` runs end to end through the CLI (quick sizes) and writes what it promises."""
 
 import json
+import math
 
+import numpy as np
 import rhino3dm
 import trimesh
 
 from bsjax import cli, io
 
 
-def test_demo_writes_pictures_surfaces_and_report(tmp_path, capsys):
-    assert cli.main(["demo", "--out", str(tmp_path)]) == 0
+def test_demo_runs_the_spoon_case_study(tmp_path, capsys):
+    assert cli.main(["demo", "--quick", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
     for name in ("teardrop", "spoon_bowl", "spoon_handle"):
         row = report["shapes"][name]
         assert row["samples"] == [82, 82] and row["refit_max_error"] < 1e-10 and row["normals_finite"]
         assert io.load(tmp_path / f"{name}.json").shape == (8, 8)
     assert report["shapes"]["teardrop"]["periodic"] == [False, True]
-    assert (tmp_path / "shapes.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert len(rhino3dm.File3dm.Read(str(tmp_path / "shapes.3dm")).Objects) == 3
-    assert len(trimesh.load(tmp_path / "shapes.glb").geometry) >= 1
+    # the sphere pushed the neck up, and the handle stayed clamped behind the plane
+    assert report["bend"]["neck_lift_m"] > 1e-3 and report["bend"]["fixed_nodes"] > 0
+    # the merged spoon reproduces both patches to well under a millimetre on average
+    merged = io.load(tmp_path / "spoon.json")
+    assert merged.shape == tuple(report["merge"]["control_net"]) == (15, 8)
+    assert report["merge"]["average"] < 2e-4 and report["merge"]["max"] < 2e-3
+    # the jelly lattice is valid and every outcome and gradient is a finite number
+    jelly = report["jelly"]
+    assert jelly["inverted_hexahedra"] == 0
+    assert [row["tilt_deg"] for row in jelly["tilts"]] == [0.0, 10.0, 20.0]
+    assert all(0.0 <= row["spill_fraction"] <= 1.0 and 0.0 <= row["spill_risk"] <= 1.0 for row in jelly["tilts"])
+    assert all(math.isfinite(h["d_risk_d_tilt"]) for h in jelly["optimisation"])
+    assert jelly["best"]["spill_risk"] <= jelly["optimisation"][0]["spill_risk"] + 1e-12
+    assert (tmp_path / "spoon.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(rhino3dm.File3dm.Read(str(tmp_path / "spoon.3dm")).Objects) == 3
+    mesh = trimesh.load(tmp_path / "spoon.glb", force="mesh")
+    assert np.ptp(mesh.vertices[:, 0]) > 0.15  # handle and bowl: a whole spoon
     assert "wrote" in capsys.readouterr().out
 
 
