@@ -128,8 +128,9 @@ def _bilinear(grid, hm: HeightMap, xy):
     g = (xy - hm.origin) / hm.spacing
     hi = jnp.array(grid.shape, dtype=g.dtype) - 1.000001
     g = jnp.clip(g, 0.0, hi)
-    i0 = jnp.floor(g).astype(jnp.int32)
-    t = g - i0
+    g0 = jnp.floor(g)
+    t = g - g0
+    i0 = g0.astype(jnp.int32)
     i, j = i0[:, 0], i0[:, 1]
     a, b = t[:, 0], t[:, 1]
     return ((1 - a) * (1 - b) * grid[i, j] + a * (1 - b) * grid[i + 1, j]
