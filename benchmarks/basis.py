@@ -25,6 +25,7 @@ from geomdl import BSpline as GBSpline  # noqa: E402
 from scipy.interpolate import NdBSpline  # noqa: E402
 
 from bsjax.basis import Blending, BSplineSurface, clamped_knots  # noqa: E402
+from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 try:
     import splinepy
@@ -33,18 +34,6 @@ except ImportError:  # splinepy is an optional peer
 
 R = 20  # control net R × R, bicubic
 BATCH = 64
-
-
-def timed(fn, calls: int, warmup: int = 3):
-    """(median, p99) seconds per call of `fn()` (which must block until done)."""
-    for _ in range(warmup):
-        fn()
-    times = np.empty(calls)
-    for i in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        times[i] = time.perf_counter() - t0
-    return float(np.median(times)), float(np.percentile(times, 99))
 
 
 def first_call(fn):

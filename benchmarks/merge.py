@@ -32,6 +32,7 @@ from bsjax import io  # noqa: E402
 from bsjax import merge as mg  # noqa: E402
 from bsjax.basis import BSplineSurface  # noqa: E402
 from bsjax.merge import cases  # noqa: E402
+from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 # Thesis Tables 6.3/6.4: (Rhino C2, proposed C2, proposed C0) mean and std; None = not given.
 THESIS = {
@@ -43,18 +44,6 @@ THESIS = {
     6: ((0.0126, 0.0125), (0.0139, 0.0117), (0.0157, 0.0154)),
     7: (None, (0.0882, 0.1218), (0.0454, 0.0525)),
 }
-
-
-def timed(fn, calls: int, warmup: int = 3):
-    """(median, p99) seconds per call of `fn()` (which blocks until done)."""
-    for _ in range(warmup):
-        fn()
-    times = np.empty(calls)
-    for i in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        times[i] = time.perf_counter() - t0
-    return float(np.median(times)), float(np.percentile(times, 99))
 
 
 def geomdl_fit(points: np.ndarray, r: int, s: int, k: int, l: int) -> BSplineSurface:

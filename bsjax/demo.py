@@ -153,9 +153,10 @@ def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
     from bsjax import plot
 
     fig, axes = plot.figure(3, size=4.5)
-    for surface, colour in ((bent, None), (placed, None)):
-        plot.draw_surface(axes[0], surface.blending(40, 12).points(surface.ctrl), surface.ctrl,
-                          title="bent handle + bowl (two patches)")
+    grids = [np.asarray(s.blending(40, 12).points(s.ctrl)) for s in (bent, placed)]
+    for surface, points in zip((bent, placed), grids):
+        plot.draw_surface(axes[0], points, surface.ctrl, title="bent handle + bowl (two patches)")
+    plot.equal_axes(axes[0], np.concatenate([g.reshape(-1, 3) for g in grids]))
     grid = merged.blending(82, 82)
     plot.draw_surface(axes[1], grid.points(merged.ctrl), None, title=f"merged {merged.shape}, C¹ seam")
     ax = axes[2]
@@ -166,6 +167,9 @@ def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
     ax.plot_surface(X, Y, Z, color="#cccccc", alpha=0.5, linewidth=0)
     for (deg, pos), c in zip(finals.items(), ("#1f77b4", "#2ca02c", "#d62728", "#9467bd")):
         ax.scatter(pos[::3, 0], pos[::3, 1], pos[::3, 2], s=1, color=c, label=f"{deg:.1f}°")
+    jelly = np.concatenate(list(finals.values()))
+    bowl_pts = np.stack([X, Y, Z], -1).reshape(-1, 3)
+    plot.equal_axes(ax, np.concatenate([jelly, bowl_pts[np.isfinite(bowl_pts[:, 2])]]))
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title("jelly after the throw, per tilt (bowl frame)", fontsize=9)
     plot.save(fig, out / "spoon.png")

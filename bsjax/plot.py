@@ -33,11 +33,12 @@ def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str 
         c = np.asarray(ctrl)
         ax.plot_wireframe(c[..., 0], c[..., 1], c[..., 2], color="#c0392b", linewidth=0.6)
         ax.scatter(c[..., 0].ravel(), c[..., 1].ravel(), c[..., 2].ravel(), color="#c0392b", s=4)
-    _equal_axes(ax, p.reshape(-1, 3))
+    equal_axes(ax, p.reshape(-1, 3))
     ax.set_title(title, fontsize=9)
 
 
-def _equal_axes(ax, xyz):
+def equal_axes(ax, xyz):
+    """Equal scale on the three axes, fitted to the `(N, 3)` points."""
     lo, hi = xyz.min(0), xyz.max(0)
     centre, half = (lo + hi) / 2, max((hi - lo).max() / 2, 1e-12)
     ax.set_xlim(centre[0] - half, centre[0] + half)
