@@ -17,7 +17,7 @@ from scipy import interpolate
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
-from bsjax.merge import _fast, _orient
+from bsjax.merge import _orient
 from bsjax.merge._layout import changed_degree_knots
 from helpers import check_grad, random_knots, random_surface
 from oracles import ndbspline_surface

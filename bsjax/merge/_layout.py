@@ -19,7 +19,7 @@ from jaxtyping import Array, Float
 from bsjax import _checks
 from bsjax._blending import Blending
 from bsjax.basis import BSplineSurface
-from bsjax.merge import _fast, _knots, _orient
+from bsjax.merge import _knots, _orient
 
 DEGREE_POLICIES = (None, "elevate", "reduce")
 
@@ -217,7 +217,7 @@ def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=Non
     k, l, knots_u, knots_v = merged_knots(oriented, continuity, cross=cross, degrees=degrees, windows=win)
 
     dtype = o_flat[0].ctrl.dtype
-    blends = [[_fast.blending(s, m, n) for s in row] for row in oriented]
+    blends = [[s.blending(m, n) for s in row] for row in oriented]
     blends = [[b.window(*w) if w != (0.0, 1.0, 0.0, 1.0) else b for b, w in zip(brow, wrow)]
               for brow, wrow in zip(blends, win)]
     bu, bv = np.linspace(0.0, 1.0, R + 1), np.linspace(0.0, 1.0, C + 1)
@@ -235,7 +235,7 @@ def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=Non
                      f"{len(pu)} × {len(pv)}")
     dummy = BSplineSurface(jnp.zeros((r_ctrl, s_ctrl, 3), dtype), knots_u.astype(dtype),
                            knots_v.astype(dtype), k, l)
-    merged = _fast.blending(dummy, params_u=pu.astype(dtype), params_v=pv.astype(dtype))
+    merged = dummy.blending(params_u=pu.astype(dtype), params_v=pv.astype(dtype))
     return MergeLayout(
         patches=tuple(tuple(row) for row in blends), merged=merged,
         orientations=tuple(tuple(row) for row in ops), flat=flat,

@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax.basis import BSplineSurface
-from bsjax.merge import _fast
 
 Orientation = tuple[bool, bool, bool]
 IDENTITY: Orientation = (False, False, False)
@@ -57,7 +56,7 @@ def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
 def _edges(surface: BSplineSurface, count: int = 17, samples: tuple[int, int] = (33, 33)) -> dict:
     """The four boundary curves at `count` parameters, read off the patch's `samples` grid (the
     same blending matrices the merge builds) and resampled linearly."""
-    grid = np.asarray(_fast.blending(surface, *samples).points(surface.ctrl))
+    grid = np.asarray(surface.blending(*samples).points(surface.ctrl))
     t = np.linspace(0.0, 1.0, count)
 
     def resample(curve):

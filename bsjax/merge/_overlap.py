@@ -15,7 +15,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from bsjax.basis import BSplineSurface
-from bsjax.merge import _fast
 
 
 def _spacing(points: np.ndarray) -> float:
@@ -27,8 +26,8 @@ def _spacing(points: np.ndarray) -> float:
 def contact_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82, tolerance: float | None = None):
     """Boolean `(samples, samples)` masks of the samples of `a` and `b` within `tolerance` of the
     other patch's samples (default: the larger sample spacing of the two grids)."""
-    pa = np.asarray(_fast.blending(a, samples, samples).points(a.ctrl))
-    pb = np.asarray(_fast.blending(b, samples, samples).points(b.ctrl))
+    pa = np.asarray(a.blending(samples, samples).points(a.ctrl))
+    pb = np.asarray(b.blending(samples, samples).points(b.ctrl))
     tol = tolerance if tolerance is not None else max(_spacing(pa), _spacing(pb))
     da, _ = cKDTree(pb.reshape(-1, 3)).query(pa.reshape(-1, 3))
     db, _ = cKDTree(pa.reshape(-1, 3)).query(pb.reshape(-1, 3))
@@ -40,7 +39,7 @@ def collide_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82):
     hierarchy; every triangle pair for grids of at most 24² samples, where that is cheaper)."""
     from bsjax.collide import surface_contacts
 
-    result = surface_contacts(_fast.blending(a, samples, samples), a.ctrl, _fast.blending(b, samples, samples), b.ctrl,
+    result = surface_contacts(a.blending(samples, samples), a.ctrl, b.blending(samples, samples), b.ctrl,
                               method="dense" if samples <= 24 else "hierarchy")
     if bool(result.overflow):
         raise ValueError("overlap: expected the collision query to fit its capacity, got an overflow; "
