@@ -169,7 +169,8 @@ def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
     scale = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
     mesh.merge_vertices(digits_vertex=int(np.clip(-np.log10(scale * 1e-9), 0, 15)))
     mesh.update_faces(mesh.nondegenerate_faces())
-    mesh.fix_normals() if mesh.is_watertight else None
+    if mesh.is_watertight:
+        mesh.fix_normals()
     return mesh
 
 
