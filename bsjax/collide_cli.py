@@ -5,7 +5,7 @@
     bsjax collide SURFACE.json --ellipsoid CX CY CZ A B C
     bsjax collide SURFACE.json --point X Y Z
     bsjax collide SURFACE.json --mesh TOOL.stl
-    bsjax collide SURFACE.json --surface OTHER.json [--capacity 4096]
+    bsjax collide SURFACE.json --surface OTHER.json [--capacity 2048]
 
 Prints a report (contact, samples in contact, parametric window, maximum and total depth, the
 force on the tool by both force methods) and optionally writes it as JSON.
@@ -30,7 +30,7 @@ def _parser() -> argparse.ArgumentParser:
     tool.add_argument("--surface", dest="other", metavar="FILE", help="a second (deformable) surface")
     p.add_argument("--samples", nargs=2, type=int, default=(82, 82), metavar=("M", "N"))
     p.add_argument("--stiffness", type=float, default=100.0, help="spring stiffness per contact sample")
-    p.add_argument("--capacity", type=int, default=4096, help="candidate cell pairs (surface vs surface)")
+    p.add_argument("--capacity", type=int, default=2048, help="candidate cell pairs (surface vs surface)")
     p.add_argument("--json", metavar="OUT", help="also write the report as JSON")
     return p
 

@@ -14,11 +14,12 @@ from bsjax.collide import (
     Ellipsoid, Implicit, Plane, Point, Sphere, TriangleMesh, contact_force, contacts, nodal_forces,
     sample_forces, surface_contacts, tessellate,
 )
-from bsjax.collide.hierarchy import sphere_hierarchy, traverse
+from bsjax.collide.flat import normal_cones
+from bsjax.collide.hierarchy import block_order, cell_triangles, sphere_hierarchy, traverse
 from helpers import check_grad, random_surface
 
 _contacts = jax.jit(contacts, static_argnames="method")
-_surfaces = jax.jit(surface_contacts, static_argnames=("capacity", "method"))
+_surfaces = jax.jit(surface_contacts, static_argnames=("capacity", "method", "flat_angle"))
 
 # one control-net shape, degree and grid for most tests, so the jitted queries compile once per tool
 PLATE = shapes.plate(6, 6)
@@ -247,8 +248,61 @@ def test_closed_surface_against_plate_hierarchy():
 def test_traversal_reports_overflow():
     pts = jnp.asarray(np.stack(np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), [0.0], indexing="ij"), -1)[:, :, 0])
     run = jax.jit(lambda p: traverse(sphere_hierarchy(p, 1), sphere_hierarchy(p, 1), 4))
-    _, _, valid, overflow, count = run(pts)  # coplanar sheets: every cell meets several others
+    _, _, valid, overflow, count, _ = run(pts)  # coplanar sheets: every cell meets several others
     assert bool(overflow) and int(count) > 4 and int(valid.sum()) == 4
+
+
+def _sheets(kind):
+    """Two 6×6 plates at 22×22 samples lying on each other: coplanar, 1e-3 apart, or crossing at 1.1°."""
+    b = PLATE.blending(22, 22)
+    ctrl = jnp.asarray(PLATE.ctrl)
+    other = {"coplanar": ctrl, "gap": ctrl + jnp.array([0, 0, 1e-3]),
+             "tilted": ctrl.at[..., 2].set(0.02 * (ctrl[..., 0] - 0.6))}[kind]
+    return b, ctrl, b, other + jnp.array([0.3, 0.2, 0.0])
+
+
+@pytest.mark.parametrize("kind", ["coplanar", "gap", "tilted"])
+def test_flat_contact_resolved_by_planes_without_overflow(kind):
+    """Sheets lying on each other: every sphere intersects, exact refinement overflows a small
+    capacity; the flat-pair pruning (thesis §3.3.3.5) answers like the dense triangle tests."""
+    args = _sheets(kind)
+    dense = _surfaces(*args, method="dense")
+    exact = _surfaces(*args, capacity=64, flat_angle=None)
+    flat = _surfaces(*args, capacity=64)
+    assert not bool(flat.overflow)
+    assert bool(exact.overflow) or bool(exact.apart)  # 1e-3 apart: the flat control hulls already separate
+    assert bool(flat.hit) == bool(dense.hit) == (kind != "gap")
+    assert (int(flat.flat_pairs) > 0) == (kind != "gap")
+    for got, want in ((flat.mask_a, dense.mask_a), (flat.mask_b, dense.mask_b)):
+        got, want = np.asarray(got), np.asarray(want)
+        assert not np.any(want & ~got)  # every dense contact vertex is reported
+        assert np.sum(got & ~want) <= max(2, 0.05 * want.sum())  # within one cell of the contact
+    if kind == "coplanar":
+        np.testing.assert_array_equal(np.asarray(flat.mask_a), np.asarray(dense.mask_a))
+
+
+def test_normal_cones_bound_every_triangle_normal():
+    surf = _bumpy(7, 8, 7)
+    points = surf.blending(20, 17).points(surf.ctrl)
+    levels = 3
+    tris, _ = cell_triangles(points)
+    normals = np.cross(tris[..., 1, :] - tris[..., 0, :], tris[..., 2, :] - tris[..., 0, :])
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)  # (m-1, n-1, 2, 3)
+    rows, cols = block_order(levels)
+    cones = normal_cones(points, levels)
+    for level, (axis, half) in enumerate(cones):
+        per = 9**level
+        for q in range(0, len(half), 7):
+            r, c = rows[q * per:(q + 1) * per], cols[q * per:(q + 1) * per]
+            keep = (r < points.shape[0] - 1) & (c < points.shape[1] - 1)
+            if not keep.any():
+                continue
+            angles = np.arccos(np.clip(normals[r[keep], c[keep]] @ np.asarray(axis[q]), -1, 1))
+            assert angles.max() <= float(half[q]) + 1e-9
+            if level == levels:
+                assert float(half[q]) < np.pi  # a bumpy sheet, not everything
+    plate = PLATE.blending(10, 10).points(PLATE.ctrl)
+    assert max(float(jnp.max(h)) for _, h in normal_cones(plate, 2)) < 1e-6
 
 
 # --- jit / vmap / gradients -------------------------------------------------------------------
@@ -369,5 +423,7 @@ def test_bad_inputs_raise_clear_errors():
         contacts(PLATE_B, PLATE.ctrl, Sphere([0, 0, 0], 1.0), method="fast")
     with pytest.raises(ValueError, match="capacity"):
         surface_contacts(PLATE_B, PLATE.ctrl, PLATE_B, PLATE.ctrl, capacity=0)
+    with pytest.raises(ValueError, match="flat_angle"):
+        surface_contacts(PLATE_B, PLATE.ctrl, PLATE_B, PLATE.ctrl, flat_angle=-0.1)
     with pytest.raises(TypeError, match="tool"):
         contacts(PLATE_B, PLATE.ctrl, "sphere")

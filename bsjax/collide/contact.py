@@ -21,11 +21,12 @@ from jaxtyping import Array, Bool, Float, Int
 from bsjax import _checks
 from bsjax._tensor import safe_norm, unit
 from bsjax.collide.broad import hulls_apart, parametric_window, sample_window
+from bsjax.collide.flat import flat_pairs, normal_cones, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
     block_order, candidate_triangles, cell_triangles, levels_for, sphere_hierarchy, traverse,
 )
 from bsjax.collide.tools import AbstractTool, Point
-from bsjax.collide.triangles import closest_point_on_triangle, triangles_intersect
+from bsjax.collide.triangles import candidate_pairs_intersect, closest_point_on_triangle, triangles_intersect
 
 
 class Contact(eqx.Module):
@@ -58,10 +59,11 @@ class SurfaceContact(eqx.Module):
     """Result of `surface_contacts`: contact regions on both surfaces.
 
     **Fields:** `hit ()`; `mask_a (m_a, n_a)`, `mask_b (m_b, n_b)`: vertices of intersecting
-    triangles; `cells_a (K, 2)`, `cells_b (K, 2)`: candidate cell pairs (row, column) after the
+    triangles (and of the contact cells of flat pairs); `cells_a (K, 2)`, `cells_b (K, 2)`: candidate cell pairs (row, column) after the
     sphere hierarchy, `pair_hit (K,)`: whether that pair's triangles intersect (the contact
     pairs); `candidates ()`: number of intersecting sphere pairs at the last level;
     `overflow ()`: more candidates than `capacity` (results incomplete — raise the capacity);
+    `flat_pairs ()`: flat block pairs in contact, resolved by planes (`collide.flat`);
     `apart ()`: the control hulls are certified apart.
     """
 
@@ -73,6 +75,7 @@ class SurfaceContact(eqx.Module):
     pair_hit: Bool[Array, " K"]
     candidates: Int[Array, ""]
     overflow: Bool[Array, ""]
+    flat_pairs: Int[Array, ""]
     apart: Bool[Array, ""]
 
 
@@ -221,7 +224,7 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
 
 def surface_contacts(
     blending_a, ctrl_a: Float[Array, "ra sa 3"], blending_b, ctrl_b: Float[Array, "rb sb 3"],
-    *, capacity: int = 4096, method: str = "hierarchy",
+    *, capacity: int = 2048, method: str = "hierarchy", flat_angle: float | None = 0.05,
 ) -> SurfaceContact:
     """Contact regions of two deformable B-spline surfaces (thesis §3.3).
 
@@ -229,7 +232,9 @@ def surface_contacts(
     cell pairs kept per refinement step (`overflow` reports when more intersect); `method`:
     `"hierarchy"` (control-hull broad phase → alternating LOD sphere refinement → triangle
     tests of the candidate cells) or `"dense"` (every triangle pair; the reference, small grids
-    only).
+    only); `flat_angle` δ (radians, static): blocks of ≥ 3 × 3 cells whose triangle normals
+    stay within δ of each other and of the other block's are a flat contact, resolved by
+    planes instead of refined (`collide.flat`; thesis §3.3.3.5) — `None` refines everything.
 
     **Returns:** a `SurfaceContact`; `mask_a`/`mask_b` mark the vertices of the triangles of
     each tessellation (`hierarchy.tessellate`) that intersect the other surface's triangles.
@@ -244,7 +249,10 @@ def surface_contacts(
     if method == "dense":
         return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
     apart = hulls_apart(jax.lax.stop_gradient(ctrl_a).reshape(-1, 3), jax.lax.stop_gradient(ctrl_b).reshape(-1, 3))
-    query = functools.partial(_hierarchy_surfaces, capacity=int(capacity))
+    if flat_angle is not None and not (isinstance(flat_angle, (int, float, np.floating)) and 0 <= flat_angle < np.pi / 2):
+        _checks.fail("flat_angle", "None or an angle in radians in [0, π/2)", flat_angle)
+    query = functools.partial(_hierarchy_surfaces, capacity=int(capacity),
+                              flat_angle=None if flat_angle is None else float(flat_angle))
     return _unless_apart(apart, query, blending_a, ctrl_a, blending_b, ctrl_b)
 
 
@@ -254,23 +262,63 @@ def _vertex_mask(faces, tri_hit, shape):
     return jnp.zeros(shape[0] * shape[1], bool).at[faces.reshape(-1)].max(flags).reshape(shape)
 
 
-def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity):
+def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_angle):
+    """Refine every candidate pair down to triangles; only when that overflows the capacity
+    (flat contact: every sphere intersects) run again with flat pairs resolved by planes, so
+    the common case pays nothing for the flat test (`lax.cond`)."""
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
+    exact = _refine_pairs(pa, pb, capacity, None)
+    if flat_angle is None:
+        return exact
+    return jax.lax.cond(exact.overflow, lambda: _refine_pairs(pa, pb, capacity, flat_angle), lambda: exact)
+
+
+def _refine_pairs(pa, pb, capacity, flat_angle):
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
-    leaf_a, leaf_b, valid, overflow, count = traverse(sphere_hierarchy(pa, lev_a), sphere_hierarchy(pb, lev_b), capacity)
+    cones = flat = None
+    if flat_angle is not None:
+        cones = (normal_cones(pa, lev_a), normal_cones(pb, lev_b))
+        flat = functools.partial(flat_pairs, *cones, flat_angle)
+    leaf_a, leaf_b, valid, overflow, count, flat_steps = traverse(
+        sphere_hierarchy(pa, lev_a), sphere_hierarchy(pb, lev_b), capacity, flat)
     cell_a = _cells(leaf_a, lev_a, pa.shape)
     cell_b = _cells(leaf_b, lev_b, pb.shape)
     tri_a, face_a = candidate_triangles(pa, cell_a)  # (K, 2, 3, 3): only the candidate cells
     tri_b, face_b = candidate_triangles(pb, cell_b)
-    hits = triangles_intersect(tri_a[:, :, None], tri_b[:, None, :]) & valid[:, None, None]
+    hits = candidate_pairs_intersect(tri_a[:, :, None], tri_b[:, None, :], valid[:, None, None])
     mask_a = _vertex_mask(face_a, jnp.any(hits, 2), pa.shape[:2])
     mask_b = _vertex_mask(face_b, jnp.any(hits, 1), pb.shape[:2])
     pair_hit = jnp.any(hits, (1, 2))
+    if flat_steps:
+        step_a, step_b, flat_hit = _flat_contacts(pa, lev_a, pb, lev_b, flat_steps, cones)
+        mask_a, mask_b = mask_a | step_a, mask_b | step_b
+    else:
+        flat_hit = jnp.zeros((), jnp.int32)
     return SurfaceContact(
-        hit=jnp.any(pair_hit), mask_a=mask_a, mask_b=mask_b, cells_a=cell_a, cells_b=cell_b,
-        pair_hit=pair_hit, candidates=count.astype(jnp.int32), overflow=overflow, apart=jnp.zeros((), bool),
+        hit=jnp.any(pair_hit) | (flat_hit > 0), mask_a=mask_a, mask_b=mask_b, cells_a=cell_a, cells_b=cell_b,
+        pair_hit=pair_hit, candidates=count.astype(jnp.int32), overflow=overflow, flat_pairs=flat_hit,
+        apart=jnp.zeros((), bool),
     )
+
+
+def _flat_contacts(pa, lev_a, pb, lev_b, flat_steps, cones):
+    """Vertex masks and number of flat pairs in contact over the traversal's `flat_steps`
+    (`collide.flat`); each step is skipped at run time (`lax.cond`) when it set no pair aside."""
+    mask_a, mask_b = jnp.zeros(pa.shape[:2], bool), jnp.zeros(pb.shape[:2], bool)
+    count = jnp.zeros((), jnp.int32)
+    for la, lb, ia, ib, is_flat in flat_steps:
+        def resolve(la=la, lb=lb, ia=ia, ib=ib, is_flat=is_flat):
+            corners_a, hit_a, corners_b, hit_b = resolve_flat_pairs(pa, lev_a, la, ia, pb, lev_b, lb, ib, is_flat, *cones)
+            return (_vertex_mask(corners_a, hit_a, pa.shape[:2]), _vertex_mask(corners_b, hit_b, pb.shape[:2]),
+                    jnp.any(hit_a, 1).sum(dtype=jnp.int32))
+
+        def skip():
+            return jnp.zeros(pa.shape[:2], bool), jnp.zeros(pb.shape[:2], bool), jnp.zeros((), jnp.int32)
+
+        step_a, step_b, step_count = jax.lax.cond(jnp.any(is_flat), resolve, skip)
+        mask_a, mask_b, count = mask_a | step_a, mask_b | step_b, count + step_count
+    return mask_a, mask_b, count
 
 
 def _cells(leaf, levels, shape):
@@ -292,5 +340,5 @@ def _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b):
     return SurfaceContact(
         hit=jnp.any(hits), mask_a=mask_a, mask_b=mask_b, cells_a=empty, cells_b=empty,
         pair_hit=jnp.zeros((0,), bool), candidates=jnp.sum(hits).astype(jnp.int32),
-        overflow=jnp.zeros((), bool), apart=jnp.zeros((), bool),
+        overflow=jnp.zeros((), bool), flat_pairs=jnp.zeros((), jnp.int32), apart=jnp.zeros((), bool),
     )

@@ -161,11 +161,17 @@ def _compact(hit, size):
     return parent, child, j < ends[-1]
 
 
-def traverse(levels_a, levels_b, capacity: int):
+def traverse(levels_a, levels_b, capacity: int, flat=None):
     """Alternating refinement of candidate pairs down to cell pairs (thesis §3.3.3.4).
 
-    **Returns:** `(leaf_a (K,), leaf_b (K,), valid (K,), overflow, count)`: block-major leaf
-    indices of candidate cell pairs whose spheres intersect.
+    **Arguments:** the sphere levels of both surfaces (`sphere_hierarchy`); `capacity` (static);
+    `flat`: `None`, or `flat(la, lb, blocks_a, blocks_b, valid) → is_flat` (e.g. a partial of
+    `collide.flat.flat_pairs`) to take flat pairs of blocks (both at level ≥ 1) out of the
+    refinement; they are resolved by the caller.
+
+    **Returns:** `(leaf_a (K,), leaf_b (K,), valid (K,), overflow, count, flat_steps)`:
+    block-major leaf indices of candidate cell pairs whose spheres intersect, and per step that
+    set flat pairs aside `(la, lb, blocks_a, blocks_b, is_flat)` with static levels.
     """
     la, lb = len(levels_a) - 1, len(levels_b) - 1
     ia = jnp.zeros((1,), jnp.int32)
@@ -176,7 +182,12 @@ def traverse(levels_a, levels_b, capacity: int):
     count = valid.sum(dtype=jnp.int32)
     turn_a, steps, step = True, la + lb, 0
     kids = jnp.arange(BRANCH * BRANCH, dtype=jnp.int32)
+    flat_steps = []
     while la > 0 or lb > 0:
+        if flat is not None and la > 0 and lb > 0:
+            is_flat = flat(la, lb, ia, ib, valid)
+            flat_steps.append((la, lb, ia, ib, is_flat))
+            valid = valid & ~is_flat
         step += 1
         refine_a = (turn_a and la > 0) or lb == 0
         if refine_a:
@@ -198,4 +209,4 @@ def traverse(levels_a, levels_b, capacity: int):
         else:
             ia, ib = ia[parent], ib[parent] * 9 + child
         turn_a = not turn_a
-    return ia, ib, valid, overflow, count
+    return ia, ib, valid, overflow, count, flat_steps

@@ -213,12 +213,24 @@ def triangles_intersect(t1: Float[Array, "... 3 3"], t2: Float[Array, "... 3 3"]
     return _intersect_flat(f1, f2).reshape(batch)
 
 
-def _intersect_flat(f1, f2):
+def _intersect_flat(f1, f2, active=None):
+    """`triangles_intersect` of flat batches; `active (N,)`: the pairs that matter — the others
+    give False and never trigger the exact test."""
     fast, robust = _guigue_devillers(f1, f2)
+    if active is not None:
+        fast, robust = fast & active, robust & active
     exact = jax.lax.cond(
         jnp.any(robust), lambda: _robust(f1, f2), lambda: jnp.zeros(f1.shape[:1], bool)
     )
     return jnp.where(robust, exact, fast)
+
+
+def candidate_pairs_intersect(t1, t2, active):
+    """`triangles_intersect(t1, t2) & active` for `(..., 3, 3)` batches that broadcast, where
+    inactive pairs (padding of a fixed-capacity candidate list) cost no exact test."""
+    t1, t2, active = jnp.broadcast_arrays(t1, t2, active[..., None, None])
+    batch = t1.shape[:-2]
+    return _intersect_flat(t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3), active[..., 0, 0].reshape(-1)).reshape(batch)
 
 
 def closest_point_on_triangle(x: Float[Array, "... 3"], tri: Float[Array, "... 3 3"]) -> tuple[Array, Array]:
