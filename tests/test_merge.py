@@ -182,6 +182,91 @@ def test_merge_three_in_a_row_and_grid(surface):
     assert grid_error(merged, surface) < 1e-6
 
 
+def _grid(surface):
+    top, bottom = split(surface, "u", 0.5)
+    return [list(split(top, "v", 0.5)), list(split(bottom, "v", 0.5))]
+
+
+def test_merge_grid_orientation(surface):
+    """A 2×2 grid with every patch flipped or transposed (the corner too) merges to the same
+    surface as the well-oriented grid: `orient_grid` finds the inverse reparametrisations."""
+    rows = _grid(surface)
+    turns = [[(True, False, True), (True, True, False)], [(False, True, True), (True, True, True)]]
+    turned = [[_orient.orient_surface(p, op) for p, op in zip(row, orow)] for row, orow in zip(rows, turns)]
+    ops = mg.orient_grid(turned, (S, S))
+    for row, orow, trow in zip(rows, ops, turned):
+        for p, op, t in zip(row, orow, trow):  # undoing the turn gives back each patch
+            np.testing.assert_allclose(_orient.orient_surface(t, op).ctrl, p.ctrl, atol=1e-12)
+    reference = mg.merge_grid(rows, 2, samples=S, orient="as_given")
+    for orient in ("auto", ops):
+        merged = mg.merge_grid(turned, 2, samples=S, orient=orient)
+        np.testing.assert_allclose(merged.ctrl, reference.ctrl, atol=1e-10)
+        assert grid_error(merged, surface) < 1e-6
+    assert grid_error(mg.merge_grid(turned, 2, samples=S, orient="as_given"), surface) > 1e-2
+    with pytest.raises(ValueError, match="orient"):
+        mg.merge_grid(turned, 2, samples=S, orient=[[(True, False)] * 2] * 2)
+
+
+def test_merge_grid_trimmed(surface):
+    """The lower row of a 2×2 grid starts at u = 0.4 (overlapping the upper row's last tenth);
+    trimming its u-window to the part below 0.5 gives back the surface; windows that differ
+    along a row are refused."""
+    top, _ = split(surface, "u", 0.5)
+    _, bottom = split(surface, "u", 0.4)
+    rows = [list(split(top, "v", 0.5)), list(split(bottom, "v", 0.5))]
+    lo = 0.1 / 0.6
+    trim = [[None, None], [(lo, 1.0, 0.0, 1.0)] * 2]
+    merged = mg.merge_grid(rows, 2, samples=(37, S), trim=trim, orient="as_given")
+    assert grid_error(merged, surface) < 1e-6
+    with pytest.raises(ValueError, match="trim"):
+        mg.merge_grid(rows, 2, samples=S, trim=[[None, None], [(lo, 1.0, 0.0, 1.0), None]])
+    with pytest.raises(ValueError, match="trim"):
+        mg.merge_grid(rows, 2, samples=S, trim=[[None, None], [(0.5, 0.2, 0.0, 1.0)] * 2])
+
+
+def test_merge_grid_overlap_dropped():
+    """Upper plates running past x = 1, tilted lower plates crossing them (§4.4.1): the grid
+    merge drops the intersecting rows of every column and runs straight through."""
+    upper = [_plate(0.0, 1.2, 5, 4, y0=0.0, y1=1.0), _plate(0.0, 1.2, 5, 4, y0=1.0, y1=2.0)]
+    lower = [_plate(0.9, 2.0, 5, 4, lambda x, y: 0.5 * (x - 1.0), y0=y0, y1=y0 + 1.0) for y0 in (0.0, 1.0)]
+    windows = mg.grid_overlap_windows([upper, lower], (S, S), method="dense")
+    (u0, u1, v0, v1), (l0, l1, w0, w1) = windows[0][0], windows[1][1]
+    assert (u0, v0, v1, w0, w1, l1) == (0.0, 0.0, 1.0, 0.0, 1.0, 1.0)  # the v seam does not cross
+    assert 0.6 < u1 < 1.0 / 1.2 and 0.1 / 1.1 < l0 < 0.35
+    g = np.linspace(0, 1, 200)
+    for overlap, monotone in (("keep", False), ("drop", True)):
+        merged = mg.merge_grid([upper, lower], 0, samples=S, overlap=overlap, overlap_method="dense")
+        for v in (0.2, 0.7):
+            x = ndbspline_surface(merged, g, np.full_like(g, v))[:, 0]
+            assert bool(np.all(np.diff(x) > 0)) == monotone
+
+
+def test_reduction_error(surface):
+    """`degrees="reduce"`: the layout reports each patch's loss from lowering its degree — zero for
+    a patch left alone and for an exactly elevated cubic, and for a true quartic the largest
+    distance to its reduction, checked against scipy sampling of the patch and of
+    `reduce_degree`'s result."""
+    from bsjax.basis import reduce_degree
+
+    a, b = split(surface, "u", 0.5)
+    exact = mg.plan([a, elevated(b)], "u", 2, samples=S, degrees="reduce", orient="as_given")
+    assert float(exact.reduction_error[0, 0]) == 0.0 and float(exact.reduction_error[1, 0]) < 1e-9
+    rng = np.random.default_rng(4)
+    quartic = random_surface(rng, 7, 6, 4, 3)
+    quartic = quartic.with_ctrl(quartic.ctrl + jnp.array([1.0, 0.0, 0.0]))
+    layout = mg.plan([a, quartic], "u", 2, samples=S, degrees="reduce", orient="as_given")
+    err = float(layout.reduction_error[1, 0])
+    reduced, _ = reduce_degree(quartic, "u", 1)
+    g = np.linspace(0, 1, S)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    sampled = np.linalg.norm(ndbspline_surface(quartic, uu.ravel(), vv.ravel())
+                             - ndbspline_surface(reduced, uu.ravel(), vv.ravel()), axis=-1)
+    assert err == pytest.approx(sampled.max(), rel=1e-9) and err > 1e-4
+    # the merge cannot beat the lower degree: the merged quartic part deviates at least ~ as much
+    merged = layout.surface(layout.apply([a.ctrl, quartic.ctrl]))
+    assert mg.deviation([quartic], merged, samples=S).max > 0.5 * err
+
+
 def test_merge_trimmed_patch(surface):
     """A patch cut at u = 0.6 overlaps its neighbour from 0.5; trimming it at 0.5/0.6 of its own
     parameter range leaves exactly the missing half, and the merge gives back the surface."""

@@ -22,20 +22,21 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from bsjax import _checks
 from bsjax.basis import BSplineSurface
-from bsjax.merge._deviation import Deviation, closest_parameters, deviation, plot_deviation, project
+from bsjax.merge._deviation import Deviation, closest_parameters, deviation, plot_deviation
 from bsjax.merge._knots import average_knots, combine_knots, cross_knots, merge_knots
-from bsjax.merge._layout import MergeLayout, common_degree, merged_knots, plan, plan_grid
-from bsjax.merge._nonlinear import refine
-from bsjax.merge._orient import orient_row, orient_surface
-from bsjax.merge._overlap import contact_masks, overlap_trims
+from bsjax.merge._layout import MergeLayout, common_degree, grid_orientations, merged_knots, plan, plan_grid
+from bsjax.merge._nonlinear import RefitSolution, RefitSolver, refine, refit
+from bsjax.merge._project import Projection, ProjectionSolver, closest_points, project
+from bsjax.merge._orient import orient_grid, orient_row, orient_surface
+from bsjax.merge._overlap import contact_masks, grid_overlap_windows, overlap_trims
 
 __all__ = [
     "merge", "merge_grid", "merge_knots", "average_knots", "combine_knots", "cross_knots",
-    "common_degree", "merged_knots", "plan", "plan_grid", "MergeLayout", "refine", "deviation", "Deviation",
-    "plot_deviation", "project", "closest_parameters", "orient_row", "orient_surface",
-    "contact_masks", "overlap_trims",
+    "common_degree", "merged_knots", "plan", "plan_grid", "MergeLayout", "refine", "refit", "RefitSolver",
+    "RefitSolution", "deviation", "Deviation", "plot_deviation", "project", "closest_points", "Projection",
+    "ProjectionSolver", "closest_parameters", "orient_row", "orient_grid",
+    "orient_surface", "grid_orientations", "contact_masks", "overlap_trims", "grid_overlap_windows",
 ]
 
 
@@ -45,49 +46,35 @@ def _finish(layout: MergeLayout, ctrls, refine_fit: bool) -> BSplineSurface:
 
 
 def merge(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: int = 2, *,
-          samples=82, cross_knots: str = "average", degrees=None, orient: str = "auto",
+          samples=82, cross_knots: str = "average", degrees=None, orient="auto",
           trim=None, overlap: str = "keep", overlap_method: str = "collide",
           refine: bool = False) -> BSplineSurface:
     """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
 
     **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
-    `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`), plus
-    - `overlap`: `"keep"`, or `"drop"` to find intersecting patches' overlapping sample rows and
-      leave them out (§4.4.1, `overlap_trims`). Not with `trim`.
-    - `overlap_method`: `"collide"` (bsjax.collide's surface contacts) or `"dense"` (a distance
-      test between the sample grids).
-    - `refine`: also run the nonlinear refit with parameter correction (`refine`).
+    `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`, `overlap`
+    = "keep"/"drop", `overlap_method`), plus `refine`: also run the nonlinear refit with
+    parameter correction (`refit`).
 
     **Returns:** the merged surface: degree `(k, l)`, `r = Σ r_i − (N − 1)` control points along
     the merge direction (more or fewer after a degree change), the largest count across.
     """
-    if overlap not in ("keep", "drop"):
-        _checks.fail("overlap", "'keep' or 'drop'", repr(overlap))
     surfaces = list(surfaces)
-    if overlap == "drop":
-        if trim is not None:
-            _checks.fail("trim", "None when overlap='drop' (the trims are computed)", trim)
-        probe = plan(surfaces, direction, continuity, samples=samples, cross_knots=cross_knots,
-                     degrees=degrees, orient=orient)
-        oriented = [orient_surface(s, op[0] if direction == "u" else op)
-                    for s, op in zip(surfaces, _flat_ops(probe, direction))]
-        m = samples if isinstance(samples, int) else samples[0 if direction == "u" else 1]
-        trim = overlap_trims(oriented, direction, m, method=overlap_method)
     layout = plan(surfaces, direction, continuity, samples=samples, cross_knots=cross_knots,
-                  degrees=degrees, orient=orient, trim=trim)
+                  degrees=degrees, orient=orient, trim=trim, overlap=overlap, overlap_method=overlap_method)
     return _finish(layout, [s.ctrl for s in surfaces], refine)
 
 
-def _flat_ops(layout: MergeLayout, direction: str):
-    ops = layout.orientations
-    return [row for row in ops] if direction == "u" else list(ops[0])
-
-
 def merge_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples=82,
-               degrees=None, refine: bool = False) -> BSplineSurface:
+               degrees=None, orient="auto", trim=None, overlap: str = "keep",
+               overlap_method: str = "collide", refine: bool = False) -> BSplineSurface:
     """Merge a grid of patches (`rows[i][j]`, rows stacked along u) into one surface (§4.4.3).
 
-    See `plan_grid` for the arrangement; `continuity` is one int or `(c_u, c_v)`.
+    **Arguments:** as `plan_grid` (`continuity` one int or `(c_u, c_v)`, `samples`, `degrees`,
+    `orient` = "auto"/"as_given"/explicit rows, `trim` = rows of `(u0, u1, v0, v1)`, `overlap`,
+    `overlap_method`), plus `refine` as for `merge`.
     """
-    layout = plan_grid(rows, continuity, samples=samples, degrees=degrees)
+    rows = [list(r) for r in rows]
+    layout = plan_grid(rows, continuity, samples=samples, degrees=degrees, orient=orient, trim=trim,
+                       overlap=overlap, overlap_method=overlap_method)
     return _finish(layout, [[s.ctrl for s in row] for row in rows], refine)

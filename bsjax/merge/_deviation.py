@@ -16,41 +16,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks
 from bsjax.basis import BSplineSurface
-
-
-def _gauss_newton_step(surface: BSplineSurface, points, uv):
-    """One clamped Gauss–Newton step on `|S(u, v) − x|²` for every point (2×2 normal equations)."""
-    u, v = uv[:, 0], uv[:, 1]
-    r = surface.evaluate(u, v) - points
-    su, sv = surface.evaluate(u, v, 1, 0), surface.evaluate(u, v, 0, 1)
-    a, b, c = jnp.sum(su * su, -1), jnp.sum(su * sv, -1), jnp.sum(sv * sv, -1)
-    g0, g1 = jnp.sum(su * r, -1), jnp.sum(sv * r, -1)
-    eps = jnp.finfo(uv.dtype).eps
-    damp = 1e3 * eps * (a + c) + jnp.finfo(uv.dtype).tiny
-    a, c = a + damp, c + damp
-    det = a * c - b * b
-    safe = det > eps * (a * c)
-    det = jnp.where(safe, det, 1.0)  # double where: a degenerate point (pole) does not move
-    du = jnp.where(safe, -(c * g0 - b * g1) / det, 0.0)
-    dv = jnp.where(safe, -(a * g1 - b * g0) / det, 0.0)
-    return jnp.clip(uv + jnp.stack([du, dv], -1), 0.0, 1.0)
-
-
-def project(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Array, "N 2"],
-            steps: int = 8) -> Float[Array, "N 2"]:
-    """Closest-point parameters of `points` on `surface`, from starting guesses `uv0`.
-
-    Gauss–Newton on `|S(u,v) − x|²` (the 2×2 system `J^T J δ = −J^T r` per point, closed form),
-    clamped to [0, 1]², `steps` iterations; the better of the start and the result is kept, so a
-    step can never make a point worse. Jittable and batched over points.
-    """
-    uv = jax.lax.fori_loop(0, steps, lambda _, x: _gauss_newton_step(surface, points, x), uv0)
-    d0 = jnp.sum((surface.evaluate(uv0[:, 0], uv0[:, 1]) - points) ** 2, -1)
-    d1 = jnp.sum((surface.evaluate(uv[:, 0], uv[:, 1]) - points) ** 2, -1)
-    return jnp.where((d1 <= d0)[:, None], uv, uv0)
-
-
-_project_jit = eqx.filter_jit(project)
+from bsjax.merge._project import ProjectionSolver, closest_points
 
 
 def _nearest(points, candidates, chunk: int = 256):
@@ -71,19 +37,20 @@ def _candidate_count(surface: BSplineSurface) -> int:
 
 
 @eqx.filter_jit
-def _closest(surface: BSplineSurface, points, grid, steps: int):
+def _closest(surface: BSplineSurface, points, grid, solver: ProjectionSolver):
     cu, cv = (x.reshape(-1) for x in jnp.meshgrid(grid, grid, indexing="ij"))
     idx = _nearest(points, surface.evaluate(cu, cv))
-    uv = project(surface, points, jnp.stack([cu[idx], cv[idx]], -1), steps)
-    return uv, jnp.linalg.norm(surface.evaluate(uv[:, 0], uv[:, 1]) - points, axis=-1)
+    proj = closest_points(surface, points, jnp.stack([cu[idx], cv[idx]], -1), solver)
+    return proj.params, proj.distances
 
 
 def closest_parameters(surface: BSplineSurface, points, candidates: int | None = None, steps: int = 8):
     """Global closest points on `surface`: the best of a `candidates²` parameter grid (default
-    `4·max(r, s) + 1`, 33…129), then `project`. **Returns:** `(uv (N, 2), distances (N,))`."""
+    `4·max(r, s) + 1`, 33…129), then `closest_points` (optimistix Gauss–Newton, at most `steps`
+    steps). **Returns:** `(uv (N, 2), distances (N,))`."""
     pts = jnp.asarray(points, surface.ctrl.dtype).reshape(-1, 3)
     g = candidates or _candidate_count(surface)
-    return _closest(surface, pts, jnp.linspace(0.0, 1.0, g, dtype=pts.dtype), steps)
+    return _closest(surface, pts, jnp.linspace(0.0, 1.0, g, dtype=pts.dtype), ProjectionSolver(max_steps=steps))
 
 
 @eqx.filter_jit

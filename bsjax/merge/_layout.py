@@ -18,8 +18,8 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks
 from bsjax._blending import Blending
-from bsjax.basis import BSplineSurface
-from bsjax.merge import _knots, _orient
+from bsjax.basis import BSplineSurface, reduce_degree
+from bsjax.merge import _knots, _orient, _overlap
 
 DEGREE_POLICIES = (None, "elevate", "reduce")
 
@@ -33,10 +33,15 @@ class MergeLayout(eqx.Module):
       refit factors `A_u^+`, `A_v^+` (computed once).
     - `orientations` (static): per patch `(transpose, flip_u, flip_v)` applied to its control net.
     - `flat` (static): the layout came from a row (`plan`), so `apply` takes a flat list.
+    - `reduction_error (R, C)`: per patch, the largest distance between the patch as planned
+      and its least-squares reduction to the merged degrees (`bsjax.basis.reduce_degree`) over
+      its merge samples; 0 where no degree was lowered (`degrees="reduce"`, §4.4.2). The merge
+      fits the original samples directly, so this is the loss the lower degree alone implies.
     """
 
     patches: tuple[tuple[Blending, ...], ...]
     merged: Blending
+    reduction_error: Float[Array, "R C"]
     orientations: tuple[tuple[_orient.Orientation, ...], ...] = eqx.field(static=True)
     flat: bool = eqx.field(static=True)
 
@@ -120,6 +125,20 @@ def common_degree(surfaces: Sequence[BSplineSurface], degrees=None):
     return k, l, out_u, out_v
 
 
+def reduction_error(surface: BSplineSurface, blending: Blending, k: int, l: int) -> Float[Array, ""]:
+    """Largest distance, over `blending`'s sample grid, between `surface` and its least-squares
+    reduction to degrees `(k, l)` (`bsjax.basis.reduce_degree`); 0 when no degree drops."""
+    reduced = surface
+    for direction, target in (("u", k), ("v", l)):
+        times = getattr(surface, f"degree_{direction}") - target
+        if times > 0:
+            reduced, _ = reduce_degree(reduced, direction, times)
+    if reduced is surface:
+        return jnp.zeros((), surface.ctrl.dtype)
+    approx = reduced.blending(params_u=blending.params_u, params_v=blending.params_v).points(reduced.ctrl)
+    return jnp.max(jnp.linalg.norm(blending.points(surface.ctrl) - approx, axis=-1))
+
+
 # --- plan ------------------------------------------------------------------------------------
 def _check_patch(s, name):
     if not isinstance(s, BSplineSurface):
@@ -154,25 +173,41 @@ def _merged_direction(knots_by_line, degree, continuity):
     return max(lines, key=len)
 
 
+def _window(t, name, direction):
+    """One patch's `(u0, u1, v0, v1)` from `None`, `(lo, hi)` along `direction`, or a full window."""
+    if t is None:
+        return (0.0, 1.0, 0.0, 1.0)
+    t = tuple(float(x) for x in t)
+    if direction is not None and len(t) == 2:
+        t = t + (0.0, 1.0) if direction == "u" else (0.0, 1.0) + t
+    expected = "(lo, hi) with 0 <= lo < hi <= 1" if direction else "(u0, u1, v0, v1) with 0 <= lo < hi <= 1"
+    if len(t) != 4 or not (0.0 <= t[0] < t[1] <= 1.0 and 0.0 <= t[2] < t[3] <= 1.0):
+        _checks.fail(name, expected, t)
+    return t
+
+
 def _windows(trim, grid, direction):
-    """Per-patch parameter windows `(u0, u1, v0, v1)`; `trim` gives `(lo, hi)` in `direction`."""
+    """Per-patch parameter windows `(u0, u1, v0, v1)`. For a row (`direction` "u"/"v") `trim` has
+    one entry per patch, `None` or `(lo, hi)` along `direction`; for a grid (`direction=None`)
+    it has the grid's rows of `None` or `(u0, u1, v0, v1)`, the same u-window along each row of
+    patches and the same v-window down each column (the combined grid stays rectangular)."""
     R, C = len(grid), len(grid[0])
-    full = [[(0.0, 1.0, 0.0, 1.0)] * C for _ in range(R)]
     if trim is None:
-        return full
-    flat = [w for row in full for w in row]
-    if len(trim) != len(flat):
-        _checks.fail("trim", f"{len(flat)} entries (None or (lo, hi)), one per patch", len(trim))
-    out = []
-    for i, t in enumerate(trim):
-        if t is None:
-            out.append((0.0, 1.0, 0.0, 1.0))
-            continue
-        lo, hi = float(t[0]), float(t[1])
-        if not 0.0 <= lo < hi <= 1.0:
-            _checks.fail(f"trim[{i}]", "(lo, hi) with 0 <= lo < hi <= 1", t)
-        out.append((lo, hi, 0.0, 1.0) if direction == "u" else (0.0, 1.0, lo, hi))
-    return [out[r * C : (r + 1) * C] for r in range(R)]
+        return [[(0.0, 1.0, 0.0, 1.0)] * C for _ in range(R)]
+    if direction is not None:
+        if len(trim) != R * C:
+            _checks.fail("trim", f"{R * C} entries (None or (lo, hi)), one per patch", len(trim))
+        flat = [_window(t, f"trim[{i}]", direction) for i, t in enumerate(trim)]
+        return [flat[r * C : (r + 1) * C] for r in range(R)]
+    if len(trim) != R or any(len(row) != C for row in trim):
+        _checks.fail("trim", f"{R} rows of {C} entries (None or (u0, u1, v0, v1))", [len(row) for row in trim])
+    win = [[_window(t, f"trim[{r}][{c}]", None) for c, t in enumerate(row)] for r, row in enumerate(trim)]
+    for r in range(R):
+        for c in range(C):
+            if win[r][c][:2] != win[r][0][:2] or win[r][c][2:] != win[0][c][2:]:
+                _checks.fail("trim", "the same u-window along each row of patches and the same v-window "
+                             "down each column", f"patch ({r}, {c}): {win[r][c]}")
+    return win
 
 
 def _affine(p, lo, hi, a, b):
@@ -236,15 +271,17 @@ def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=Non
     dummy = BSplineSurface(jnp.zeros((r_ctrl, s_ctrl, 3), dtype), knots_u.astype(dtype),
                            knots_v.astype(dtype), k, l)
     merged = dummy.blending(params_u=pu.astype(dtype), params_v=pv.astype(dtype))
+    errors = jnp.asarray([[reduction_error(s, b, k, l) for s, b in zip(srow, brow)]
+                          for srow, brow in zip(oriented, blends)], dtype)
     return MergeLayout(
-        patches=tuple(tuple(row) for row in blends), merged=merged,
+        patches=tuple(tuple(row) for row in blends), merged=merged, reduction_error=errors,
         orientations=tuple(tuple(row) for row in ops), flat=flat,
     )
 
 
 def plan(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: int = 2, *,
          samples=82, cross_knots: str = "average", degrees=None, orient: str = "auto",
-         trim=None) -> MergeLayout:
+         trim=None, overlap: str = "keep", overlap_method: str = "collide") -> MergeLayout:
     """Plan the merge of N ≥ 2 patches in a row along `direction` (thesis §4.3, §4.4).
 
     **Arguments:**
@@ -256,23 +293,35 @@ def plan(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: i
       `"uniform"` (§4.3.3) for the other direction.
     - `degrees`: `None` (degrees must agree), `"elevate"` or `"reduce"` (§4.4.2).
     - `orient`: `"auto"` finds which edges meet and flips/transposes patches to match;
-      `"as_given"` trusts that patch i's `direction = 1` edge meets patch i+1's `= 0` edge.
+      `"as_given"` trusts that patch i's `direction = 1` edge meets patch i+1's `= 0` edge; or
+      one `(transpose, flip_u, flip_v)` per patch.
     - `trim`: per patch `None` or `(lo, hi)`: keep only the sample rows with parameter in
-      `[lo, hi]` along `direction` (trimmed or intersecting patches, §4.4.1).
+      `[lo, hi]` along `direction` (trimmed or intersecting patches, §4.4.1), in the parameters
+      of the patch as oriented.
+    - `overlap`: `"keep"`, or `"drop"` to find intersecting patches' overlapping sample rows and
+      leave them out (§4.4.1, `overlap_trims`). Not with `trim`.
+    - `overlap_method`: `"collide"` (bsjax.collide's surface contacts) or `"dense"` (a distance
+      test between the sample grids).
 
     **Returns:** a `MergeLayout`; `layout.apply([P1, P2, …])` gives the merged control net.
     """
     if direction not in ("u", "v"):
         _checks.fail("direction", "'u' or 'v'", repr(direction))
-    if orient not in ("auto", "as_given"):
-        _checks.fail("orient", "'auto' or 'as_given'", repr(orient))
     surfaces = list(surfaces)
     if len(surfaces) < 2:
         _checks.fail("surfaces", "a list of 2 or more patches", len(surfaces))
     for i, s in enumerate(surfaces):
         _check_patch(s, f"surfaces[{i}]")
-    ops = (_orient.orient_row(surfaces, direction, _samples(samples)) if orient == "auto"
-           else [_orient.IDENTITY] * len(surfaces))
+    if isinstance(orient, str):
+        _check_orient_mode(orient)
+        ops = (_orient.orient_row(surfaces, direction, _samples(samples)) if orient == "auto"
+               else [_orient.IDENTITY] * len(surfaces))
+    else:
+        ops = _explicit_orientations([orient], 1, len(surfaces))[0]
+    if _drop_overlap(overlap, trim):
+        m, n = _samples(samples)
+        oriented = [_orient.orient_surface(s, op) for s, op in zip(surfaces, ops)]
+        trim = _overlap.overlap_trims(oriented, direction, m if direction == "u" else n, method=overlap_method)
     grid = [[s] for s in surfaces] if direction == "u" else [surfaces]
     ogrid = [[op] for op in ops] if direction == "u" else [ops]
     cont = list(continuity) if isinstance(continuity, (tuple, list)) else continuity
@@ -281,14 +330,60 @@ def plan(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: i
                         orientations=ogrid, trim=trim, direction=direction, flat=True)
 
 
+def _drop_overlap(overlap, trim) -> bool:
+    if overlap not in ("keep", "drop"):
+        _checks.fail("overlap", "'keep' or 'drop'", repr(overlap))
+    if overlap == "drop" and trim is not None:
+        _checks.fail("trim", "None when overlap='drop' (the trims are computed)", trim)
+    return overlap == "drop"
+
+
+def _check_orient_mode(orient):
+    if orient not in ("auto", "as_given"):
+        _checks.fail("orient", "'auto', 'as_given' or explicit (transpose, flip_u, flip_v) per patch", repr(orient))
+
+
+def _explicit_orientations(orient, R: int, C: int):
+    """Validate rows of explicit `(transpose, flip_u, flip_v)` orientations."""
+    rows = [list(r) for r in orient]
+    if len(rows) != R or any(len(r) != C for r in rows):
+        _checks.fail("orient", f"{R} rows of {C} (transpose, flip_u, flip_v) orientations", [len(r) for r in rows])
+    out = []
+    for r, row in enumerate(rows):
+        for c, op in enumerate(row):
+            if len(tuple(op)) != 3 or not all(isinstance(x, (bool, np.bool_)) for x in op):
+                _checks.fail(f"orient[{r}][{c}]" if R > 1 else f"orient[{c}]", "(transpose, flip_u, flip_v) bools", op)
+        out.append([tuple(bool(x) for x in op) for op in row])
+    return out
+
+
+def grid_orientations(rows, orient="auto", samples=82):
+    """Orientations of a grid of patches: `"auto"` (`_orient.orient_grid`), `"as_given"`, or
+    explicit rows of `(transpose, flip_u, flip_v)` (validated)."""
+    R, C = len(rows), len(rows[0])
+    if isinstance(orient, str):
+        _check_orient_mode(orient)
+        if orient == "as_given":
+            return [[_orient.IDENTITY] * C for _ in range(R)]
+        return _orient.orient_grid(rows, _samples(samples))
+    return _explicit_orientations(orient, R, C)
+
+
 def plan_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples=82,
-              degrees=None) -> MergeLayout:
+              degrees=None, orient="auto", trim=None, overlap: str = "keep",
+              overlap_method: str = "collide") -> MergeLayout:
     """Plan the merge of a grid of patches, `M = [M11 M12 …; M21 M22 …]` (thesis §4.4.3).
 
-    `rows[i][j]`: patches side by side along v within a row, rows stacked along u; patch
-    `(i, j)`'s `u = 1` edge meets `(i+1, j)`'s `u = 0` edge and its `v = 1` edge meets
-    `(i, j+1)`'s `v = 0` edge. `continuity`: one int or `(c_u, c_v)`.
-    **Returns:** a `MergeLayout`; `layout.apply(rows_of_ctrl)`.
+    `rows[i][j]`: patches side by side along v within a row, rows stacked along u; after
+    orientation patch `(i, j)`'s `u = 1` edge meets `(i+1, j)`'s `u = 0` edge and its `v = 1`
+    edge meets `(i, j+1)`'s `v = 0` edge. `continuity`: one int or `(c_u, c_v)`.
+    `orient`: `"auto"` (find which edges meet and flip/transpose patches to match),
+    `"as_given"`, or rows of explicit `(transpose, flip_u, flip_v)`. `trim`: rows of `None` or
+    `(u0, u1, v0, v1)` kept windows (oriented parameters), one u-window per row of patches and
+    one v-window per column. `overlap="drop"`: leave out the rows/columns where neighbours
+    intersect (`grid_overlap_windows`; not with `trim`), found by `overlap_method`.
+    **Returns:** a `MergeLayout`; `layout.apply(rows_of_ctrl)` takes the control nets as given
+    (the orientations are applied inside).
     """
     rows = [list(r) for r in rows]
     if not rows or not rows[0]:
@@ -301,4 +396,9 @@ def plan_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples
     for i, row in enumerate(rows):
         for j, s in enumerate(row):
             _check_patch(s, f"rows[{i}][{j}]")
-    return build_layout(rows, continuity, samples=samples, cross="average", degrees=degrees)
+    ops = grid_orientations(rows, orient, samples)
+    if _drop_overlap(overlap, trim):
+        oriented = [[_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(rows, ops)]
+        trim = _overlap.grid_overlap_windows(oriented, _samples(samples), method=overlap_method)
+    return build_layout(rows, continuity, samples=samples, cross="average", degrees=degrees,
+                        orientations=ops, trim=trim, direction=None)

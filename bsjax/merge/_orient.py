@@ -100,3 +100,41 @@ def orient_row(surfaces: list[BSplineSurface], direction: str, samples: tuple[in
         prev_end = _oriented_edge(edges[len(ops) - 1], ops[-1], direction, 1)
         ops.append(ALL[_pick([_gap(prev_end, _oriented_edge(e, op, direction, 0)) for op in ALL])])
     return ops
+
+
+def orient_grid(rows: list[list[BSplineSurface]], samples: tuple[int, int] = (33, 33)) -> list[list[Orientation]]:
+    """Orientations of an `R × C` grid of patches (thesis §4.4.3) so that patch `(i, j)`'s `u = 1`
+    edge meets `(i+1, j)`'s `u = 0` edge and its `v = 1` edge meets `(i, j+1)`'s `v = 0` edge.
+
+    The corner patch and its two neighbours are chosen together (8³ combinations, the smallest
+    sum of the two mean edge gaps); every further patch, in row-major order, takes the
+    orientation whose `u = 0` / `v = 0` edges best meet the already placed patch above / to
+    the left. A single row or column is `orient_row`. Ties keep the patch as given.
+    """
+    R, C = len(rows), len(rows[0])
+    if R == 1:
+        return [orient_row(rows[0], "v", samples)]
+    if C == 1:
+        return [[op] for op in orient_row([row[0] for row in rows], "u", samples)]
+    edges = [[_edges(s, samples=samples) for s in row] for row in rows]
+
+    def cost(i, j, op, ops):
+        total = 0.0
+        if i > 0:
+            total += _gap(_oriented_edge(edges[i - 1][j], ops[i - 1][j], "u", 1), _oriented_edge(edges[i][j], op, "u", 0))
+        if j > 0:
+            total += _gap(_oriented_edge(edges[i][j - 1], ops[i][j - 1], "v", 1), _oriented_edge(edges[i][j], op, "v", 0))
+        return total
+
+    triples = list(itertools.product(ALL, repeat=3))
+    corner = [_gap(_oriented_edge(edges[0][0], a, "v", 1), _oriented_edge(edges[0][1], b, "v", 0))
+              + _gap(_oriented_edge(edges[0][0], a, "u", 1), _oriented_edge(edges[1][0], c, "u", 0))
+              for a, b, c in triples]
+    a, b, c = triples[_pick(corner)]
+    ops: list[list] = [[None] * C for _ in range(R)]
+    ops[0][0], ops[0][1], ops[1][0] = a, b, c
+    for i in range(R):
+        for j in range(C):
+            if ops[i][j] is None:
+                ops[i][j] = ALL[_pick([cost(i, j, op, ops) for op in ALL])]
+    return ops

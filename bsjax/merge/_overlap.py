@@ -47,12 +47,16 @@ def collide_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82):
     return np.asarray(result.mask_a), np.asarray(result.mask_b)
 
 
+_TOUCH = 2  # contact confined to this many rows either side of the seam is touching, kept
+
+
 def overlap_trims(surfaces, direction: str, samples: int = 82, tolerance: float | None = None,
                   method: str = "collide"):
     """Per-patch `(lo, hi)` windows along `direction` that leave out the intersecting rows.
 
     For each seam, the first patch keeps the rows before its first contact row and the second
-    patch the rows after its last contact row; patches with no contact are kept whole.
+    patch the rows after its last contact row; patches with no contact, or whose contacts lie
+    only in the two rows either side of the seam (they just touch), are kept whole.
     `method`: `"collide"` (bsjax.collide) or `"dense"` (distance test, `tolerance`).
     """
     if method not in ("collide", "dense"):
@@ -68,6 +72,8 @@ def overlap_trims(surfaces, direction: str, samples: int = 82, tolerance: float 
             mask_a, mask_b = contact_masks(surfaces[i], surfaces[i + 1], samples, tolerance)
         rows_a = np.nonzero(mask_a.any(axis=1 - axis))[0]
         rows_b = np.nonzero(mask_b.any(axis=1 - axis))[0]
+        if rows_a.size and rows_b.size and rows_a.min() >= samples - _TOUCH and rows_b.max() < _TOUCH:
+            continue  # the patches only touch along the seam: neighbours, not an intersection
         if rows_a.size:
             trims[i][1] = min(trims[i][1], params[rows_a.min()] - 0.5 * step)
         if rows_b.size:
@@ -77,3 +83,28 @@ def overlap_trims(surfaces, direction: str, samples: int = 82, tolerance: float 
             raise ValueError(f"overlap: expected patches that keep some rows after dropping the "
                              f"intersecting ones, got patch {i} with only [{lo:.3f}, {hi:.3f}] left")
     return [tuple(t) for t in trims]
+
+
+def grid_overlap_windows(rows, samples: tuple[int, int] = (82, 82), tolerance: float | None = None,
+                         method: str = "collide"):
+    """Kept windows `(u0, u1, v0, v1)` of a grid of (oriented) patches that leave out the rows
+    where vertical neighbours intersect and the columns where horizontal ones do (§4.4.1).
+
+    Each column of patches is a row along u and each row of patches a row along v for
+    `overlap_trims`; a row of patches keeps the u-rows that all its patches keep (the largest
+    start, the smallest end), a column the common v-columns, so the combined grid stays
+    rectangular. **Returns:** rows of `(u0, u1, v0, v1)`, as `plan_grid`'s `trim`.
+    """
+    R, C = len(rows), len(rows[0])
+    m, n = samples
+    u_win = [[0.0, 1.0] for _ in range(R)]
+    v_win = [[0.0, 1.0] for _ in range(C)]
+    if R > 1:
+        for c in range(C):
+            for r, (lo, hi) in enumerate(overlap_trims([row[c] for row in rows], "u", m, tolerance, method)):
+                u_win[r] = [max(u_win[r][0], lo), min(u_win[r][1], hi)]
+    if C > 1:
+        for r in range(R):
+            for c, (lo, hi) in enumerate(overlap_trims(rows[r], "v", n, tolerance, method)):
+                v_win[c] = [max(v_win[c][0], lo), min(v_win[c][1], hi)]
+    return [[(*u_win[r], *v_win[c]) for c in range(C)] for r in range(R)]
