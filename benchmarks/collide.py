@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--x64", action="store_true")
     parser.add_argument("--calls", type=int, default=300)
-    parser.add_argument("--tables", default="1,2,s", help="which experiments: 1, 2, s (surface vs surface)")
+    parser.add_argument("--tables", default="1,2,s,f", help="which experiments: 1, 2, s (surface vs surface), f (flat contact)")
     parser.add_argument("--capacity", type=int, default=2048, help="surface_contacts capacity")
     args = parser.parse_args(argv)
     import jax
@@ -131,6 +131,28 @@ def main(argv=None) -> int:
         for k, kind in enumerate(("point", "sphere", "plane")):
             run(8, m, kind, f"8x8 net, {m}x{m}", THESIS_TABLE2[m][k])
 
+    def surface_row(label, bl_a, ca, bl_b, cb, thesis):
+        query = jax.jit(lambda x, y: surface_contacts(bl_a, x, bl_b, y, capacity=args.capacity))
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(query(ca, cb))
+        compile_s = time.perf_counter() - t0
+        med, p99 = timeit(lambda: jax.block_until_ready(query(ca, cb)), args.calls // 2)
+        grids = []
+        for bl, c in ((bl_a, ca), (bl_b, cb)):
+            a_u, a_v, p = (np.asarray(x, np.float64) for x in (bl.a_u[0], bl.a_v[0], c))
+            grids.append((a_u, p, a_v, np.asarray(tessellate(bl.points(c))[1], np.int64)))
+
+        def fcl_meshes():  # both surfaces deformed: sample them and rebuild both BVHs
+            return [fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, p, a_v).reshape(-1, 3), f) for a_u, p, a_v, f in grids]
+
+        f_med, _ = timeit(lambda: fcl_query(*fcl_meshes()), max(10, args.calls // 10))
+        prebuilt = fcl_meshes()
+        g_med, _ = timeit(lambda: fcl_query(*prebuilt), max(10, args.calls // 10))
+        print(f"{label} (capacity {args.capacity})  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
+              f"{int(res.pair_hit.sum())} contact cell pairs, {int(res.flat_pairs)} flat pairs, overflow {bool(res.overflow)})"
+              f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x)"
+              f" | thesis {thesis}", flush=True)
+
     print("\nB-spline vs B-spline — both deformable, 82×82 samples each")
     for net in ([4, 20] if args.quick else [4, 8, 12, 16, 20]) if "s" in tables else []:
         a = bumpy(net, 1, dtype)
@@ -139,30 +161,19 @@ def main(argv=None) -> int:
         ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 0.8 + ctrl_b[..., 2]
         ctrl_b[..., 0] = 0.1 + 0.8 * ctrl_b[..., 0]
         bl = a.blending(82, 82)
-        ca, cb = jnp.asarray(a.ctrl), jnp.asarray(ctrl_b)
-        query = jax.jit(lambda x, y: surface_contacts(bl, x, bl, y, capacity=args.capacity))
-        t0 = time.perf_counter()
-        res = jax.block_until_ready(query(ca, cb))
-        compile_s = time.perf_counter() - t0
-        med, p99 = timeit(lambda: jax.block_until_ready(query(ca, cb)), args.calls // 2)
-        a_u, a_v = np.asarray(bl.a_u[0], np.float64), np.asarray(bl.a_v[0], np.float64)
-        pa, pb = np.asarray(a.ctrl, np.float64), np.asarray(ctrl_b, np.float64)
-        fa = np.asarray(tessellate(bl.points(ca))[1], np.int64)
-        fb = np.asarray(tessellate(bl.points(cb))[1], np.int64)
+        surface_row(f"{net}x{net} vs {net}x{net}, 82x82", bl, jnp.asarray(a.ctrl), bl, jnp.asarray(ctrl_b), THESIS_SURF.get(net, "—"))
 
-        def fcl_rebuild():
-            xa = np.einsum("ai,ijc,bj->abc", a_u, pa, a_v).reshape(-1, 3)
-            xb = np.einsum("ai,ijc,bj->abc", a_u, pb, a_v).reshape(-1, 3)
-            return fcl_query(fcl_mesh(xa, fa), fcl_mesh(xb, fb))
+    print("\nFlat contact — two 8×8 plates at 82×82 lying on each other (every sphere intersects)")
+    if "f" in tables:
+        from bsjax import shapes
 
-        oa = fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, pa, a_v).reshape(-1, 3), fa)
-        ob = fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, pb, a_v).reshape(-1, 3), fb)
-        f_med, _ = timeit(fcl_rebuild, max(10, args.calls // 10))
-        g_med, _ = timeit(lambda: fcl_query(oa, ob), max(10, args.calls // 10))
-        print(f"{net}x{net} vs {net}x{net}, 82x82 (capacity {args.capacity})  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
-              f"{int(res.pair_hit.sum())} contact cell pairs, overflow {bool(res.overflow)})"
-              f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x)"
-              f" | thesis {THESIS_SURF.get(net, '—')}")
+        plate = shapes.plate(8, 8, size=1.0)
+        bl = plate.blending(82, 82)
+        pc = jnp.asarray(plate.ctrl, dtype)
+        shift = jnp.asarray([0.3, 0.2, 0.0], dtype)
+        surface_row("coplanar, overlapping  ", bl, pc, bl, pc + shift, "—")
+        tilted = pc.at[..., 2].set(0.02 * (pc[..., 0] - 0.6)) + shift
+        surface_row("crossing at 1.1°       ", bl, pc, bl, tilted, "—")
     return 0
 
 
