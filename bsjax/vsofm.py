@@ -7,9 +7,30 @@ toward the neighbourhood-weighted mean of the samples won around it (batch SOM: 
 cycle, the neighbourhood a separable Gaussian over lattice index distance), with a learning rate
 and a radius that both decay geometrically over the cycles. Interior nodes are kept at the
 discrete-harmonic position of the boundary (Jacobi sweeps during training, conjugate gradients at
-the end), so they spread evenly inside. At the end boundary nodes snap to their nearest samples.
+the end), so they spread evenly inside. At the end boundary nodes are projected onto local
+quadric fits of the samples.
 `report` counts inverted hexahedra and measures boundary distance and element quality;
 `lattice` turns the result into an `mss.Lattice`.
+
+No inverted hexahedra (SPEC §6). A box lattice fitted into a smooth closed surface has cells on
+the box's edges (two faces on the surface) and corners (three faces): at their box-edge corner
+nodes all three edges are chords of the surface, so the corner Jacobian is second order, of the
+sign of the surface's normal curvature across the box edge, and scaled about `κ h` (κ curvature,
+h cell size). Two things therefore decide the sign, and both are handled at the root:
+
+- the boundary nodes must carry the curvature: they are projected onto quadric patches, not onto
+  tangent planes of the samples (a plane flattens the `κ h²/2` sag that makes these Jacobians
+  positive, leaving them at 0 ± noise: 11 and 62 inverted cells at 30³ and 40³ on the teardrop);
+- box edges must not run across concave (saddle) regions, where no tangential placement helps
+  (the teardrop's pointed tip has concave meridians above z ≈ 0.69). The lattice starts as the
+  samples' bounding box, already ordered and aligned with the shape, so the neighbourhood only
+  needs to span a few cells (`Settings.radius_start = 2`); a neighbourhood spanning the whole
+  lattice with a learning rate of 0.9 collapses it onto the samples' mean in the first cycles,
+  and the batch noise then picks a new, tilted orientation (top-face corners of the teardrop
+  lattice 1 apart in height, its edges climbing onto the tip).
+
+The scaled Jacobian at those box-edge nodes is bounded by about `κ h`, so the minimum shrinks
+with the lattice size (≈ 0.005–0.01 at 40³ on the teardrop and a unit sphere) while staying > 0.
 """
 
 from __future__ import annotations
@@ -27,14 +48,15 @@ from bsjax import _checks
 
 class Settings(eqx.Module):
     """Training settings: learning rate and neighbourhood radius (lattice units) decay
-    geometrically from `*_start` to `*_end`; `batch` samples per cycle (all when fewer);
+    geometrically from `*_start` to `*_end` (a start radius of a few cells keeps the initial
+    box's orientation, see the module notes); `batch` samples per cycle (all when fewer);
     `sweeps` Jacobi sweeps of the interior per cycle; `boundary_smoothing` final rounds of
     Laplacian smoothing of the boundary nodes over their boundary neighbours, each followed by
     re-projection onto the samples (evens out the surface quads before the interior solve)."""
 
     learning_rate_start: float = eqx.field(static=True, default=0.9)
     learning_rate_end: float = eqx.field(static=True, default=0.05)
-    radius_start: float | None = eqx.field(static=True, default=None)  # None: max(shape) / 2
+    radius_start: float = eqx.field(static=True, default=2.0)
     radius_end: float = eqx.field(static=True, default=0.5)
     batch: int = eqx.field(static=True, default=512)
     sweeps: int = eqx.field(static=True, default=2)
@@ -60,9 +82,10 @@ def fit(points: Float[ArrayLike, "P 3"], shape: tuple[int, int, int], cycles: in
     - `shape`: lattice size, each ≥ 2.
     - `cycles`: training cycles (thesis: 300).
     - `key`: `jax.random` key for the batch draws (default `PRNGKey(0)`).
+    - `settings`: `Settings`.
 
-    **Returns:** node positions `shape + (3,)`; boundary nodes lie on samples, interior nodes
-    inside. Check `report(points, nodes).inverted == 0`.
+    **Returns:** node positions `shape + (3,)`; boundary nodes on the sampled surface (its local
+    quadric fits), interior nodes inside. Check `report(points, nodes).inverted == 0`.
     """
     _checks.check_ndim(points, "points", 2, last=3)
     _checks.check_finite(points, "points")
@@ -79,26 +102,17 @@ def fit(points: Float[ArrayLike, "P 3"], shape: tuple[int, int, int], cycles: in
     if pts.shape[0] < 4:
         _checks.fail("points", "at least 4 distinct samples", pts.shape[0])
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit(pts, _area_weights(pts), key, shape, int(cycles), settings)
-
-
-def _area_weights(points, k: int = 6):
-    """Draw probability of each sample ∝ the surface area it stands for (squared mean distance to
-    its `k` nearest samples), so that a parameter grid crowded at poles does not crowd the lattice
-    there. Uniform when `points` is traced."""
-    if not _checks.is_concrete(points):
-        return jnp.full(points.shape[:1], 1.0 / points.shape[0], dtype=points.dtype)
-    from scipy.spatial import cKDTree
-
-    p = np.asarray(points, dtype=np.float64)
-    dist = cKDTree(p).query(p, k=min(k + 1, len(p)))[0][:, 1:]
-    w = np.mean(dist, axis=1) ** 2
-    return jnp.asarray(w / w.sum(), dtype=points.dtype)
+    return _fit(pts, _neighbours(pts, _NEAR), key, shape, int(cycles), settings)
 
 
 @functools.partial(jax.jit, static_argnums=(3, 4, 5))
-def _fit(points, weights, key, shape, cycles, settings):
+def _fit(points, nbr, key, shape, cycles, settings):
     dtype = points.dtype
+    # draw probability of each sample ∝ the surface area it stands for (squared mean distance to
+    # its 6 nearest samples), so a parameter grid crowded at the poles does not crowd the lattice
+    gap = jnp.linalg.norm(points[nbr[:, 1:7]] - points[:, None], axis=-1)
+    weights = jnp.mean(gap, axis=1) ** 2
+    weights = weights / jnp.sum(weights)
     n = int(np.prod(shape))
     bmask = boundary_mask(shape)
     bidx = jnp.asarray(np.nonzero(bmask.ravel())[0].astype(np.int32))
@@ -107,7 +121,7 @@ def _fit(points, weights, key, shape, cycles, settings):
     axes = jnp.meshgrid(*[jnp.linspace(0.0, 1.0, s, dtype=dtype) for s in shape], indexing="ij")
     nodes = lo + jnp.stack(axes, axis=-1) * (hi - lo)
     idx = [jnp.arange(s, dtype=dtype) for s in shape]
-    r0 = settings.radius_start or max(shape) / 2.0
+    r0 = settings.radius_start
     batch = settings.batch
     frac = jnp.arange(cycles, dtype=dtype) / max(cycles - 1, 1)
     sigma = r0 * (settings.radius_end / r0) ** frac
@@ -129,9 +143,10 @@ def _fit(points, weights, key, shape, cycles, settings):
         return _jacobi(moved, bgrid, settings.sweeps), None
 
     nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, keys))[0]
-    nodes = _snap(nodes, bidx, points)
+    surface = (points, *_patches(points, nbr))
+    nodes = _snap(nodes, bidx, surface)
     for _ in range(settings.boundary_smoothing):
-        nodes = _snap(jnp.where(bgrid, _boundary_mean(nodes, bgrid), nodes), bidx, points)
+        nodes = _snap(jnp.where(bgrid, _boundary_mean(nodes, bgrid), nodes), bidx, surface)
     return _harmonic_interior(nodes, bgrid, 4 * max(shape))
 
 
@@ -196,22 +211,58 @@ def _harmonic_interior(nodes, bgrid, iterations):
     return jax.lax.fori_loop(0, iterations, body, (x0, r, r, jnp.sum(r * r)))[0]
 
 
-def _snap(nodes, bidx, points, k=8):
-    """Boundary nodes onto the surface: projected onto the least-squares plane of their `k`
-    nearest samples (blocks of 512 nodes bound the memory). Unlike snapping to the nearest
-    sample, two nodes never collapse onto one sample when the lattice is denser than the cloud."""
-    flat = nodes.reshape(-1, 3)
+_NEAR = 16  # samples per quadric patch (6 coefficients)
+
+
+def _neighbours(points, k):
+    """`(P, k)` indices of each sample's `k` nearest samples (itself first): a k-d tree when the
+    samples are concrete, blocked brute force when traced."""
+    k = min(k, points.shape[0])
+    if _checks.is_concrete(points):
+        from scipy.spatial import cKDTree
+
+        p = np.asarray(points, dtype=np.float64)
+        return jnp.asarray(cKDTree(p).query(p, k=k)[1].astype(np.int32))
+    p2 = jnp.sum(points * points, axis=-1)
+    return jax.lax.map(lambda x: jax.lax.top_k(2.0 * points @ x - p2, k)[1], points, batch_size=512)
+
+
+def _patches(points, nbr):
+    """Local quadric surface patches, one per sample: frame rows `(t1, t2, n)` from the principal
+    directions of its neighbours (`nbr (P, k)`), and the least-squares height
+    `w = c0 + c1 u + c2 v + c3 u² + c4 uv + c5 v²` over them in that frame. A quadric follows the
+    surface to second order, so projected boundary nodes carry the surface's curvature (a tangent
+    plane flattens it, which leaves cells at lattice edges and corners with Jacobians ~ 0)."""
+    near = points[nbr]  # (P, k, 3)
+    d = near - jnp.mean(near, axis=1, keepdims=True)
+    frame = jnp.swapaxes(jnp.linalg.eigh(jnp.swapaxes(d, 1, 2) @ d)[1][..., ::-1], 1, 2)  # t1, t2, n
+    local = jnp.einsum("pij,pkj->pki", frame, near - points[:, None])
+    s = jnp.sqrt(jnp.mean(local[..., 0] ** 2 + local[..., 1] ** 2, axis=1))[:, None]  # patch size
+    u, v, w = local[..., 0] / s, local[..., 1] / s, local[..., 2]
+    a = jnp.stack([jnp.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (P, k, 6), O(1) columns
+    ridge = 1e-6 * nbr.shape[1] * jnp.eye(6, dtype=points.dtype)  # few or coplanar samples stay solvable
+    coef = jnp.linalg.solve(jnp.swapaxes(a, 1, 2) @ a + ridge, jnp.einsum("pki,pk->pi", a, w)[..., None])[..., 0]
+    return frame, coef / jnp.concatenate([jnp.ones_like(s), s, s, s * s, s * s, s * s], axis=-1)
+
+
+def _project(x, points, frame, coef):
+    """Points `x (N, 3)` onto the quadric patch of their nearest sample (along its normal)."""
     p2 = jnp.sum(points * points, axis=-1)
 
-    def project(x):
-        near = points[jax.lax.top_k(2.0 * points @ x - p2, k)[1]]
-        c = jnp.mean(near, axis=0)
-        d = near - c
-        n = jnp.linalg.eigh(d.T @ d)[1][:, 0]  # smallest principal direction: the normal
-        return x - jnp.dot(x - c, n) * n
+    def one(y):
+        i = jnp.argmax(2.0 * points @ y - p2)
+        f, c = frame[i], coef[i]
+        u, v, _ = f @ (y - points[i])
+        w = c[0] + c[1] * u + c[2] * v + c[3] * u * u + c[4] * u * v + c[5] * v * v
+        return points[i] + u * f[0] + v * f[1] + w * f[2]
 
-    snapped = jax.lax.map(project, flat[bidx], batch_size=512)
-    return flat.at[bidx].set(snapped).reshape(nodes.shape)
+    return jax.lax.map(one, x, batch_size=1024)
+
+
+def _snap(nodes, bidx, surface):
+    """Boundary nodes onto the sampled surface (`surface = (points, frame, coef)`)."""
+    flat = nodes.reshape(-1, 3)
+    return flat.at[bidx].set(_project(flat[bidx], *surface)).reshape(nodes.shape)
 
 
 # --- quality -------------------------------------------------------------------------------------------
@@ -248,8 +299,9 @@ def corner_jacobians(nodes: Float[Array, "a b c 3"], scaled: bool = True) -> Flo
 class Report(eqx.Module):
     """Quality of a fitted lattice: `inverted` hexahedra (any corner Jacobian ≤ 0);
     `min_scaled_jacobian`, `mean_scaled_jacobian` over all corners; boundary-to-surface
-    distance `boundary_max`, `boundary_mean` (to the least-squares plane of the 8 nearest samples,
-    an estimate of the distance to the sampled surface), `sample_max` (to the nearest sample);
+    distance `boundary_max`, `boundary_mean` (to the local quadric fit of the 16 samples nearest
+    the node's nearest sample, an estimate of the distance to the sampled surface that, unlike a
+    tangent plane, does not count the surface's own sag), `sample_max` (to the nearest sample);
     `n_elements`."""
 
     inverted: int
@@ -270,13 +322,12 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
     jac = np.asarray(corner_jacobians(jnp.asarray(nodes)))
     bad = np.any(jac <= 0, axis=-1)
     b = nodes[boundary_mask(nodes.shape[:3])]
-    dist, near = cKDTree(pts).query(b, k=min(8, len(pts)))
-    nb = pts[near]
-    d = nb - nb.mean(axis=1, keepdims=True)
-    normal = np.linalg.eigh(np.einsum("nki,nkj->nij", d, d))[1][:, :, 0]
-    plane = np.abs(np.einsum("ni,ni->n", b - nb.mean(axis=1), normal))
+    near = cKDTree(pts).query(b)[0]
+    p = jnp.asarray(pts)
+    on = np.asarray(_project(jnp.asarray(b, dtype=p.dtype), p, *_patches(p, _neighbours(p, _NEAR))))
+    dist = np.linalg.norm(b - on, axis=-1)
     return Report(int(bad.sum()), int(bad.size), float(jac.min()), float(jac.mean()),
-                  float(plane.max()), float(plane.mean()), float(dist[:, 0].max()))
+                  float(dist.max()), float(dist.mean()), float(near.max()))
 
 
 def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):
