@@ -1,17 +1,21 @@
 """Merging patches: bsjax vs geomdl, and the seven cases of thesis §6.3 (Tables 6.3/6.4).
 
     .venv/bin/python benchmarks/merge.py            # a few minutes on 2 cores
-    .venv/bin/python benchmarks/merge.py --quick    # fewer calls, fewer cases refined
+    .venv/bin/python benchmarks/merge.py --quick    # fewer calls, fewer cases refitted
 
 1. Speed: two 8×8 bicubic patches, 82×82 samples each, blending matrices pre-built (a
    `MergeLayout`). bsjax merges them (discretise both with their stored matrices, refit with the
    stored inverses, thesis eq. 3.7) under `jit`; geomdl's `fitting.approximate_surface` fits the
    same 164×82 points with the same control counts (15×8) and degrees. Both run in this process;
    both results are measured by the same closest-point deviation from the original patches.
-2. The seven cases (`bsjax.merge.cases`), merged with C² and C⁰, linear (thesis) and with the
-   nonlinear parameter-correction refit, deviations printed like thesis Tables 6.3/6.4 with the
-   thesis's numbers beside them. The merged surfaces are written to .3dm (bsjax.io) and a
-   deviation heat map to PNG in `--out`.
+2. The seven cases (`bsjax.merge.cases`), merged with C² and C⁰ (the thesis's linear refit),
+   deviations printed like thesis Tables 6.3/6.4 with the thesis's numbers beside them. The
+   merged surfaces are written to .3dm (bsjax.io) and a deviation heat map to PNG in `--out`.
+3. The nonlinear refit with parameter correction (`bsjax.merge.refit`, optimistix) on the
+   harder cases: compile time (first call minus a second one) and run time apart, rounds and
+   status, deviation linear vs refitted.
+4. Degree reduction (case 6 with `degrees="reduce"`): each patch's reduction error
+   (`MergeLayout.reduction_error`) beside the merge's deviation.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+import optimistix as optx  # noqa: E402
 from geomdl import fitting  # noqa: E402
 
 from bsjax import io  # noqa: E402
@@ -94,12 +99,11 @@ def _fmt(x):
     return "      -" if x is None else f"{x:7.4f}"
 
 
-def tables(out: Path, refine_cases, samples: int, dev_samples: int) -> None:
+def tables(out: Path, samples: int, dev_samples: int) -> None:
     out.mkdir(parents=True, exist_ok=True)
     print(f"== Seven cases (thesis §6.3.1): {samples}×{samples} merge samples per patch, deviation on "
           f"{dev_samples}×{dev_samples} per original, closest point; millimetres")
-    head = (f"{'case':<4} {'':<18} {'Rhino C2':>8} {'thes. C2':>8} {'thes. C0':>8} | {'bsjax C2':>8} {'bsjax C0':>8}"
-            f" {'C2+corr':>8} {'C0+corr':>8}")
+    head = f"{'case':<4} {'':<18} {'Rhino C2':>8} {'thes. C2':>8} {'thes. C0':>8} | {'bsjax C2':>8} {'bsjax C0':>8}"
     print(head)
     print("-" * len(head))
     heat = None
@@ -109,9 +113,6 @@ def tables(out: Path, refine_cases, samples: int, dev_samples: int) -> None:
             merged, _, rep = cases.run(c, cont, samples=samples, deviation_samples=dev_samples)
             results[(cont, False)] = rep
             io.save(merged, out / f"case{c.number}_C{cont}.3dm")
-            if c.number in refine_cases:
-                results[(cont, True)] = cases.run(c, cont, refine=True, samples=samples,
-                                                  deviation_samples=dev_samples)[2]
             if c.number == 2 and cont == 2:
                 heat = results[(cont, False)]
         io.save(c.originals, out / f"case{c.number}_originals.3dm")
@@ -126,10 +127,8 @@ def tables(out: Path, refine_cases, samples: int, dev_samples: int) -> None:
         for label, fmt, idx in rows:
             thesis = "".join(f" {_fmt(None if t is None or idx is None else t[idx]):>8}" for t in th)
             ours = " ".join(fmt(results[(cont, False)]) for cont in (2, 0))
-            corr = " ".join(fmt(results[(cont, True)]) if (cont, True) in results else f"{'':>8}" for cont in (2, 0))
-            print(f"     {label:<18}{thesis} | {ours} {corr}")
-    print(f"(close points: within {heat.tolerance} mm; 'corr' = nonlinear refit with parameter correction;"
-          f" .3dm files in {out})")
+            print(f"     {label:<18}{thesis} | {ours}")
+    print(f"(close points: within {heat.tolerance} mm; .3dm files in {out})")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -141,14 +140,76 @@ def tables(out: Path, refine_cases, samples: int, dev_samples: int) -> None:
     plt.close(ax.figure)
 
 
+def _layout(c, continuity: int, samples: int, **extra):
+    options = {**c.options, **extra}
+    windows = None
+    if c.direction is None:
+        return mg.plan_grid(c.patches, continuity, samples=samples, **options), [[s.ctrl for s in r] for r in c.patches], None
+    if options.pop("overlap", "keep") == "drop":
+        trims = mg.overlap_trims(c.patches, c.direction, samples)
+        options["trim"] = trims
+        windows = [(lo, hi, 0.0, 1.0) if c.direction == "u" else (0.0, 1.0, lo, hi) for lo, hi in trims]
+    layout = mg.plan(c.patches, c.direction, continuity, samples=samples, orient="as_given", **options)
+    return layout, [s.ctrl for s in c.patches], windows
+
+
+def refits(numbers, samples: int, dev_samples: int) -> None:
+    solver = mg.RefitSolver()
+    print(f"== Nonlinear refit with parameter correction (optimistix Gauss–Newton foot points + banded"
+          f" normal equations; ≤ {solver.rounds} rounds, stop at < {solver.rtol:.0%} RMS gain), {samples}² samples"
+          f" per patch, deviation on {dev_samples}² per original, mm")
+    head = (f"{'case':<5}{'C':>2} {'net':>6} {'compile s':>10} {'run s':>7} {'rounds':>6} {'status':>9} |"
+            f" {'mean lin':>9} {'mean nl':>9} {'max lin':>8} {'max nl':>8}")
+    print(head)
+    print("-" * len(head))
+    for number in numbers:
+        c = cases.case(number)
+        for cont in (2, 0):
+            layout, ctrls, windows = _layout(c, cont, samples)
+            linear = layout.surface(layout.apply(ctrls))
+            t0 = time.perf_counter()
+            sol = jax.block_until_ready(mg.refit(layout, ctrls, solver))
+            first = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            sol = jax.block_until_ready(mg.refit(layout, ctrls, solver))
+            run = time.perf_counter() - t0
+            dev = [mg.deviation(c.originals, s, samples=dev_samples, windows=windows)
+                   for s in (linear, layout.surface(sol.ctrl))]
+            status = "settled" if sol.result == optx.RESULTS.successful else "max rnds"
+            r, s = layout.merged.ctrl_shape
+            print(f"{number:<5}{cont:>2} {f'{r}x{s}':>6} {max(first - run, 0.0):10.2f} {run:7.2f} {int(sol.rounds):6d}"
+                  f" {status:>9} | {dev[0].mean:9.5f} {dev[1].mean:9.5f} {dev[0].max:8.4f} {dev[1].max:8.4f}")
+    print("(compile = first call minus the second; a C⁰ layout has the C² one's shapes, so it reuses"
+          " the compiled refit and its compile column is ~0)")
+    print()
+
+
+def reduction(samples: int, dev_samples: int) -> None:
+    c = cases.case(6)
+    print("== Degree reduction: case 6 merged with degrees='reduce' (bicubic result), C2")
+    layout, ctrls, _ = _layout(c, 2, samples, degrees="reduce")
+    merged = layout.surface(layout.apply(ctrls))
+    dev = mg.deviation(c.originals, merged, samples=dev_samples)
+    err = np.asarray(layout.reduction_error).ravel()
+    for s, e in zip(c.originals, err):
+        print(f"patch {s.shape[0]}x{s.shape[1]} degrees {s.degree_u}x{s.degree_v}: reduction error (max, on its"
+              f" {samples}² samples) {e:.5f} mm")
+    print(f"merged {merged.shape[0]}x{merged.shape[1]} degrees {merged.degree_u}x{merged.degree_v}:"
+          f" deviation mean {dev.mean:.5f}  max {dev.max:.5f} mm")
+    print()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer calls; refine only cases 4 and 5")
+    parser.add_argument("--quick", action="store_true", help="fewer calls; refit only cases 4 and 6")
     parser.add_argument("--out", default="bsjax-out/merge", help="folder for .3dm files and the heat map")
     args = parser.parse_args()
     print(f"jax {jax.__version__}, backend {jax.default_backend()}, float64")
     speed(calls=50 if args.quick else 300, geomdl_calls=1 if args.quick else 3)
-    tables(Path(args.out), (4, 5) if args.quick else (2, 4, 5, 7), samples=82, dev_samples=101)
+    tables(Path(args.out), samples=82, dev_samples=101)
+    print()
+    refits((4, 6) if args.quick else (2, 3, 4, 6, 7), samples=82, dev_samples=101)
+    reduction(samples=82, dev_samples=101)
 
 
 if __name__ == "__main__":

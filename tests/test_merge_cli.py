@@ -45,3 +45,21 @@ def test_merge_command_errors(tmp_path, capsys):
     code = bsjax_main(["merge", str(tmp_path / "ab.json"), "-o", str(tmp_path / "m.json"), "--grid", "3x1"])
     assert code == 2 and "--grid" in capsys.readouterr().err
     assert not (tmp_path / "m.json").exists()
+
+
+def test_merge_command_reports_reduction_error(tmp_path, capsys):
+    """`--degrees reduce --report`: the quadratic result and the reduction error of the cubic
+    patch — zero while it is a plane (exactly quadratic), positive once a control point is bumped."""
+    a, b = _plate(0.0, 1.0, 5, 4), _plate(1.0, 2.0, 5, 4, degree=2)
+    io.save([a, b], tmp_path / "flat.json")
+    code = bsjax_main(["merge", str(tmp_path / "flat.json"), "-o", str(tmp_path / "f.json"), "--samples", "16",
+                       "--degrees", "reduce", "--continuity", "0", "--report", "--report-samples", "12"])
+    assert code == 0 and json.loads(capsys.readouterr().out)["reduction error"] < 1e-9
+    a = a.with_ctrl(np.asarray(a.ctrl) + np.where(np.arange(5)[:, None, None] == 2, [0.0, 0.0, 0.3], 0.0))
+    io.save([a, b], tmp_path / "ab.json")
+    out = tmp_path / "m.json"
+    code = bsjax_main(["merge", str(tmp_path / "ab.json"), "-o", str(out), "--samples", "16", "--degrees", "reduce",
+                       "--continuity", "0", "--report", "--report-samples", "12"])
+    assert code == 0 and io.load(out).degree_u == 2
+    report = json.loads(capsys.readouterr().out)
+    assert report["reduction error"] > 1e-3 and report["max"] >= 0.0

@@ -7,15 +7,20 @@ matrices (`M_i = A_u^i P^i A_v^iT`), the grids are stacked (`[M1; M2]`, `[M1 M2]
 (eq. 3.7). The merged knot vector joins the patches' vectors with `degree − c` knots at a C^c
 seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made uniform.
 
-* `merge(surfaces, direction, continuity)` / `merge_grid(rows, continuity)`: one call.
+* `merge(surfaces, direction, continuity)` / `merge_grid(rows, continuity)`: one call; both take
+  patches in any orientation (`orient="auto"`, or explicit flips/transposes), trimmed windows
+  (`trim`) and intersecting patches (`overlap="drop"`).
 * `plan(...)` / `plan_grid(...)` → `MergeLayout`: all the fixed work once; `layout.apply(ctrls)`
-  is then jittable and differentiable in the input control nets.
+  is then jittable and differentiable in the input control nets; `layout.reduction_error`
+  reports what `degrees="reduce"` costs each patch.
 * `merge_knots`, `average_knots`, `cross_knots`, `common_degree`, `merged_knots`: the knot and
   degree rules (the merged basis without building matrices).
 * `deviation(originals, merged)` → `Deviation` (mean, median, std, max, close points) by
-  closest-point projection; `plot_deviation` draws the heat map.
-* `refine(layout, ctrls)` (or `merge(..., refine=True)`): nonlinear refit with parameter
-  correction (beyond the thesis).
+  closest-point projection (`closest_points`: vmapped optimistix Gauss–Newton); `plot_deviation`
+  draws the heat map.
+* `refit(layout, ctrls, RefitSolver())` → `RefitSolution` (net, corrected parameters, RMS
+  history, status): nonlinear refit with parameter correction (beyond the thesis);
+  `refine(layout, ctrls)` / `merge(..., refine=True)` give its net.
 """
 
 from __future__ import annotations

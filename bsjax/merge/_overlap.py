@@ -34,17 +34,21 @@ def contact_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82, toler
     return da.reshape(pa.shape[:2]) <= tol, db.reshape(pb.shape[:2]) <= tol
 
 
-def collide_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82):
+def collide_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82, capacities=(8192, 32768)):
     """Contact masks of the two sample grids from `bsjax.collide.surface_contacts` (its sphere
-    hierarchy; every triangle pair for grids of at most 24² samples, where that is cheaper)."""
+    hierarchy; every triangle pair for grids of at most 24² samples, where that is cheaper).
+    Crossing patches meet along a whole curve, so the query starts with room for 8192
+    candidate cell pairs and retries with more when it overflows."""
     from bsjax.collide import surface_contacts
 
-    result = surface_contacts(a.blending(samples, samples), a.ctrl, b.blending(samples, samples), b.ctrl,
-                              method="dense" if samples <= 24 else "hierarchy")
-    if bool(result.overflow):
-        raise ValueError("overlap: expected the collision query to fit its capacity, got an overflow; "
-                         "use method='dense'")
-    return np.asarray(result.mask_a), np.asarray(result.mask_b)
+    method = "dense" if samples <= 24 else "hierarchy"
+    for capacity in capacities:
+        result = surface_contacts(a.blending(samples, samples), a.ctrl, b.blending(samples, samples), b.ctrl,
+                                  method=method, capacity=capacity)
+        if not bool(result.overflow):
+            return np.asarray(result.mask_a), np.asarray(result.mask_b)
+    raise ValueError(f"overlap: expected the collision query to fit its capacity ({capacities[-1]} cell pairs), "
+                     "got an overflow; use method='dense'")
 
 
 _TOUCH = 2  # contact confined to this many rows either side of the seam is touching, kept
