@@ -267,21 +267,22 @@ def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_a
     (flat contact: every sphere intersects) run again with flat pairs resolved by planes, so
     the common case pays nothing for the flat test (`lax.cond`)."""
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
-    exact = _refine_pairs(pa, pb, capacity, None)
-    if flat_angle is None:
-        return exact
-    return jax.lax.cond(exact.overflow, lambda: _refine_pairs(pa, pb, capacity, flat_angle), lambda: exact)
-
-
-def _refine_pairs(pa, pb, capacity, flat_angle):
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
+    spheres = (sphere_hierarchy(pa, lev_a), sphere_hierarchy(pb, lev_b))  # built once for both passes
+    exact = _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, None)
+    if flat_angle is None:
+        return exact
+    flat = lambda: _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle)
+    return jax.lax.cond(exact.overflow, flat, lambda: exact)
+
+
+def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
     cones = flat = None
     if flat_angle is not None:
         cones = (normal_cones(pa, lev_a), normal_cones(pb, lev_b))
         flat = functools.partial(flat_pairs, *cones, flat_angle)
-    leaf_a, leaf_b, valid, overflow, count, flat_steps = traverse(
-        sphere_hierarchy(pa, lev_a), sphere_hierarchy(pb, lev_b), capacity, flat)
+    leaf_a, leaf_b, valid, overflow, count, flat_steps = traverse(*spheres, capacity, flat)
     cell_a = _cells(leaf_a, lev_a, pa.shape)
     cell_b = _cells(leaf_b, lev_b, pb.shape)
     tri_a, face_a = candidate_triangles(pa, cell_a)  # (K, 2, 3, 3): only the candidate cells
