@@ -21,11 +21,11 @@ jax.config.update("jax_enable_x64", True)
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 from geomdl import BSpline as GBSpline  # noqa: E402
 from scipy.interpolate import NdBSpline  # noqa: E402
 
-from bsjax.basis import Blending, BSplineSurface, clamped_knots  # noqa: E402
-from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
+from bsjax.basis import BSplineSurface, clamped_knots  # noqa: E402
 
 try:
     import splinepy
@@ -70,7 +70,9 @@ def bench_grid(m: int, calls: dict, rows: list, dtype=np.float64, peers=True):
     compile_batch -= bmed
     ref = np.asarray(points(b, ctrl), dtype=np.float64)
     rows.append((tag, "bsjax Blending.points (jit)", med, p99, compile_single, None))
-    rows.append((tag, f"bsjax vmap over {BATCH} nets, per net", bmed / BATCH, bp99 / BATCH, compile_batch, None))
+    rows.append(
+        (tag, f"bsjax vmap over {BATCH} nets, per net", bmed / BATCH, bp99 / BATCH, compile_batch, None)
+    )
     if not peers:
         return med, bmed / BATCH
 
@@ -85,12 +87,23 @@ def bench_grid(m: int, calls: dict, rows: list, dtype=np.float64, peers=True):
     # scipy's own batching: the 64 nets as one vector-valued spline (trailing dims of c).
     nd_batch = NdBSpline((knots, knots), np.moveaxis(np.asarray(nets), 0, 2).reshape(R, R, -1), 3)
     sbmed, sbp99 = timed(lambda: nd_batch(xi), max(3, calls["scipy"] // 20))
-    rows.append((tag, f"scipy NdBSpline, {BATCH} nets as one, per net", sbmed / BATCH, sbp99 / BATCH, None,
-                 (sbmed / BATCH) / (bmed / BATCH)))
+    rows.append(
+        (
+            tag,
+            f"scipy NdBSpline, {BATCH} nets as one, per net",
+            sbmed / BATCH,
+            sbp99 / BATCH,
+            None,
+            (sbmed / BATCH) / (bmed / BATCH),
+        )
+    )
 
     if splinepy is not None:
-        sp = splinepy.BSpline(degrees=[3, 3], knot_vectors=[knots.tolist()] * 2,
-                              control_points=ctrl64.transpose(1, 0, 2).reshape(-1, 3))  # u fastest
+        sp = splinepy.BSpline(
+            degrees=[3, 3],
+            knot_vectors=[knots.tolist()] * 2,
+            control_points=ctrl64.transpose(1, 0, 2).reshape(-1, 3),
+        )  # u fastest
         check(tag, "splinepy", sp.evaluate(xi).reshape(m, m, 3), ref)
         pmed, pp99 = timed(lambda: sp.evaluate(xi), calls["splinepy"])
         rows.append((tag, "splinepy BSpline.evaluate", pmed, pp99, None, pmed / med))
@@ -110,7 +123,9 @@ def bench_grid(m: int, calls: dict, rows: list, dtype=np.float64, peers=True):
 
     check(tag, "geomdl", np.asarray(geomdl_eval()).reshape(m, m, 3), ref)
     gmed, gp99 = timed(geomdl_eval, calls["geomdl"], warmup=0)
-    rows.append((tag, f"geomdl BSpline.Surface.evaluate ({calls['geomdl']} calls)", gmed, gp99, None, gmed / med))
+    rows.append(
+        (tag, f"geomdl BSpline.Surface.evaluate ({calls['geomdl']} calls)", gmed, gp99, None, gmed / med)
+    )
     return med, bmed / BATCH
 
 
@@ -125,12 +140,23 @@ def bench_build(rows, calls):
         rng = np.random.default_rng(1)
         surface = BSplineSurface(rng.normal(size=(r, r, 3)), clamped_knots(r, 3), clamped_knots(r, 3), 3, 3)
         first = first_call(lambda: jax.block_until_ready(surface.blending(m, m)))
-        eager, eager_p99 = timed(lambda: jax.block_until_ready(surface.blending(m, m)), calls["build"], warmup=1)
+        eager, eager_p99 = timed(
+            lambda: jax.block_until_ready(surface.blending(m, m)), calls["build"], warmup=1
+        )
         build = eqx.filter_jit(lambda s: s.blending(m, m))
         compile_jit = first_call(lambda: jax.block_until_ready(build(surface)))
         jitted, jit_p99 = timed(lambda: jax.block_until_ready(build(surface)), calls["build"] * 5)
         tag = f"{r}x{r} @ {m}x{m}"
-        rows.append((tag, f"build+invert, eager (1st call {first:.2f} s) [thesis {thesis}]", eager, eager_p99, None, None))
+        rows.append(
+            (
+                tag,
+                f"build+invert, eager (1st call {first:.2f} s) [thesis {thesis}]",
+                eager,
+                eager_p99,
+                None,
+                None,
+            )
+        )
         rows.append((tag, "build+invert, jitted", jitted, jit_p99, compile_jit - jitted, None))
 
 
@@ -154,8 +180,10 @@ def main():
         244: dict(bsjax=400 // q, scipy=40 // q, splinepy=40 // q, geomdl=1),
         "build": 10 // q,
     }
-    print(f"bsjax basis benchmark: {R}x{R} bicubic, clamped uniform knots, float64, jax {jax.__version__}, "
-          f"{jax.devices()[0].platform}")
+    print(
+        f"bsjax basis benchmark: {R}x{R} bicubic, clamped uniform knots, float64, jax {jax.__version__}, "
+        f"{jax.devices()[0].platform}"
+    )
     rows, summary = [], {}
     for m in (82, 244):
         summary[m] = bench_grid(m, calls[m], rows)
@@ -163,11 +191,13 @@ def main():
     bench_grid(244, calls[244], rows, dtype=np.float32, peers=False)
     bench_build(rows, calls)
 
-    print(f"\n| grid | method | median | p99 | compile | peer / bsjax |")
+    print("\n| grid | method | median | p99 | compile | peer / bsjax |")
     print("|---|---|---|---|---|---|")
     for tag, name, med, p99, comp, ratio in rows:
-        print(f"| {tag} | {name} | {fmt(med)} | {fmt(p99)} | {fmt(comp)} | "
-              f"{'-' if ratio is None else f'{ratio:.1f}x'} |")
+        print(
+            f"| {tag} | {name} | {fmt(med)} | {fmt(p99)} | {fmt(comp)} | "
+            f"{'-' if ratio is None else f'{ratio:.1f}x'} |"
+        )
 
     by = {(t, n.split(" (")[0]): med for t, n, med, *_ in rows}
     s82, b82 = summary[82]

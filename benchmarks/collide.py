@@ -18,7 +18,13 @@ import time
 
 import numpy as np
 
-THESIS_TABLE1 = {4: ("<1", "<1", "2"), 8: ("<1", "3", "4"), 12: ("4", "5", "10"), 16: ("6", "12", "22"), 20: ("10", "17", "31")}
+THESIS_TABLE1 = {
+    4: ("<1", "<1", "2"),
+    8: ("<1", "3", "4"),
+    12: ("4", "5", "10"),
+    16: ("6", "12", "22"),
+    20: ("10", "17", "31"),
+}
 THESIS_TABLE2 = {28: ("<1", "~1", "1"), 82: ("~1", "3", "4"), 244: ("3", "6", "15")}
 THESIS_SURF = {4: "6", 8: "15", 20: "91"}
 
@@ -68,7 +74,11 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--x64", action="store_true")
     parser.add_argument("--calls", type=int, default=300)
-    parser.add_argument("--tables", default="1,2,s,f", help="which experiments: 1, 2, s (surface vs surface), f (flat contact)")
+    parser.add_argument(
+        "--tables",
+        default="1,2,s,f",
+        help="which experiments: 1, 2, s (surface vs surface), f (flat contact)",
+    )
     parser.add_argument("--capacity", type=int, default=2048, help="surface_contacts capacity")
     args = parser.parse_args(argv)
     import jax
@@ -82,12 +92,23 @@ def main(argv=None) -> int:
     from bsjax.collide.hierarchy import tessellate
 
     dtype = np.float64 if args.x64 else np.float32
-    print(f"bsjax collide benchmark — jax {jax.__version__} on {jax.devices()[0].platform}, "
-          f"{'float64' if args.x64 else 'float32'}; fcl {getattr(fcl, '__version__', '')}; times in ms (median / p99)")
+    print(
+        f"bsjax collide benchmark — jax {jax.__version__} on {jax.devices()[0].platform}, "
+        f"{'float64' if args.x64 else 'float32'}; fcl {getattr(fcl, '__version__', '')}; times in ms (median / p99)"
+    )
     tools = {
-        "point": (Point([0.5, 0.5, -0.005]), lambda: fcl.CollisionObject(fcl.Sphere(1e-6), fcl.Transform(np.array([0.5, 0.5, -0.005])))),
-        "sphere": (Sphere([0.5, 0.5, 0.1], 0.15), lambda: fcl.CollisionObject(fcl.Sphere(0.15), fcl.Transform(np.array([0.5, 0.5, 0.1])))),
-        "plane": (Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]), lambda: fcl.CollisionObject(fcl.Halfspace(np.array([0.0, 0.0, 1.0]), 0.0), fcl.Transform())),
+        "point": (
+            Point([0.5, 0.5, -0.005]),
+            lambda: fcl.CollisionObject(fcl.Sphere(1e-6), fcl.Transform(np.array([0.5, 0.5, -0.005]))),
+        ),
+        "sphere": (
+            Sphere([0.5, 0.5, 0.1], 0.15),
+            lambda: fcl.CollisionObject(fcl.Sphere(0.15), fcl.Transform(np.array([0.5, 0.5, 0.1]))),
+        ),
+        "plane": (
+            Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+            lambda: fcl.CollisionObject(fcl.Halfspace(np.array([0.0, 0.0, 1.0]), 0.0), fcl.Transform()),
+        ),
     }
     rows = []
 
@@ -117,8 +138,10 @@ def main(argv=None) -> int:
         g_med, _ = timeit(lambda: fcl_query(prebuilt, other), n_fcl)
         contacts_n = int(query(ctrl, tool).mask.sum())
         rows.append((label, kind, med, p99, compile_s, f_med, g_med))
-        print(f"{label:<22} {kind:<6} bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, {contacts_n:5d} samples in contact)"
-              f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x) | thesis {thesis}")
+        print(
+            f"{label:<22} {kind:<6} bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, {contacts_n:5d} samples in contact)"
+            f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x) | thesis {thesis}"
+        )
 
     tables = set(args.tables.split(","))
     nets = [4, 8, 20] if args.quick else [4, 8, 12, 16, 20]
@@ -143,15 +166,21 @@ def main(argv=None) -> int:
             grids.append((a_u, p, a_v, np.asarray(tessellate(bl.points(c))[1], np.int64)))
 
         def fcl_meshes():  # both surfaces deformed: sample them and rebuild both BVHs
-            return [fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, p, a_v).reshape(-1, 3), f) for a_u, p, a_v, f in grids]
+            return [
+                fcl_mesh(np.einsum("ai,ijc,bj->abc", a_u, p, a_v).reshape(-1, 3), f)
+                for a_u, p, a_v, f in grids
+            ]
 
         f_med, _ = timeit(lambda: fcl_query(*fcl_meshes()), max(10, args.calls // 10))
         prebuilt = fcl_meshes()
         g_med, _ = timeit(lambda: fcl_query(*prebuilt), max(10, args.calls // 10))
-        print(f"{label} (capacity {args.capacity})  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
-              f"{int(res.pair_hit.sum())} contact cell pairs, {int(res.flat_pairs)} flat pairs, overflow {bool(res.overflow)})"
-              f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x)"
-              f" | thesis {thesis}", flush=True)
+        print(
+            f"{label} (capacity {args.capacity})  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
+            f"{int(res.pair_hit.sum())} contact cell pairs, {int(res.flat_pairs)} flat pairs, overflow {bool(res.overflow)})"
+            f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x)"
+            f" | thesis {thesis}",
+            flush=True,
+        )
 
     print("\nB-spline vs B-spline — both deformable, 82×82 samples each")
     for net in ([4, 20] if args.quick else [4, 8, 12, 16, 20]) if "s" in tables else []:
@@ -161,7 +190,14 @@ def main(argv=None) -> int:
         ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 0.8 + ctrl_b[..., 2]
         ctrl_b[..., 0] = 0.1 + 0.8 * ctrl_b[..., 0]
         bl = a.blending(82, 82)
-        surface_row(f"{net}x{net} vs {net}x{net}, 82x82", bl, jnp.asarray(a.ctrl), bl, jnp.asarray(ctrl_b), THESIS_SURF.get(net, "—"))
+        surface_row(
+            f"{net}x{net} vs {net}x{net}, 82x82",
+            bl,
+            jnp.asarray(a.ctrl),
+            bl,
+            jnp.asarray(ctrl_b),
+            THESIS_SURF.get(net, "—"),
+        )
 
     print("\nFlat contact — two 8×8 plates at 82×82 lying on each other (every sphere intersects)")
     if "f" in tables:

@@ -28,16 +28,15 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
+from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 from geomdl import fitting  # noqa: E402
 
 from bsjax import io  # noqa: E402
 from bsjax import merge as mg  # noqa: E402
 from bsjax.basis import BSplineSurface  # noqa: E402
 from bsjax.merge import cases  # noqa: E402
-from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 # Thesis Tables 6.3/6.4: (Rhino C2, proposed C2, proposed C0) mean and std; None = not given.
 THESIS = {
@@ -53,14 +52,18 @@ THESIS = {
 
 def geomdl_fit(points: np.ndarray, r: int, s: int, k: int, l: int) -> BSplineSurface:
     m, n, _ = points.shape
-    g = fitting.approximate_surface(points.reshape(-1, 3).tolist(), m, n, k, l, ctrlpts_size_u=r, ctrlpts_size_v=s)
+    g = fitting.approximate_surface(
+        points.reshape(-1, 3).tolist(), m, n, k, l, ctrlpts_size_u=r, ctrlpts_size_v=s
+    )
     ctrl = np.asarray(g.ctrlpts).reshape(r, s, 3)
     return BSplineSurface(ctrl, np.asarray(g.knotvector_u), np.asarray(g.knotvector_v), k, l)
 
 
 def speed(calls: int, geomdl_calls: int) -> None:
     a = cases._patch(0, 20, 0, 20, cases._hill, 8, 8)
-    b = cases._patch(20, 40, 0, 20, lambda x, y: cases._hill(x, y) + 0.02 * (x - 20.0) * np.sin(y / 3.0), 8, 8)
+    b = cases._patch(
+        20, 40, 0, 20, lambda x, y: cases._hill(x, y) + 0.02 * (x - 20.0) * np.sin(y / 3.0), 8, 8
+    )
     t0 = time.perf_counter()
     layout = mg.plan([a, b], "u", 2, samples=82, orient="as_given")
     jax.block_until_ready(layout)
@@ -83,15 +86,23 @@ def speed(calls: int, geomdl_calls: int) -> None:
     dev_ours = mg.deviation([a, b], layout.surface(ctrl), samples=101)
     dev_geomdl = mg.deviation([a, b], ours_geomdl, samples=101)
     print("== Speed: merge two 8×8 bicubic patches, 82×82 samples each (164×82 points → 15×8 net)")
-    print(f"bsjax plan (patch + revised blending matrices, pseudo-inverses, once): first {t_plan * 1e3:.1f} ms"
-          f" (with compilation), again {t_plan2 * 1e3:.1f} ms")
+    print(
+        f"bsjax plan (patch + revised blending matrices, pseudo-inverses, once): first {t_plan * 1e3:.1f} ms"
+        f" (with compilation), again {t_plan2 * 1e3:.1f} ms"
+    )
     print(f"bsjax merge, jit compile (first call minus steady):            {(t_first - med) * 1e3:9.1f} ms")
-    print(f"bsjax merge, steady state:  median {med * 1e3:8.3f} ms   p99 {p99 * 1e3:8.3f} ms   ({calls} calls)")
-    print(f"geomdl approximate_surface: median {g_med * 1e3:8.1f} ms   p99 {g_p99 * 1e3:8.1f} ms   "
-          f"({geomdl_calls} calls, first {g_first * 1e3:.1f} ms)")
+    print(
+        f"bsjax merge, steady state:  median {med * 1e3:8.3f} ms   p99 {p99 * 1e3:8.3f} ms   ({calls} calls)"
+    )
+    print(
+        f"geomdl approximate_surface: median {g_med * 1e3:8.1f} ms   p99 {g_p99 * 1e3:8.1f} ms   "
+        f"({geomdl_calls} calls, first {g_first * 1e3:.1f} ms)"
+    )
     print(f"speed-up geomdl / bsjax (median): {g_med / med:8.0f}×")
     print(f"deviation bsjax  C2: mean {dev_ours.mean:.5f}  std {dev_ours.std:.5f}  max {dev_ours.max:.5f}")
-    print(f"deviation geomdl   : mean {dev_geomdl.mean:.5f}  std {dev_geomdl.std:.5f}  max {dev_geomdl.max:.5f}")
+    print(
+        f"deviation geomdl   : mean {dev_geomdl.mean:.5f}  std {dev_geomdl.std:.5f}  max {dev_geomdl.max:.5f}"
+    )
     print()
 
 
@@ -101,8 +112,10 @@ def _fmt(x):
 
 def tables(out: Path, samples: int, dev_samples: int) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    print(f"== Seven cases (thesis §6.3.1): {samples}×{samples} merge samples per patch, deviation on "
-          f"{dev_samples}×{dev_samples} per original, closest point; millimetres")
+    print(
+        f"== Seven cases (thesis §6.3.1): {samples}×{samples} merge samples per patch, deviation on "
+        f"{dev_samples}×{dev_samples} per original, closest point; millimetres"
+    )
     head = f"{'case':<4} {'':<18} {'Rhino C2':>8} {'thes. C2':>8} {'thes. C0':>8} | {'bsjax C2':>8} {'bsjax C0':>8}"
     print(head)
     print("-" * len(head))
@@ -117,12 +130,14 @@ def tables(out: Path, samples: int, dev_samples: int) -> None:
                 heat = results[(cont, False)]
         io.save(c.originals, out / f"case{c.number}_originals.3dm")
         th = THESIS[c.number]
-        rows = [("Total points", lambda r: f"{r.n_points:8d}", None),
-                ("Close points", lambda r: f"{r.n_within:8d}", None),
-                ("Average distance", lambda r: f"{r.mean:8.4f}", 0),
-                ("Median distance", lambda r: f"{r.median:8.4f}", None),
-                ("Standard deviation", lambda r: f"{r.std:8.4f}", 1),
-                ("Maximum distance", lambda r: f"{r.max:8.4f}", None)]
+        rows = [
+            ("Total points", lambda r: f"{r.n_points:8d}", None),
+            ("Close points", lambda r: f"{r.n_within:8d}", None),
+            ("Average distance", lambda r: f"{r.mean:8.4f}", 0),
+            ("Median distance", lambda r: f"{r.median:8.4f}", None),
+            ("Standard deviation", lambda r: f"{r.std:8.4f}", 1),
+            ("Maximum distance", lambda r: f"{r.max:8.4f}", None),
+        ]
         print(f"{c.number}: {c.name}")
         for label, fmt, idx in rows:
             thesis = "".join(f" {_fmt(None if t is None or idx is None else t[idx]):>8}" for t in th)
@@ -144,7 +159,11 @@ def _layout(c, continuity: int, samples: int, **extra):
     options = {**c.options, **extra}
     windows = None
     if c.direction is None:
-        return mg.plan_grid(c.patches, continuity, samples=samples, **options), [[s.ctrl for s in r] for r in c.patches], None
+        return (
+            mg.plan_grid(c.patches, continuity, samples=samples, **options),
+            [[s.ctrl for s in r] for r in c.patches],
+            None,
+        )
     if options.pop("overlap", "keep") == "drop":
         trims = mg.overlap_trims(c.patches, c.direction, samples)
         options["trim"] = trims
@@ -155,11 +174,15 @@ def _layout(c, continuity: int, samples: int, **extra):
 
 def refits(numbers, samples: int, dev_samples: int) -> None:
     solver = mg.RefitSolver()
-    print(f"== Nonlinear refit with parameter correction (optimistix Gauss–Newton foot points + banded"
-          f" normal equations; ≤ {solver.rounds} rounds, stop at < {solver.rtol:.0%} RMS gain), {samples}² samples"
-          f" per patch, deviation on {dev_samples}² per original, mm")
-    head = (f"{'case':<5}{'C':>2} {'net':>6} {'compile s':>10} {'run s':>7} {'rounds':>6} {'status':>9} |"
-            f" {'mean lin':>9} {'mean nl':>9} {'max lin':>8} {'max nl':>8}")
+    print(
+        f"== Nonlinear refit with parameter correction (optimistix Gauss–Newton foot points + banded"
+        f" normal equations; ≤ {solver.rounds} rounds, stop at < {solver.rtol:.0%} RMS gain), {samples}² samples"
+        f" per patch, deviation on {dev_samples}² per original, mm"
+    )
+    head = (
+        f"{'case':<5}{'C':>2} {'net':>6} {'compile s':>10} {'run s':>7} {'rounds':>6} {'status':>9} |"
+        f" {'mean lin':>9} {'mean nl':>9} {'max lin':>8} {'max nl':>8}"
+    )
     print(head)
     print("-" * len(head))
     for number in numbers:
@@ -173,14 +196,20 @@ def refits(numbers, samples: int, dev_samples: int) -> None:
             t0 = time.perf_counter()
             sol = jax.block_until_ready(mg.refit(layout, ctrls, solver))
             run = time.perf_counter() - t0
-            dev = [mg.deviation(c.originals, s, samples=dev_samples, windows=windows)
-                   for s in (linear, layout.surface(sol.ctrl))]
+            dev = [
+                mg.deviation(c.originals, s, samples=dev_samples, windows=windows)
+                for s in (linear, layout.surface(sol.ctrl))
+            ]
             status = "settled" if sol.result == optx.RESULTS.successful else "max rnds"
             r, s = layout.merged.ctrl_shape
-            print(f"{number:<5}{cont:>2} {f'{r}x{s}':>6} {max(first - run, 0.0):10.2f} {run:7.2f} {int(sol.rounds):6d}"
-                  f" {status:>9} | {dev[0].mean:9.5f} {dev[1].mean:9.5f} {dev[0].max:8.4f} {dev[1].max:8.4f}")
-    print("(compile = first call minus the second; a C⁰ layout has the C² one's shapes, so it reuses"
-          " the compiled refit and its compile column is ~0)")
+            print(
+                f"{number:<5}{cont:>2} {f'{r}x{s}':>6} {max(first - run, 0.0):10.2f} {run:7.2f} {int(sol.rounds):6d}"
+                f" {status:>9} | {dev[0].mean:9.5f} {dev[1].mean:9.5f} {dev[0].max:8.4f} {dev[1].max:8.4f}"
+            )
+    print(
+        "(compile = first call minus the second; a C⁰ layout has the C² one's shapes, so it reuses"
+        " the compiled refit and its compile column is ~0)"
+    )
     print()
 
 
@@ -192,10 +221,14 @@ def reduction(samples: int, dev_samples: int) -> None:
     dev = mg.deviation(c.originals, merged, samples=dev_samples)
     err = np.asarray(layout.reduction_error).ravel()
     for s, e in zip(c.originals, err):
-        print(f"patch {s.shape[0]}x{s.shape[1]} degrees {s.degree_u}x{s.degree_v}: reduction error (max, on its"
-              f" {samples}² samples) {e:.5f} mm")
-    print(f"merged {merged.shape[0]}x{merged.shape[1]} degrees {merged.degree_u}x{merged.degree_v}:"
-          f" deviation mean {dev.mean:.5f}  max {dev.max:.5f} mm")
+        print(
+            f"patch {s.shape[0]}x{s.shape[1]} degrees {s.degree_u}x{s.degree_v}: reduction error (max, on its"
+            f" {samples}² samples) {e:.5f} mm"
+        )
+    print(
+        f"merged {merged.shape[0]}x{merged.shape[1]} degrees {merged.degree_u}x{merged.degree_v}:"
+        f" deviation mean {dev.mean:.5f}  max {dev.max:.5f} mm"
+    )
     print()
 
 

@@ -112,16 +112,22 @@ def make_warp():
     wp.init()
 
     @wp.kernel
-    def springs(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), e: wp.array(dtype=int, ndim=2),
-                rest: wp.array(dtype=float), k: wp.array(dtype=float), c: wp.array(dtype=float),
-                f: wp.array(dtype=wp.vec3)):
+    def springs(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        e: wp.array(dtype=int, ndim=2),
+        rest: wp.array(dtype=float),
+        k: wp.array(dtype=float),
+        c: wp.array(dtype=float),
+        f: wp.array(dtype=wp.vec3),
+    ):
         t = wp.tid()
         i = e[t, 0]
         j = e[t, 1]
         d = x[i] - x[j]
         dv = v[i] - v[j]
         l = wp.length(d)
-        inv = float(0.0)
+        inv = 0.0
         if l > 0.0:
             inv = 1.0 / l
         fs = -(k[t] * (1.0 - rest[t] * inv) + c[t] * wp.dot(dv, d) * inv * inv) * d
@@ -129,8 +135,13 @@ def make_warp():
         wp.atomic_sub(f, j, fs)
 
     @wp.kernel
-    def integrate(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), f: wp.array(dtype=wp.vec3),
-                  m: wp.array(dtype=float), dt: float):
+    def integrate(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        f: wp.array(dtype=wp.vec3),
+        m: wp.array(dtype=float),
+        dt: float,
+    ):
         t = wp.tid()
         vv = v[t] + dt * f[t] / m[t]
         v[t] = vv
@@ -148,7 +159,10 @@ def bench_warp(warp, lat, dt, chunk, calls):
     v = wp.zeros(n, dtype=wp.vec3, device=dev)
     f = wp.zeros(n, dtype=wp.vec3, device=dev)
     e = wp.array(np.asarray(lat.edges), dtype=int, device=dev)
-    arrs = [wp.array(np.asarray(a), dtype=float, device=dev) for a in (lat.rest_length, lat.stiffness, lat.damping)]
+    arrs = [
+        wp.array(np.asarray(a), dtype=float, device=dev)
+        for a in (lat.rest_length, lat.stiffness, lat.damping)
+    ]
     m = wp.array(np.asarray(lat.mass), dtype=float, device=dev)
 
     def steps(count):
@@ -168,26 +182,36 @@ def bench_warp(warp, lat, dt, chunk, calls):
 
 def lattice_section(sizes, calls):
     warp = make_warp()
-    print("\n== lattice step: semi-implicit Euler, 26-neighbour hex lattice (edges + face + body diagonals), float32")
-    print(f"{'size':>5} {'nodes':>6} {'springs':>8} | {'bsjax scan ms/step':>19} {'p99':>6} {'1-step call':>11} "
-          f"{'compile s':>9} | {'numpy ms':>8} {'p99':>7} | {'warp ms':>7} {'p99':>6} {'load s':>6} | "
-          f"{'np/bsjax':>8} {'bsjax/warp':>10} | thesis ms")
+    print(
+        "\n== lattice step: semi-implicit Euler, 26-neighbour hex lattice (edges + face + body diagonals), float32"
+    )
+    print(
+        f"{'size':>5} {'nodes':>6} {'springs':>8} | {'bsjax scan ms/step':>19} {'p99':>6} {'1-step call':>11} "
+        f"{'compile s':>9} | {'numpy ms':>8} {'p99':>7} | {'warp ms':>7} {'p99':>6} {'load s':>6} | "
+        f"{'np/bsjax':>8} {'bsjax/warp':>10} | thesis ms"
+    )
     for n in sizes:
         lat = mss.hex_lattice(cube(n), material=mss.PLASTICINE)
         dt = 0.5 * float(mss.stable_dt(lat))
         chunk = 1000 if n <= 15 else 100
         comp, (med, p99), (one, _) = bench_bsjax(lat, dt, chunk, calls)
         np_med, np_p99 = bench_numpy(lat, dt, max(5, calls // 2))
-        line = (f"{n:>4}³ {lat.n_nodes:>6} {lat.n_edges:>8} | {med:>19.3f} {p99:>6.3f} {one:>11.3f} {comp:>9.2f} | "
-                f"{np_med:>8.3f} {np_p99:>7.3f} | ")
+        line = (
+            f"{n:>4}³ {lat.n_nodes:>6} {lat.n_edges:>8} | {med:>19.3f} {p99:>6.3f} {one:>11.3f} {comp:>9.2f} | "
+            f"{np_med:>8.3f} {np_p99:>7.3f} | "
+        )
         if warp is not None:
             wcomp, (w_med, w_p99) = bench_warp(warp, lat, dt, chunk, calls)
-            line += f"{w_med:>7.3f} {w_p99:>6.3f} {wcomp:>6.2f} | {np_med / med:>8.1f} {med / w_med:>10.2f} | "
+            line += (
+                f"{w_med:>7.3f} {w_p99:>6.3f} {wcomp:>6.2f} | {np_med / med:>8.1f} {med / w_med:>10.2f} | "
+            )
         else:
             line += f"{'n/a':>7} {'':>6} {'':>6} | {np_med / med:>8.1f} {'n/a':>10} | "
         print(line + f"{THESIS_STEP_MS.get(n, '–')}", flush=True)
-    print("(bsjax scan ms/step: steady state inside a jitted lax.scan of 1000 (≤15³) or 100 steps; "
-          "1-step call: one jitted step per Python call, dispatch included)")
+    print(
+        "(bsjax scan ms/step: steady state inside a jitted lax.scan of 1000 (≤15³) or 100 steps; "
+        "1-step call: one jitted step per Python call, dispatch included)"
+    )
 
 
 def contact_section(calls):
@@ -198,8 +222,11 @@ def contact_section(calls):
     dt = jnp.float32(1e-4)
     state = mss.init(lat)
     one = jax.jit(lambda s, t: mss.step(lat, s, dt, tools=(t,), contact=contact))
-    implicit = jax.jit(lambda s, t: mss.implicit_step(lat, s, jnp.float32(1e-3), tools=(t,), contact=contact,
-                                                      cg_iterations=10))
+    implicit = jax.jit(
+        lambda s, t: mss.implicit_step(
+            lat, s, jnp.float32(1e-3), tools=(t,), contact=contact, cg_iterations=10
+        )
+    )
     for name, fn in (("semi-implicit step (dt 0.1 ms)", one), ("implicit step, 10 CG (dt 1 ms)", implicit)):
         t = time.perf_counter()
         fn(state, tool).position.block_until_ready()
@@ -212,7 +239,9 @@ def contact_section(calls):
 
         med, p99 = time_calls(call, calls * 20, 1)
         ok = "yes" if med < 1.0 else "NO"
-        print(f"  {name:<32} median {med:.3f} ms  p99 {p99:.3f} ms  compile {comp:.2f} s  < 1 ms (1 kHz): {ok}")
+        print(
+            f"  {name:<32} median {med:.3f} ms  p99 {p99:.3f} ms  compile {comp:.2f} s  < 1 ms (1 kHz): {ok}"
+        )
 
 
 def vsofm_section(sizes, shape_names=("teardrop", "sphere")):
@@ -227,8 +256,10 @@ def vsofm_section(sizes, shape_names=("teardrop", "sphere")):
         pts = np.asarray(surf.blending(82, 82).points(surf.ctrl)).reshape(-1, 3)
         dense = np.asarray(surf.blending(246, 246).points(surf.ctrl)).reshape(-1, 3)
         print(f"-- {name}")
-        print(f"{'size':>5} {'first call s':>12} {'compiled s':>10} {'keys':>4} {'inverted (worst)':>16} "
-              f"{'min scaled J':>12} {'boundary→surface mean':>21} {'max':>8} | thesis s")
+        print(
+            f"{'size':>5} {'first call s':>12} {'compiled s':>10} {'keys':>4} {'inverted (worst)':>16} "
+            f"{'min scaled J':>12} {'boundary→surface mean':>21} {'max':>8} | thesis s"
+        )
         for n in sizes:
             t = time.perf_counter()
             nodes = vsofm.fit(pts, (n, n, n))
@@ -243,16 +274,22 @@ def vsofm_section(sizes, shape_names=("teardrop", "sphere")):
                 times.append(time.perf_counter() - t)
                 reps.append(vsofm.report(pts, nodes))
             inv = max(r.inverted for r in reps)
-            print(f"{n:>4}³ {first:>12.2f} {np.median(times):>10.3f} {len(reps):>4} {inv:>7}/{reps[0].n_elements:<8} "
-                  f"{min(r.min_scaled_jacobian for r in reps):>12.3f} {surface.boundary_mean:>21.1e} "
-                  f"{surface.boundary_max:>8.1e} | {THESIS_VSOFM_S.get(n, '–') if name == 'teardrop' else '–'}",
-                  flush=True)
-    print("(compiled s: median of the calls after the first, each with another key; targets 12³ < 0.35 s, "
-          "40³ < 30 s)")
+            print(
+                f"{n:>4}³ {first:>12.2f} {np.median(times):>10.3f} {len(reps):>4} {inv:>7}/{reps[0].n_elements:<8} "
+                f"{min(r.min_scaled_jacobian for r in reps):>12.3f} {surface.boundary_mean:>21.1e} "
+                f"{surface.boundary_max:>8.1e} | {THESIS_VSOFM_S.get(n, '–') if name == 'teardrop' else '–'}",
+                flush=True,
+            )
+    print(
+        "(compiled s: median of the calls after the first, each with another key; targets 12³ < 0.35 s, "
+        "40³ < 30 s)"
+    )
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes only")
     parser.add_argument("--calls", type=int, default=20)
     parser.add_argument("--only", choices=("lattice", "contact", "vsofm"), help="run one section")

@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _tensor
-from bsjax.basis import _float_dtype, direction_matrices
+from bsjax.basis import direction_matrices
 
 _ORDERS = 3  # basis, first and second derivative matrices are stored
 
@@ -61,12 +61,21 @@ class Blending(eqx.Module):
         a_u = _stack(surface.knots_u, surface.degree_u, surface.periodic_u, r, pu)
         a_v = _stack(surface.knots_v, surface.degree_v, surface.periodic_v, s, pv)
         return cls(
-            params_u=pu, params_v=pv, a_u=a_u, a_v=a_v,
-            refit_u=_pinv(a_u[0]), refit_v=_pinv(a_v[0]), weights=surface.weights,
-            knots_u=surface.knots_u, knots_v=surface.knots_v,
-            index_u=jnp.arange(len(pu)), index_v=jnp.arange(len(pv)),
-            degree_u=surface.degree_u, degree_v=surface.degree_v,
-            periodic_u=surface.periodic_u, periodic_v=surface.periodic_v,
+            params_u=pu,
+            params_v=pv,
+            a_u=a_u,
+            a_v=a_v,
+            refit_u=_pinv(a_u[0]),
+            refit_v=_pinv(a_v[0]),
+            weights=surface.weights,
+            knots_u=surface.knots_u,
+            knots_v=surface.knots_v,
+            index_u=jnp.arange(len(pu)),
+            index_v=jnp.arange(len(pv)),
+            degree_u=surface.degree_u,
+            degree_v=surface.degree_v,
+            periodic_u=surface.periodic_u,
+            periodic_v=surface.periodic_v,
         )
 
     # --- sizes -----------------------------------------------------------------------------
@@ -93,7 +102,9 @@ class Blending(eqx.Module):
         if self.weights is None:
             return _tensor.grid(self.a_u[nu], ctrl, self.a_v[nv])
         net = _tensor.homogeneous(ctrl, self.weights)
-        h = {(k, l): _tensor.grid(self.a_u[k], net, self.a_v[l]) for k in range(nu + 1) for l in range(nv + 1)}
+        h = {
+            (k, l): _tensor.grid(self.a_u[k], net, self.a_v[l]) for k in range(nu + 1) for l in range(nv + 1)
+        }
         return _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
 
     def tangents(self, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:
@@ -136,8 +147,11 @@ class Blending(eqx.Module):
         rows = np.nonzero((pu >= u_min) & (pu <= u_max))[0]
         cols = np.nonzero((pv >= v_min) & (pv <= v_max))[0]
         if rows.size == 0 or cols.size == 0:
-            _checks.fail("window", "a window containing at least one sample row and column",
-                         (u_min, u_max, v_min, v_max))
+            _checks.fail(
+                "window",
+                "a window containing at least one sample row and column",
+                (u_min, u_max, v_min, v_max),
+            )
         return self._take(rows, cols)
 
     def lod(self, q_u: int, q_v: int | None = None) -> "Blending":
@@ -151,20 +165,37 @@ class Blending(eqx.Module):
 
     def _take(self, rows, cols) -> "Blending":
         return Blending(
-            params_u=self.params_u[rows], params_v=self.params_v[cols],
-            a_u=self.a_u[:, rows], a_v=self.a_v[:, cols], refit_u=None, refit_v=None,
-            weights=self.weights, knots_u=self.knots_u, knots_v=self.knots_v,
-            index_u=self.index_u[rows], index_v=self.index_v[cols],
-            degree_u=self.degree_u, degree_v=self.degree_v,
-            periodic_u=self.periodic_u, periodic_v=self.periodic_v,
+            params_u=self.params_u[rows],
+            params_v=self.params_v[cols],
+            a_u=self.a_u[:, rows],
+            a_v=self.a_v[:, cols],
+            refit_u=None,
+            refit_v=None,
+            weights=self.weights,
+            knots_u=self.knots_u,
+            knots_v=self.knots_v,
+            index_u=self.index_u[rows],
+            index_v=self.index_v[cols],
+            degree_u=self.degree_u,
+            degree_v=self.degree_v,
+            periodic_u=self.periodic_u,
+            periodic_v=self.periodic_v,
         )
 
     def surface(self, ctrl: Float[Array, "r s 3"]):
         """The `BSplineSurface` of this basis with control net `ctrl`."""
         from bsjax._surface import BSplineSurface
 
-        return BSplineSurface(ctrl, self.knots_u, self.knots_v, self.degree_u, self.degree_v,
-                              self.periodic_u, self.periodic_v, self.weights)
+        return BSplineSurface(
+            ctrl,
+            self.knots_u,
+            self.knots_v,
+            self.degree_u,
+            self.degree_v,
+            self.periodic_u,
+            self.periodic_v,
+            self.weights,
+        )
 
     def _check_ctrl(self, ctrl) -> None:
         if np.shape(ctrl) != self.ctrl_shape + (3,):

@@ -95,8 +95,16 @@ def _rebase(surface, direction, new_knots, new_degree):
     knots[direction] = jnp.asarray(new_knots, dtype=dtype)
     degrees = {"u": surface.degree_u, "v": surface.degree_v}
     degrees[direction] = new_degree
-    result = BSplineSurface(ctrl, knots["u"], knots["v"], degrees["u"], degrees["v"],
-                            surface.periodic_u, surface.periodic_v, weights)
+    result = BSplineSurface(
+        ctrl,
+        knots["u"],
+        knots["v"],
+        degrees["u"],
+        degrees["v"],
+        surface.periodic_u,
+        surface.periodic_v,
+        weights,
+    )
     return result, _max_distance(surface, result)
 
 

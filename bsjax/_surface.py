@@ -118,8 +118,14 @@ class BSplineSurface(eqx.Module):
         if np.shape(ctrl) != self.ctrl.shape:
             _checks.fail("ctrl", f"shape {self.ctrl.shape}", np.shape(ctrl))
         return BSplineSurface(
-            ctrl, self.knots_u, self.knots_v, self.degree_u, self.degree_v,
-            self.periodic_u, self.periodic_v, self.weights,
+            ctrl,
+            self.knots_u,
+            self.knots_v,
+            self.degree_u,
+            self.degree_v,
+            self.periodic_u,
+            self.periodic_v,
+            self.weights,
         )
 
 

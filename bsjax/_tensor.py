@@ -77,7 +77,5 @@ def unit_normal(t_u, t_v, t_uv, u, v):
     pole_in_v = jnp.sum(t_v * t_v, -1) <= jnp.sum(t_u * t_u, -1)
     sign_u = jnp.where(u < 0.5, 1.0, -1.0)[..., None]
     sign_v = jnp.where(v < 0.5, 1.0, -1.0)[..., None]
-    limit = jnp.where(
-        pole_in_v[..., None], sign_u * jnp.cross(t_u, t_uv), sign_v * jnp.cross(t_uv, t_v)
-    )
+    limit = jnp.where(pole_in_v[..., None], sign_u * jnp.cross(t_u, t_uv), sign_v * jnp.cross(t_uv, t_v))
     return unit(jnp.where(degenerate[..., None], limit, n))

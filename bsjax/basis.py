@@ -21,13 +21,13 @@ from jaxtyping import Array, ArrayLike, Float
 from bsjax import _checks
 
 __all__ = [
-    "clamped_knots",
-    "periodic_knots",
     "basis_functions",
     "blending_matrix",
-    "periodic_blending_matrix",
+    "clamped_knots",
     "direction_matrix",
     "greville",
+    "periodic_blending_matrix",
+    "periodic_knots",
 ]
 
 
@@ -166,7 +166,9 @@ def _periodic_rows(n_ctrl, degree, params, orders):
     dtype = _float_dtype(params)
     knots = periodic_knots(n_ctrl, degree, dtype=dtype)
     params = jnp.asarray(params, dtype=dtype)
-    return jax.vmap(fold_periodic, in_axes=(0, None))(_rows(knots, degree, params - jnp.floor(params), orders), n_ctrl)
+    return jax.vmap(fold_periodic, in_axes=(0, None))(
+        _rows(knots, degree, params - jnp.floor(params), orders), n_ctrl
+    )
 
 
 def fold_periodic(unwrapped: Float[Array, "m n_plus_k"], n_ctrl: int) -> Float[Array, "m n_ctrl"]:
@@ -208,8 +210,8 @@ def _check_nu(nu: int, name: str = "nu") -> None:
 
 # The surface and blending objects live in their own files; re-exported here so that
 # `bsjax.basis.BSplineSurface` is where a reader looks for it.
-from bsjax._surface import BSplineSurface  # noqa: E402
 from bsjax._blending import Blending  # noqa: E402
 from bsjax._refine import elevate_degree, insert_knots, reduce_degree  # noqa: E402
+from bsjax._surface import BSplineSurface  # noqa: E402
 
-__all__ += ["BSplineSurface", "Blending", "insert_knots", "elevate_degree", "reduce_degree"]
+__all__ += ["BSplineSurface", "Blending", "elevate_degree", "insert_knots", "reduce_degree"]

@@ -19,7 +19,9 @@ import sys
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="bsjax collide", description="collision query of a surface file against a tool")
+    p = argparse.ArgumentParser(
+        prog="bsjax collide", description="collision query of a surface file against a tool"
+    )
     p.add_argument("surface", help="surface file (.json, .3dm; see bsjax.io)")
     tool = p.add_mutually_exclusive_group(required=True)
     tool.add_argument("--sphere", nargs=4, type=float, metavar=("X", "Y", "Z", "R"))
@@ -61,20 +63,32 @@ def run(args) -> dict:
         b2 = other.blending(*args.samples)
         res = collide.surface_contacts(blending, surface.ctrl, b2, other.ctrl, capacity=args.capacity)
         return {
-            "surface": args.surface, "other": args.other, "samples": list(args.samples),
-            "hit": bool(res.hit), "samples_in_contact_a": int(res.mask_a.sum()),
-            "samples_in_contact_b": int(res.mask_b.sum()), "contact_cell_pairs": int(res.pair_hit.sum()),
-            "overflow": bool(res.overflow), "hulls_apart": bool(res.apart),
+            "surface": args.surface,
+            "other": args.other,
+            "samples": list(args.samples),
+            "hit": bool(res.hit),
+            "samples_in_contact_a": int(res.mask_a.sum()),
+            "samples_in_contact_b": int(res.mask_b.sum()),
+            "contact_cell_pairs": int(res.pair_hit.sum()),
+            "overflow": bool(res.overflow),
+            "hulls_apart": bool(res.apart),
         }
     c = collide.contacts(blending, surface.ctrl, _tool(args))
     report = {
-        "surface": args.surface, "samples": list(args.samples), "hit": bool(c.hit),
-        "samples_in_contact": int(c.mask.sum()), "window_uv": [float(x) for x in np.asarray(c.window)],
-        "max_depth": float(c.depth.max()), "total_depth": float(c.depth.sum()), "hulls_apart": bool(c.apart),
+        "surface": args.surface,
+        "samples": list(args.samples),
+        "hit": bool(c.hit),
+        "samples_in_contact": int(c.mask.sum()),
+        "window_uv": [float(x) for x in np.asarray(c.window)],
+        "max_depth": float(c.depth.max()),
+        "total_depth": float(c.depth.sum()),
+        "hulls_apart": bool(c.apart),
         "stiffness": args.stiffness,
     }
     for method in collide.force.METHODS:
-        report[f"force_{method}"] = [float(x) for x in np.asarray(collide.contact_force(c, args.stiffness, method))]
+        report[f"force_{method}"] = [
+            float(x) for x in np.asarray(collide.contact_force(c, args.stiffness, method))
+        ]
     return report
 
 

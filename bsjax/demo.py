@@ -44,7 +44,11 @@ def shapes_step(out: Path, report: dict) -> dict:
     """Blending matrices, points, normals and refit of the teardrop, spoon bowl and spoon handle."""
     from bsjax import io, plot, shapes
 
-    named = {"teardrop": shapes.teardrop(), "spoon_bowl": shapes.spoon_bowl(), "spoon_handle": shapes.spoon_handle()}
+    named = {
+        "teardrop": shapes.teardrop(),
+        "spoon_bowl": shapes.spoon_bowl(),
+        "spoon_handle": shapes.spoon_handle(),
+    }
     fig, axes = plot.figure(len(named))
     rows = {}
     for ax, (name, surface) in zip(axes, named.items()):
@@ -55,16 +59,24 @@ def shapes_step(out: Path, report: dict) -> dict:
         normals = jax.jit(lambda c, b=blending: b.normals(c))(surface.ctrl)
         refit_error = float(np.abs(np.asarray(blending.refit(points)) - np.asarray(surface.ctrl)).max())
         rows[name] = {
-            "control_net": list(surface.shape), "degrees": [surface.degree_u, surface.degree_v],
-            "periodic": [surface.periodic_u, surface.periodic_v], "samples": [SAMPLES, SAMPLES],
-            "blending_build_ms": 1e3 * build, "points_first_call_ms": 1e3 * first,
-            "points_steady_us": 1e6 * steady, "refit_max_error": refit_error,
+            "control_net": list(surface.shape),
+            "degrees": [surface.degree_u, surface.degree_v],
+            "periodic": [surface.periodic_u, surface.periodic_v],
+            "samples": [SAMPLES, SAMPLES],
+            "blending_build_ms": 1e3 * build,
+            "points_first_call_ms": 1e3 * first,
+            "points_steady_us": 1e6 * steady,
+            "refit_max_error": refit_error,
             "normals_finite": bool(np.isfinite(np.asarray(normals)).all()),
             "extent": np.ptp(np.asarray(points).reshape(-1, 3), axis=0).tolist(),
         }
-        plot.draw_surface(ax, points, surface.ctrl, values=np.asarray(normals)[..., 2], title=f"{name} {surface.shape}")
+        plot.draw_surface(
+            ax, points, surface.ctrl, values=np.asarray(normals)[..., 2], title=f"{name} {surface.shape}"
+        )
         io.save(surface, out / f"{name}.json")
-        print(f"  {name:<13} net {surface.shape}  points {1e6 * steady:7.1f} µs  refit error {refit_error:.1e}")
+        print(
+            f"  {name:<13} net {surface.shape}  points {1e6 * steady:7.1f} µs  refit error {refit_error:.1e}"
+        )
     plot.save(fig, out / "shapes.png")
     io.save(list(named.values()), out / "shapes.3dm")
     io.save(list(named.values()), out / "shapes.glb")
@@ -79,18 +91,27 @@ def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
     t0 = time.perf_counter()
     bent, info = spoon.bend_handle(handle, steps=sizes["bend_steps"], relax_steps=sizes["relax_steps"])
     info["seconds"] = time.perf_counter() - t0
-    print(f"  handle: {info['lattice_nodes']} nodes, {info['springs']} springs, {info['fixed_nodes']} clamped; "
-          f"neck lifted {1e3 * info['neck_lift_m']:.1f} mm ({info['seconds']:.1f} s)")
+    print(
+        f"  handle: {info['lattice_nodes']} nodes, {info['springs']} springs, {info['fixed_nodes']} clamped; "
+        f"neck lifted {1e3 * info['neck_lift_m']:.1f} mm ({info['seconds']:.1f} s)"
+    )
     placed = spoon.attach_bowl(bent, bowl)
     t0 = time.perf_counter()
     merged = merge.merge([bent, placed], direction="u", continuity=1)
     merge_s = time.perf_counter() - t0
     dev = merge.deviation([bent, placed], merged, samples=41, tolerance=5e-4)
-    print(f"  merged handle + bowl → one {merged.shape} patch (C¹ seam) in {1e3 * merge_s:.0f} ms; "
-          f"deviation mean {1e3 * dev.mean:.3f} mm, max {1e3 * dev.max:.3f} mm over {dev.n_points} points")
+    print(
+        f"  merged handle + bowl → one {merged.shape} patch (C¹ seam) in {1e3 * merge_s:.0f} ms; "
+        f"deviation mean {1e3 * dev.mean:.3f} mm, max {1e3 * dev.max:.3f} mm over {dev.n_points} points"
+    )
     report["bend"] = info
-    report["merge"] = {"control_net": list(merged.shape), "continuity": 1, "seconds": merge_s, **dev.row(),
-                       "tolerance_m": dev.tolerance}
+    report["merge"] = {
+        "control_net": list(merged.shape),
+        "continuity": 1,
+        "seconds": merge_s,
+        **dev.row(),
+        "tolerance_m": dev.tolerance,
+    }
     return bent, placed, merged, dev
 
 
@@ -99,7 +120,9 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     from bsjax import mss, shapes, spoon, vsofm
 
     rot, origin = spoon.bowl_frame(bent, bowl)
-    patch = merged.blending(params_u=np.linspace(0.5, 1.0, 160), params_v=np.linspace(0.0, 1.0, 80), m=160, n=80)
+    patch = merged.blending(
+        params_u=np.linspace(0.5, 1.0, 160), params_v=np.linspace(0.0, 1.0, 80), m=160, n=80
+    )
     local = (patch.points(merged.ctrl) - origin) @ rot  # world → bowl frame
     hm = spoon.height_map(local, (-0.01, -0.035), (0.075, 0.035))
     ball = shapes.sphere(radius=0.007)
@@ -113,8 +136,10 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     lattice = vsofm.lattice(nodes, material=mss.JELLY, node_damping=5e-6)
     dt = 0.9 * float(mss.stable_dt(lattice, 2.0))
     steps = max(int(sizes["seconds"] / dt) // 50, 1) * 50
-    print(f"  jelly: {shape[0]}³ VSOFM lattice in {vs_s:.2f} s ({quality.inverted} inverted hexahedra); "
-          f"{lattice.n_edges} springs; {steps} steps of {1e3 * dt:.3f} ms")
+    print(
+        f"  jelly: {shape[0]}³ VSOFM lattice in {vs_s:.2f} s ({quality.inverted} inverted hexahedra); "
+        f"{lattice.n_edges} springs; {steps} steps of {1e3 * dt:.3f} ms"
+    )
     throw = (0.0, -0.45, 0.0)  # thrown sideways: untilted, it flies over the far rim
 
     def outcome(tilt):
@@ -127,24 +152,41 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
         sp, risk, pos = run(jnp.deg2rad(deg))
         rows.append({"tilt_deg": deg, "spill_fraction": float(sp), "spill_risk": float(risk)})
         finals[deg] = np.asarray(pos)
-        print(f"  tilt {deg:4.1f}°: spilled {100 * float(sp):5.1f} % of the jelly, spill risk {float(risk):.4f}")
+        print(
+            f"  tilt {deg:4.1f}°: spilled {100 * float(sp):5.1f} % of the jelly, spill risk {float(risk):.4f}"
+        )
     risk_grad = jax.jit(jax.value_and_grad(lambda t: outcome(t)[1]))
     tilt, history = jnp.asarray(0.0), []
     max_step = np.deg2rad(4.0)  # the landscape is steep where the jelly starts to spill: clip steps
     print("  jax.grad through the drop: gradient descent on the tilt …")
     for k in range(sizes["opt_steps"]):
         value, g = risk_grad(tilt)
-        history.append({"tilt_deg": float(jnp.rad2deg(tilt)), "spill_risk": float(value), "d_risk_d_tilt": float(g)})
-        print(f"    step {k}: tilt {history[-1]['tilt_deg']:6.2f}°  risk {float(value):.4f}  d/dθ {float(g):+.4f}")
+        history.append(
+            {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_risk": float(value), "d_risk_d_tilt": float(g)}
+        )
+        print(
+            f"    step {k}: tilt {history[-1]['tilt_deg']:6.2f}°  risk {float(value):.4f}  d/dθ {float(g):+.4f}"
+        )
         tilt = tilt - jnp.clip(0.5 * g, -max_step, max_step)
     tilt = jnp.deg2rad(min(history, key=lambda h: h["spill_risk"])["tilt_deg"])  # best visited
     sp, risk, pos = run(tilt)
     best = {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_fraction": float(sp), "spill_risk": float(risk)}
     finals[best["tilt_deg"]] = np.asarray(pos)
-    print(f"  best tilt {best['tilt_deg']:.2f}°: spilled {100 * best['spill_fraction']:.1f} %, risk {best['spill_risk']:.4f}")
-    report["jelly"] = {"lattice": list(shape), "vsofm_seconds": vs_s, "inverted_hexahedra": quality.inverted,
-                       "min_scaled_jacobian": quality.min_scaled_jacobian, "dt": dt, "steps": steps,
-                       "throw_velocity": list(throw), "tilts": rows, "optimisation": history, "best": best}
+    print(
+        f"  best tilt {best['tilt_deg']:.2f}°: spilled {100 * best['spill_fraction']:.1f} %, risk {best['spill_risk']:.4f}"
+    )
+    report["jelly"] = {
+        "lattice": list(shape),
+        "vsofm_seconds": vs_s,
+        "inverted_hexahedra": quality.inverted,
+        "min_scaled_jacobian": quality.min_scaled_jacobian,
+        "dt": dt,
+        "steps": steps,
+        "throw_velocity": list(throw),
+        "tilts": rows,
+        "optimisation": history,
+        "best": best,
+    }
     return hm, finals
 
 
@@ -160,8 +202,12 @@ def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
     grid = merged.blending(82, 82)
     plot.draw_surface(axes[1], grid.points(merged.ctrl), None, title=f"merged {merged.shape}, C¹ seam")
     ax = axes[2]
-    x = np.asarray(jnp.linspace(hm.origin[0], hm.origin[0] + hm.spacing[0] * (hm.z.shape[0] - 1), hm.z.shape[0]))
-    y = np.asarray(jnp.linspace(hm.origin[1], hm.origin[1] + hm.spacing[1] * (hm.z.shape[1] - 1), hm.z.shape[1]))
+    x = np.asarray(
+        jnp.linspace(hm.origin[0], hm.origin[0] + hm.spacing[0] * (hm.z.shape[0] - 1), hm.z.shape[0])
+    )
+    y = np.asarray(
+        jnp.linspace(hm.origin[1], hm.origin[1] + hm.spacing[1] * (hm.z.shape[1] - 1), hm.z.shape[1])
+    )
     X, Y = np.meshgrid(x, y, indexing="ij")
     Z = np.where(np.asarray(hm.mask) > 0, np.asarray(hm.z), np.nan)
     ax.plot_surface(X, Y, Z, color="#cccccc", alpha=0.5, linewidth=0)
@@ -184,7 +230,9 @@ def run(out: Path, quick: bool = False) -> dict:
     print(f"[1/4] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
     named = shapes_step(out, report)
     print("[2/4] bend the spoon handle (plasticine lattice, plane clamp, sphere push) and merge the bowl …")
-    bent, placed, merged, dev = bend_and_merge_step(out, report, named["spoon_handle"], named["spoon_bowl"], sizes)
+    bent, placed, merged, dev = bend_and_merge_step(
+        out, report, named["spoon_handle"], named["spoon_bowl"], sizes
+    )
     from bsjax import io
 
     io.save([bent, placed, merged], out / "spoon.3dm")

@@ -19,7 +19,7 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineSurface, periodic_knots
 
-__all__ = ["save", "load", "load_all", "to_dict", "from_dict", "tessellate", "MESH_FORMATS"]
+__all__ = ["MESH_FORMATS", "from_dict", "load", "load_all", "save", "tessellate", "to_dict"]
 
 MESH_FORMATS = (".obj", ".stl", ".ply", ".glb")
 _FORMAT = "bsjax.surface"
@@ -28,22 +28,33 @@ _FORMAT = "bsjax.surface"
 # --- JSON ---------------------------------------------------------------------------------
 def to_dict(surface: BSplineSurface) -> dict:
     """A JSON-ready dict holding every field of `surface` exactly (floats round-trip by repr)."""
+
     def listed(x):
         return None if x is None else np.asarray(x).tolist()
 
     return {
-        "format": _FORMAT, "version": 1, "dtype": str(surface.ctrl.dtype),
-        "degree_u": surface.degree_u, "degree_v": surface.degree_v,
-        "periodic_u": surface.periodic_u, "periodic_v": surface.periodic_v,
-        "knots_u": listed(surface.knots_u), "knots_v": listed(surface.knots_v),
-        "ctrl": listed(surface.ctrl), "weights": listed(surface.weights),
+        "format": _FORMAT,
+        "version": 1,
+        "dtype": str(surface.ctrl.dtype),
+        "degree_u": surface.degree_u,
+        "degree_v": surface.degree_v,
+        "periodic_u": surface.periodic_u,
+        "periodic_v": surface.periodic_v,
+        "knots_u": listed(surface.knots_u),
+        "knots_v": listed(surface.knots_v),
+        "ctrl": listed(surface.ctrl),
+        "weights": listed(surface.weights),
     }
 
 
 def from_dict(data: dict, source: str = "data") -> BSplineSurface:
     """Inverse of `to_dict`; errors name `source` and the field at fault."""
     if not isinstance(data, dict) or data.get("format") != _FORMAT:
-        _checks.fail(source, f"a JSON object with format {_FORMAT!r}", type(data).__name__ if not isinstance(data, dict) else data.get("format"))
+        _checks.fail(
+            source,
+            f"a JSON object with format {_FORMAT!r}",
+            type(data).__name__ if not isinstance(data, dict) else data.get("format"),
+        )
     missing = [k for k in ("degree_u", "degree_v", "ctrl", "knots_u", "knots_v") if k not in data]
     if missing:
         _checks.fail(source, "the fields degree_u, degree_v, ctrl, knots_u, knots_v", f"missing {missing}")
@@ -54,8 +65,14 @@ def from_dict(data: dict, source: str = "data") -> BSplineSurface:
 
     try:
         return BSplineSurface(
-            arr("ctrl"), arr("knots_u"), arr("knots_v"), int(data["degree_u"]), int(data["degree_v"]),
-            bool(data.get("periodic_u", False)), bool(data.get("periodic_v", False)), arr("weights"),
+            arr("ctrl"),
+            arr("knots_u"),
+            arr("knots_v"),
+            int(data["degree_u"]),
+            int(data["degree_v"]),
+            bool(data.get("periodic_u", False)),
+            bool(data.get("periodic_v", False)),
+            arr("weights"),
         )
     except (ValueError, TypeError) as err:
         raise ValueError(f"{source}: {err}") from err
@@ -78,8 +95,9 @@ def _to_rhino(surface: BSplineSurface):
             full = np.asarray(getattr(surface, f"knots_{d}"), dtype=np.float64)
         knots.append(full[1:-1])  # Rhino omits the two superfluous end knots
     r, s = ctrl.shape[:2]
-    srf = rhino3dm.NurbsSurface.Create(3, surface.weights is not None, surface.degree_u + 1,
-                                       surface.degree_v + 1, r, s)
+    srf = rhino3dm.NurbsSurface.Create(
+        3, surface.weights is not None, surface.degree_u + 1, surface.degree_v + 1, r, s
+    )
     for i, k in enumerate(knots[0]):
         srf.KnotsU[i] = float(k)
     for j, k in enumerate(knots[1]):
@@ -99,11 +117,14 @@ def _from_rhino(srf, source: str) -> BSplineSurface:
     knots, periodic = {}, {}
     degrees = {"u": srf.OrderU - 1, "v": srf.OrderV - 1}
     for axis, d in enumerate("uv"):
-        inner = np.array(list((srf.KnotsU if d == "u" else srf.KnotsV)), dtype=np.float64)
-        ctrl, w, knots[d], periodic[d] = _direction_from_rhino(ctrl, w, inner, degrees[d], axis, f"{source} ({d})")
+        inner = np.array(list(srf.KnotsU if d == "u" else srf.KnotsV), dtype=np.float64)
+        ctrl, w, knots[d], periodic[d] = _direction_from_rhino(
+            ctrl, w, inner, degrees[d], axis, f"{source} ({d})"
+        )
     weights = None if np.allclose(w, 1.0, rtol=0, atol=0) else w
-    return BSplineSurface(ctrl, knots["u"], knots["v"], degrees["u"], degrees["v"],
-                          periodic["u"], periodic["v"], weights)
+    return BSplineSurface(
+        ctrl, knots["u"], knots["v"], degrees["u"], degrees["v"], periodic["u"], periodic["v"], weights
+    )
 
 
 def _direction_from_rhino(ctrl, w, inner, degree, axis, source):
@@ -116,7 +137,9 @@ def _direction_from_rhino(ctrl, w, inner, degree, axis, source):
     head, tail = np.take(ctrl, range(degree), axis=axis), np.take(ctrl, range(n, n + degree), axis=axis)
     uniform = np.allclose(np.diff(inner), np.diff(inner)[0], rtol=1e-9, atol=0)
     if not (uniform and n > degree and np.allclose(head, tail, rtol=0, atol=1e-12)):
-        _checks.fail(source, "clamped knots, or a uniform periodic surface", f"unclamped knots {inner.tolist()}")
+        _checks.fail(
+            source, "clamped knots, or a uniform periodic surface", f"unclamped knots {inner.tolist()}"
+        )
     keep = range(n)
     return np.take(ctrl, keep, axis=axis), np.take(w, keep, axis=axis), None, True
 
@@ -183,7 +206,11 @@ def save(surfaces, path, m: int = 82, n: int = 82) -> Path:
         _checks.fail("surfaces", "a BSplineSurface or a non-empty list of them", type(surfaces).__name__)
     ext = path.suffix.lower()
     if ext == ".json":
-        data = to_dict(items[0]) if len(items) == 1 else {"format": _FORMAT + "s", "surfaces": [to_dict(s) for s in items]}
+        data = (
+            to_dict(items[0])
+            if len(items) == 1
+            else {"format": _FORMAT + "s", "surfaces": [to_dict(s) for s in items]}
+        )
         path.write_text(json.dumps(data))
     elif ext == ".3dm":
         _save_3dm(items, path)
@@ -218,7 +245,9 @@ def load(path) -> BSplineSurface:
     """The single surface in a `.json` or `.3dm` file (use `load_all` for several)."""
     surfaces = load_all(path)
     if len(surfaces) != 1:
-        _checks.fail(str(path), "exactly one surface (use bsjax.io.load_all for several)", f"{len(surfaces)} surfaces")
+        _checks.fail(
+            str(path), "exactly one surface (use bsjax.io.load_all for several)", f"{len(surfaces)} surfaces"
+        )
     return surfaces[0]
 
 

@@ -20,20 +20,32 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="bsjax merge", description="Merge B-spline patches into one surface.")
     p.add_argument("inputs", nargs="+", help="surface files (.json, .3dm), patches in merge order")
     p.add_argument("-o", "--output", required=True, help="output file (.json, .3dm, .obj, .stl, .ply, .glb)")
-    p.add_argument("--direction", choices=("u", "v"), default="u", help="merge direction for a row of patches")
+    p.add_argument(
+        "--direction", choices=("u", "v"), default="u", help="merge direction for a row of patches"
+    )
     p.add_argument("--grid", default=None, metavar="RxC", help="merge R rows of C patches (row-major order)")
     p.add_argument("--continuity", type=int, default=2, help="C^c at the seams, 0 <= c < degree (default 2)")
     p.add_argument("--samples", type=int, default=82, help="samples per patch and direction (default 82)")
     p.add_argument("--cross-knots", choices=("average", "uniform"), default="average")
-    p.add_argument("--degrees", choices=("elevate", "reduce"), default=None,
-                   help="bring patches of different degrees together")
+    p.add_argument(
+        "--degrees",
+        choices=("elevate", "reduce"),
+        default=None,
+        help="bring patches of different degrees together",
+    )
     p.add_argument("--orient", choices=("auto", "as_given"), default="auto")
-    p.add_argument("--overlap", choices=("keep", "drop"), default="keep",
-                   help="drop the sample rows where patches intersect")
+    p.add_argument(
+        "--overlap",
+        choices=("keep", "drop"),
+        default="keep",
+        help="drop the sample rows where patches intersect",
+    )
     p.add_argument("--refine", action="store_true", help="nonlinear refit with parameter correction")
     p.add_argument("--report", action="store_true", help="print the deviation from the inputs (JSON)")
     p.add_argument("--tolerance", type=float, default=0.1, help="'close point' distance for --report")
-    p.add_argument("--report-samples", type=int, default=101, help="samples per patch and direction for --report")
+    p.add_argument(
+        "--report-samples", type=int, default=101, help="samples per patch and direction for --report"
+    )
     p.add_argument("--float32", action="store_true", help="work in float32 (default float64)")
     return p
 
@@ -62,13 +74,26 @@ def main(argv: list[str] | None = None) -> int:
         if args.grid:
             r, c = _grid_shape(args.grid, len(patches))
             rows = [patches[i * c : (i + 1) * c] for i in range(r)]
-            layout = mg.plan_grid(rows, args.continuity, samples=args.samples, degrees=args.degrees,
-                                  orient=args.orient, overlap=args.overlap)
+            layout = mg.plan_grid(
+                rows,
+                args.continuity,
+                samples=args.samples,
+                degrees=args.degrees,
+                orient=args.orient,
+                overlap=args.overlap,
+            )
             ctrls = [[s.ctrl for s in row] for row in rows]
         else:
-            layout = mg.plan(patches, args.direction, args.continuity, samples=args.samples,
-                             cross_knots=args.cross_knots, degrees=args.degrees, orient=args.orient,
-                             overlap=args.overlap)
+            layout = mg.plan(
+                patches,
+                args.direction,
+                args.continuity,
+                samples=args.samples,
+                cross_knots=args.cross_knots,
+                degrees=args.degrees,
+                orient=args.orient,
+                overlap=args.overlap,
+            )
             ctrls = [s.ctrl for s in patches]
         merged = layout.surface(mg.refine(layout, ctrls) if args.refine else layout.apply(ctrls))
     except (ValueError, TypeError) as err:
@@ -76,8 +101,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     io.save(merged, args.output)
     r, s = merged.shape
-    print(f"bsjax merge: {len(patches)} patches → {r}×{s} control points, degree "
-          f"{merged.degree_u}×{merged.degree_v}, written to {args.output}", file=sys.stderr)
+    print(
+        f"bsjax merge: {len(patches)} patches → {r}×{s} control points, degree "
+        f"{merged.degree_u}×{merged.degree_v}, written to {args.output}",
+        file=sys.stderr,
+    )
     if args.report:
         report = mg.deviation(patches, merged, samples=args.report_samples, tolerance=args.tolerance)
         extra = {"tolerance": report.tolerance}

@@ -27,8 +27,12 @@ def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str 
         v = np.asarray(values, dtype=np.float64)
         span = np.ptp(v) or 1.0
         colors = matplotlib.colormaps[cmap]((v - v.min()) / span)
-    style = {"facecolors": colors, "shade": False} if colors is not None else {"color": "#8fb3d9", "shade": True}
-    ax.plot_surface(p[..., 0], p[..., 1], p[..., 2], rstride=1, cstride=1, linewidth=0, antialiased=False, **style)
+    style = (
+        {"facecolors": colors, "shade": False} if colors is not None else {"color": "#8fb3d9", "shade": True}
+    )
+    ax.plot_surface(
+        p[..., 0], p[..., 1], p[..., 2], rstride=1, cstride=1, linewidth=0, antialiased=False, **style
+    )
     if ctrl is not None:
         c = np.asarray(ctrl)
         ax.plot_wireframe(c[..., 0], c[..., 1], c[..., 2], color="#c0392b", linewidth=0.6)

@@ -9,6 +9,7 @@ import numpy as np
 
 from bsjax.basis import BSplineSurface, clamped_knots
 
+
 # Radius gain of a uniform periodic cubic: on a regular N-gon of radius R the curve passes at
 # R (2/3 + cos(2π/N)/3) at the knots; dividing by it puts the curve close to the circle.
 def _ring_gain(n: int) -> float:
@@ -22,7 +23,9 @@ def _revolve(profile: np.ndarray, n_around: int, dtype=None) -> BSplineSurface:
     z = np.repeat(profile[:, 1:], n_around, axis=1)
     ctrl = np.stack([rho * np.cos(theta), rho * np.sin(theta), z], axis=-1)
     r = len(profile)
-    return BSplineSurface(ctrl.astype(dtype or np.float64), clamped_knots(r, 3, dtype), None, 3, 3, periodic_v=True)
+    return BSplineSurface(
+        ctrl.astype(dtype or np.float64), clamped_knots(r, 3, dtype), None, 3, 3, periodic_v=True
+    )
 
 
 def teardrop(dtype=None) -> BSplineSurface:
@@ -31,8 +34,16 @@ def teardrop(dtype=None) -> BSplineSurface:
     Height 2 (z from −1 to 1), pointed at the top (u = 0), round at the bottom (u = 1).
     """
     profile = np.array(
-        [[0.0, 1.0], [0.12, 0.8], [0.38, 0.45], [0.62, 0.0],
-         [0.7, -0.45], [0.52, -0.85], [0.2, -1.0], [0.0, -1.0]]
+        [
+            [0.0, 1.0],
+            [0.12, 0.8],
+            [0.38, 0.45],
+            [0.62, 0.0],
+            [0.7, -0.45],
+            [0.52, -0.85],
+            [0.2, -1.0],
+            [0.0, -1.0],
+        ]
     )
     return _revolve(profile, 8, dtype)
 
@@ -50,7 +61,9 @@ def plate(r: int = 8, s: int = 8, size: float = 1.0, degree: int = 3, dtype=None
     """A flat square plate `[0, size]²` at z = 0 (normal +z), `r × s` control points."""
     x, y = np.meshgrid(np.linspace(0, size, r), np.linspace(0, size, s), indexing="ij")
     ctrl = np.stack([x, y, np.zeros_like(x)], axis=-1).astype(dtype or np.float64)
-    return BSplineSurface(ctrl, clamped_knots(r, degree, dtype), clamped_knots(s, degree, dtype), degree, degree)
+    return BSplineSurface(
+        ctrl, clamped_knots(r, degree, dtype), clamped_knots(s, degree, dtype), degree, degree
+    )
 
 
 def spoon_handle(dtype=None) -> BSplineSurface:

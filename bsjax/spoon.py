@@ -36,9 +36,17 @@ class _Ball(eqx.Module):
 
 
 # --- 1. bending the handle -------------------------------------------------------------------
-def bend_handle(handle: BSplineSurface, push: float = 0.012, clamp_x: float = -0.085,
-                samples: tuple[int, int] = (25, 8), dt: float = 1e-3, steps: int = 200,
-                yield_strain: float = 0.01, node_damping: float = 3e-3, relax_steps: int = 3000):
+def bend_handle(
+    handle: BSplineSurface,
+    push: float = 0.012,
+    clamp_x: float = -0.085,
+    samples: tuple[int, int] = (25, 8),
+    dt: float = 1e-3,
+    steps: int = 200,
+    yield_strain: float = 0.01,
+    node_damping: float = 3e-3,
+    relax_steps: int = 3000,
+):
     """Bend the handle plastically: nodes behind the plane `x = clamp_x` are fixed (the clamp),
     a 6 mm sphere rises `push` metres under the handle near the neck; then the lattice relaxes
     to rest and the control net is refit from the nodes.
@@ -51,20 +59,45 @@ def bend_handle(handle: BSplineSurface, push: float = 0.012, clamp_x: float = -0
     edges = mss.grid_edges(np.arange(m * n).reshape(m, n))
     volume = 0.12 * 0.012 * 0.003  # a 3 mm plasticine strip
     # ground damping (N·s/m per node) settles the strip's slow bending mode after the push
-    lattice = mss.from_material(nodes, edges, mss.PLASTICINE, volume, fixed=nodes[:, 0] < clamp_x,
-                                node_damping=node_damping)
+    lattice = mss.from_material(
+        nodes, edges, mss.PLASTICINE, volume, fixed=nodes[:, 0] < clamp_x, node_damping=node_damping
+    )
     lift = jnp.minimum(jnp.linspace(0.0, 1.5, steps), 1.0)[:, None]
     start = jnp.array([-0.03, 0.0, -0.0065], dtype=nodes.dtype)
-    path = _Ball(center=start + lift * jnp.array([0.0, 0.0, push], dtype=nodes.dtype),
-                 radius=jnp.full((steps,), 0.006, dtype=nodes.dtype))
-    plastic, state = mss.simulate_plastic(lattice, mss.init(lattice), dt, steps, mss.Plasticity(yield_strain),
-                                          tool_path=[path], contact=mss.Contact(5e3, 1.0), method="implicit")
-    rest, taken, converged = mss.relax(plastic, mss.State(state.position, jnp.zeros_like(state.velocity)), dt,
-                                       method="implicit", tol=1e-10, max_steps=relax_steps)
+    path = _Ball(
+        center=start + lift * jnp.array([0.0, 0.0, push], dtype=nodes.dtype),
+        radius=jnp.full((steps,), 0.006, dtype=nodes.dtype),
+    )
+    plastic, state = mss.simulate_plastic(
+        lattice,
+        mss.init(lattice),
+        dt,
+        steps,
+        mss.Plasticity(yield_strain),
+        tool_path=[path],
+        contact=mss.Contact(5e3, 1.0),
+        method="implicit",
+    )
+    rest, taken, converged = mss.relax(
+        plastic,
+        mss.State(state.position, jnp.zeros_like(state.velocity)),
+        dt,
+        method="implicit",
+        tol=1e-10,
+        max_steps=relax_steps,
+    )
     ctrl = blending.refit(rest.position.reshape(m, n, 3))
     lift_neck = float(jnp.mean(rest.position.reshape(m, n, 3)[-1, :, 2] - nodes.reshape(m, n, 3)[-1, :, 2]))
-    info = {"lattice_nodes": m * n, "springs": int(edges.shape[0]), "steps": steps, "dt": dt,
-            "neck_lift_m": lift_neck, "relaxed": bool(converged), "relax_steps": int(taken), "fixed_nodes": int(np.sum(np.asarray(nodes[:, 0]) < clamp_x))}
+    info = {
+        "lattice_nodes": m * n,
+        "springs": int(edges.shape[0]),
+        "steps": steps,
+        "dt": dt,
+        "neck_lift_m": lift_neck,
+        "relaxed": bool(converged),
+        "relax_steps": int(taken),
+        "fixed_nodes": int(np.sum(np.asarray(nodes[:, 0]) < clamp_x)),
+    }
     return handle.with_ctrl(ctrl), info
 
 
@@ -117,10 +150,19 @@ def height_map(points: np.ndarray, lo, hi, cells: tuple[int, int] = (160, 100)) 
     z = np.where(mask > 0, z, np.nanmin(z) - 0.05)  # outside: far below, and masked out anyway
     spacing = np.array([gx[1] - gx[0], gy[1] - gy[0]])
     dzdx, dzdy = np.gradient(z, *spacing)
-    margin = distance_transform_edt(inside, sampling=spacing) - distance_transform_edt(~inside, sampling=spacing)
+    margin = distance_transform_edt(inside, sampling=spacing) - distance_transform_edt(
+        ~inside, sampling=spacing
+    )
     as_j = jnp.asarray
-    return HeightMap(as_j(z), as_j(mask), as_j(margin), as_j(dzdx), as_j(dzdy),
-                     as_j(np.array(lo[:2], float)), as_j(spacing))
+    return HeightMap(
+        as_j(z),
+        as_j(mask),
+        as_j(margin),
+        as_j(dzdx),
+        as_j(dzdy),
+        as_j(np.array(lo[:2], float)),
+        as_j(spacing),
+    )
 
 
 def _bilinear(grid, hm: HeightMap, xy):
@@ -133,8 +175,12 @@ def _bilinear(grid, hm: HeightMap, xy):
     i0 = g0.astype(jnp.int32)
     i, j = i0[:, 0], i0[:, 1]
     a, b = t[:, 0], t[:, 1]
-    return ((1 - a) * (1 - b) * grid[i, j] + a * (1 - b) * grid[i + 1, j]
-            + (1 - a) * b * grid[i, j + 1] + a * b * grid[i + 1, j + 1])
+    return (
+        (1 - a) * (1 - b) * grid[i, j]
+        + a * (1 - b) * grid[i + 1, j]
+        + (1 - a) * b * grid[i, j + 1]
+        + a * b * grid[i + 1, j + 1]
+    )
 
 
 def bowl_force(hm: HeightMap, x, v, stiffness, damping, shell: float = 0.004):
@@ -156,8 +202,17 @@ def tilted_gravity(tilt):
     return GRAVITY * jnp.stack([jnp.zeros_like(tilt), jnp.sin(tilt), -jnp.cos(tilt)])
 
 
-def drop(lattice: mss.Lattice, hm: HeightMap, tilt, dt: float, steps: int, contact_stiffness: float,
-         contact_damping: float = 0.0, velocity=(0.0, 0.0, 0.0), chunk: int = 50):
+def drop(
+    lattice: mss.Lattice,
+    hm: HeightMap,
+    tilt,
+    dt: float,
+    steps: int,
+    contact_stiffness: float,
+    contact_damping: float = 0.0,
+    velocity=(0.0, 0.0, 0.0),
+    chunk: int = 50,
+):
     """Drop (or throw, with an initial `velocity`) the jelly lattice onto the spoon tilted by
     `tilt` radians; `jax.checkpoint` every `chunk` steps so `jax.grad` with respect to the tilt
     keeps only `steps / chunk` states.

@@ -72,8 +72,13 @@ def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
     return mask
 
 
-def fit(points: Float[ArrayLike, "P 3"], shape: tuple[int, int, int], cycles: int = 300, key=None,
-        settings: Settings = Settings()) -> Float[Array, "a b c 3"]:
+def fit(
+    points: Float[ArrayLike, "P 3"],
+    shape: tuple[int, int, int],
+    cycles: int = 300,
+    key=None,
+    settings: Settings = Settings(),
+) -> Float[Array, "a b c 3"]:
     """Train a VSOFM lattice of `shape = (a, b, c)` on surface samples `points (P, 3)`.
 
     **Arguments:**
@@ -161,8 +166,14 @@ def _gauss_smooth(field, idx, sigma):
 def _neighbour_mean(nodes):
     """Mean of the 6 face neighbours (interior entries only are used)."""
     p = jnp.pad(nodes, ((1, 1), (1, 1), (1, 1), (0, 0)), mode="edge")
-    s = (p[2:, 1:-1, 1:-1] + p[:-2, 1:-1, 1:-1] + p[1:-1, 2:, 1:-1] + p[1:-1, :-2, 1:-1]
-         + p[1:-1, 1:-1, 2:] + p[1:-1, 1:-1, :-2])
+    s = (
+        p[2:, 1:-1, 1:-1]
+        + p[:-2, 1:-1, 1:-1]
+        + p[1:-1, 2:, 1:-1]
+        + p[1:-1, :-2, 1:-1]
+        + p[1:-1, 1:-1, 2:]
+        + p[1:-1, 1:-1, :-2]
+    )
     return s / 6.0
 
 
@@ -171,9 +182,14 @@ def _boundary_mean(nodes, bgrid):
     w = bgrid.astype(nodes.dtype)
     p = jnp.pad(nodes * w, ((1, 1), (1, 1), (1, 1), (0, 0)))
     q = jnp.pad(w, ((1, 1), (1, 1), (1, 1), (0, 0)))
-    shifts = [(slice(2, None), slice(1, -1), slice(1, -1)), (slice(None, -2), slice(1, -1), slice(1, -1)),
-              (slice(1, -1), slice(2, None), slice(1, -1)), (slice(1, -1), slice(None, -2), slice(1, -1)),
-              (slice(1, -1), slice(1, -1), slice(2, None)), (slice(1, -1), slice(1, -1), slice(None, -2))]
+    shifts = [
+        (slice(2, None), slice(1, -1), slice(1, -1)),
+        (slice(None, -2), slice(1, -1), slice(1, -1)),
+        (slice(1, -1), slice(2, None), slice(1, -1)),
+        (slice(1, -1), slice(None, -2), slice(1, -1)),
+        (slice(1, -1), slice(1, -1), slice(2, None)),
+        (slice(1, -1), slice(1, -1), slice(None, -2)),
+    ]
     total = sum(p[s] for s in shifts)
     count = sum(q[s] for s in shifts)
     return total / jnp.maximum(count, 1.0)
@@ -241,7 +257,9 @@ def _patches(points, nbr):
     u, v, w = local[..., 0] / s, local[..., 1] / s, local[..., 2]
     a = jnp.stack([jnp.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (P, k, 6), O(1) columns
     ridge = 1e-6 * nbr.shape[1] * jnp.eye(6, dtype=points.dtype)  # few or coplanar samples stay solvable
-    coef = jnp.linalg.solve(jnp.swapaxes(a, 1, 2) @ a + ridge, jnp.einsum("pki,pk->pi", a, w)[..., None])[..., 0]
+    coef = jnp.linalg.solve(jnp.swapaxes(a, 1, 2) @ a + ridge, jnp.einsum("pki,pk->pi", a, w)[..., None])[
+        ..., 0
+    ]
     return frame, coef / jnp.concatenate([jnp.ones_like(s), s, s, s * s, s * s, s * s], axis=-1)
 
 
@@ -279,7 +297,7 @@ def corner_jacobians(nodes: Float[Array, "a b c 3"], scaled: bool = True) -> Flo
     a, b, c = (s - 1 for s in p.shape[:3])
 
     def corner(i, j, k):
-        return p[i:i + a, j:j + b, k:k + c]
+        return p[i : i + a, j : j + b, k : k + c]
 
     out = []
     for i, j, k in _CORNERS:
@@ -326,8 +344,15 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
     p = jnp.asarray(pts)
     on = np.asarray(_project(jnp.asarray(b, dtype=p.dtype), p, *_patches(p, _neighbours(p, _NEAR))))
     dist = np.linalg.norm(b - on, axis=-1)
-    return Report(int(bad.sum()), int(bad.size), float(jac.min()), float(jac.mean()),
-                  float(dist.max()), float(dist.mean()), float(near.max()))
+    return Report(
+        int(bad.sum()),
+        int(bad.size),
+        float(jac.min()),
+        float(jac.mean()),
+        float(dist.max()),
+        float(dist.mean()),
+        float(near.max()),
+    )
 
 
 def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):

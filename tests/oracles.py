@@ -9,8 +9,8 @@ from __future__ import annotations
 from math import comb, factorial
 
 import numpy as np
-from geomdl import BSpline as GBSpline
 from geomdl import NURBS as GNURBS
+from geomdl import BSpline as GBSpline
 from scipy.interpolate import BSpline, NdBSpline
 
 
@@ -100,7 +100,9 @@ def ndbspline_surface(surface, u, v, nu: int = 0, nv: int = 0) -> np.ndarray:
         return _nd_eval(surface, ctrl, u, v, nu, nv)
     w = np.asarray(surface.weights, dtype=np.float64)[..., None]
     net = np.concatenate([ctrl * w, w], -1)
-    h = {(a, b): _nd_eval(surface, net, u, v, a, b) for a in range(3) for b in range(3) if a <= nu and b <= nv}
+    h = {
+        (a, b): _nd_eval(surface, net, u, v, a, b) for a in range(3) for b in range(3) if a <= nu and b <= nv
+    }
     W = {kl: x[..., 3:] for kl, x in h.items()}
     A = {kl: x[..., :3] for kl, x in h.items()}
     s = A[0, 0] / W[0, 0]

@@ -152,8 +152,9 @@ def test_window_is_a_row_subset_with_indices():
     np.testing.assert_array_equal(w.a_v, np.asarray(b.a_v)[:, cols])
     full = np.asarray(_points(b, surface.ctrl))
     np.testing.assert_allclose(_points(w, surface.ctrl), full[np.ix_(rows, cols)], rtol=0, atol=1e-14)
-    np.testing.assert_allclose(_normals(w, surface.ctrl), np.asarray(_normals(b, surface.ctrl))[np.ix_(rows, cols)],
-                               atol=1e-14)
+    np.testing.assert_allclose(
+        _normals(w, surface.ctrl), np.asarray(_normals(b, surface.ctrl))[np.ix_(rows, cols)], atol=1e-14
+    )
     assert w.refit_u is None and w.grid_shape == (len(rows), len(cols))
 
 
@@ -173,10 +174,13 @@ def test_lod_is_every_qth_row_and_keeps_the_last(q_u, q_v, m, n):
     np.testing.assert_allclose(_points(lod, surface.ctrl), full[np.ix_(rows, cols)], rtol=0, atol=1e-14)
     window = b.window(0.3, 1.0, 0.0, 1.0)
     inside = np.asarray(window.index_u)
-    np.testing.assert_array_equal(window.lod(2).index_u, inside[sorted(set(range(0, len(inside), 2)) | {len(inside) - 1})])
+    np.testing.assert_array_equal(
+        window.lod(2).index_u, inside[sorted(set(range(0, len(inside), 2)) | {len(inside) - 1})]
+    )
     coarse = window.lod(2)
-    np.testing.assert_allclose(_points(coarse, surface.ctrl), full[np.ix_(coarse.index_u, coarse.index_v)],
-                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(
+        _points(coarse, surface.ctrl), full[np.ix_(coarse.index_u, coarse.index_v)], rtol=0, atol=1e-14
+    )
 
 
 def test_surface_round_trip_and_custom_params():
@@ -238,7 +242,12 @@ def test_float32_stays_float32(kind):
     # harmless in float64, but float32's pseudo-inverse cut-off drops that component)
     s64 = eqx.tree_at(lambda s: s.knots_u, s64, clamped_knots(R, 3))
     s32 = BSplineSurface(
-        np.asarray(s64.ctrl, np.float32), s64.knots_u, s64.knots_v, 3, 2, periodic_v=s64.periodic_v,
+        np.asarray(s64.ctrl, np.float32),
+        s64.knots_u,
+        s64.knots_v,
+        3,
+        2,
+        periodic_v=s64.periodic_v,
         weights=None if s64.weights is None else np.asarray(s64.weights, np.float32),
     )
     b = s32.blending(M, N)

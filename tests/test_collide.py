@@ -6,17 +6,27 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
+from helpers import check_grad, random_surface
 from scipy.optimize import brentq
 
 from bsjax import shapes
 from bsjax.basis import BSplineSurface
 from bsjax.collide import (
-    Ellipsoid, Implicit, Plane, Point, Sphere, TriangleMesh, contact_force, contacts, nodal_forces,
-    sample_forces, surface_contacts, tessellate,
+    Ellipsoid,
+    Implicit,
+    Plane,
+    Point,
+    Sphere,
+    TriangleMesh,
+    contact_force,
+    contacts,
+    nodal_forces,
+    sample_forces,
+    surface_contacts,
+    tessellate,
 )
 from bsjax.collide.flat import normal_cones
 from bsjax.collide.hierarchy import block_order, cell_triangles, sphere_hierarchy, traverse
-from helpers import check_grad, random_surface
 
 _contacts = jax.jit(contacts, static_argnames="method")
 _surfaces = jax.jit(surface_contacts, static_argnames=("capacity", "method", "flat_angle"))
@@ -31,7 +41,9 @@ def _cylinder(radius=1.0):
     w = np.sqrt(0.5)
     arc = np.array([[radius, 0.0], [radius, radius], [0.0, radius]])
     ctrl = np.stack([np.concatenate([arc, np.full((3, 1), z)], 1) for z in (0.0, 1.0)], 1)
-    return BSplineSurface(ctrl, [0, 0, 0, 1, 1, 1], [0, 0, 1, 1], 2, 1, weights=np.array([[1, 1], [w, w], [1, 1]]))
+    return BSplineSurface(
+        ctrl, [0, 0, 0, 1, 1, 1], [0, 0, 1, 1], 2, 1, weights=np.array([[1, 1], [w, w], [1, 1]])
+    )
 
 
 CYL = _cylinder()
@@ -43,6 +55,7 @@ def _bumpy(seed, r=6, s=6, l=3):
 
 
 # --- analytic cases ---------------------------------------------------------------------------
+
 
 def test_sphere_on_plate_closed_form():
     h, radius = 0.05, 0.3
@@ -133,7 +146,9 @@ def test_implicit_torus_projection_depth():
     np.testing.assert_array_equal(np.asarray(c.mask), inside)
     np.testing.assert_allclose(np.asarray(c.depth), np.where(inside, small - np.abs(rho - big), 0), atol=1e-8)
     # differentiable in the tool's parameters: d Σ depth / d small = number of contacts
-    g = jax.grad(lambda p: contacts(PLATE_B, PLATE.ctrl, Implicit(torus, params=p)).depth.sum())(jnp.array([big, small]))
+    g = jax.grad(lambda p: contacts(PLATE_B, PLATE.ctrl, Implicit(torus, params=p)).depth.sum())(
+        jnp.array([big, small])
+    )
     assert float(g[1]) == pytest.approx(inside.sum(), rel=1e-6)
 
 
@@ -149,6 +164,7 @@ def test_triangle_mesh_tool_matches_trimesh():
 
 
 # --- broad phase, window and hierarchy against the dense references -------------------------
+
 
 def _rotation(seed):
     q = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))[0]
@@ -184,9 +200,17 @@ def test_window_method_matches_dense():
 def test_closed_surface_window_and_early_exit():
     drop = shapes.teardrop()
     b = drop.blending(12, 12)
-    near = [Sphere([0.6, 0.1, -0.2], 0.3), Ellipsoid([0, 0, 0.9], [0.2, 0.2, 0.3]), Plane([0, 0, -0.6], [0, 0, 1.0])]
+    near = [
+        Sphere([0.6, 0.1, -0.2], 0.3),
+        Ellipsoid([0, 0, 0.9], [0.2, 0.2, 0.3]),
+        Plane([0, 0, -0.6], [0, 0, 1.0]),
+    ]
     _assert_same(_both_methods(b, drop.ctrl, near))
-    far = [Sphere([3.0, 0, 0], 0.5), Ellipsoid([0, 0, 3.0], [0.2, 0.2, 0.3]), Plane([0, 0, -1.5], [0, 0, 1.0])]
+    far = [
+        Sphere([3.0, 0, 0], 0.5),
+        Ellipsoid([0, 0, 3.0], [0.2, 0.2, 0.3]),
+        Plane([0, 0, -1.5], [0, 0, 1.0]),
+    ]
     results = _both_methods(b, drop.ctrl, far)
     _assert_same(results, expect_hit=False)
     assert all(bool(w.apart) and not bool(w.mask.any()) for w, _ in results)
@@ -246,7 +270,9 @@ def test_closed_surface_against_plate_hierarchy():
 
 
 def test_traversal_reports_overflow():
-    pts = jnp.asarray(np.stack(np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), [0.0], indexing="ij"), -1)[:, :, 0])
+    pts = jnp.asarray(
+        np.stack(np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), [0.0], indexing="ij"), -1)[:, :, 0]
+    )
     run = jax.jit(lambda p: traverse(sphere_hierarchy(p, 1), sphere_hierarchy(p, 1), 4))
     _, _, valid, overflow, count, _ = run(pts)  # coplanar sheets: every cell meets several others
     assert bool(overflow) and int(count) > 4 and int(valid.sum()) == 4
@@ -256,8 +282,11 @@ def _sheets(kind):
     """Two 6×6 plates at 22×22 samples lying on each other: coplanar, 1e-3 apart, or crossing at 1.1°."""
     b = PLATE.blending(22, 22)
     ctrl = jnp.asarray(PLATE.ctrl)
-    other = {"coplanar": ctrl, "gap": ctrl + jnp.array([0, 0, 1e-3]),
-             "tilted": ctrl.at[..., 2].set(0.02 * (ctrl[..., 0] - 0.6))}[kind]
+    other = {
+        "coplanar": ctrl,
+        "gap": ctrl + jnp.array([0, 0, 1e-3]),
+        "tilted": ctrl.at[..., 2].set(0.02 * (ctrl[..., 0] - 0.6)),
+    }[kind]
     return b, ctrl, b, other + jnp.array([0.3, 0.2, 0.0])
 
 
@@ -293,7 +322,7 @@ def test_normal_cones_bound_every_triangle_normal():
     for level, (axis, half) in enumerate(cones):
         per = 9**level
         for q in range(0, len(half), 7):
-            r, c = rows[q * per:(q + 1) * per], cols[q * per:(q + 1) * per]
+            r, c = rows[q * per : (q + 1) * per], cols[q * per : (q + 1) * per]
             keep = (r < points.shape[0] - 1) & (c < points.shape[1] - 1)
             if not keep.any():
                 continue
@@ -307,13 +336,18 @@ def test_normal_cones_bound_every_triangle_normal():
 
 # --- jit / vmap / gradients -------------------------------------------------------------------
 
+
 def test_vmap_over_tool_poses():
     surf = _bumpy(5)
     b = PLATE_B
     centres = jnp.array([[0.5, 0.5, 0.0], [0.2, 0.7, 0.1], [0.5, 0.5, 3.0], [0.8, 0.3, -0.05]])
     batched = jax.jit(jax.vmap(lambda c: contacts(b, surf.ctrl, Sphere(c, 0.2)).depth))(centres)
     for k in range(4):
-        np.testing.assert_allclose(np.asarray(batched[k]), np.asarray(_contacts(b, surf.ctrl, Sphere(centres[k], 0.2)).depth), atol=1e-14)
+        np.testing.assert_allclose(
+            np.asarray(batched[k]),
+            np.asarray(_contacts(b, surf.ctrl, Sphere(centres[k], 0.2)).depth),
+            atol=1e-14,
+        )
     assert float(batched[2].sum()) == 0.0
 
 
@@ -335,7 +369,9 @@ def test_gradients_match_finite_differences():
     depth_p = jax.jit(lambda p: contacts(b, p, Sphere(centre, 0.23)).depth.sum())
     check_grad(depth_p, ctrl, rtol=1e-4)
     # no contact: gradients are exactly zero, not NaN
-    g = jax.grad(lambda c: contact_force(contacts(b, ctrl, Sphere(c, 0.1)), 50.0).sum())(jnp.array([0.5, 0.5, 2.0]))
+    g = jax.grad(lambda c: contact_force(contacts(b, ctrl, Sphere(c, 0.1)), 50.0).sum())(
+        jnp.array([0.5, 0.5, 2.0])
+    )
     assert np.all(np.asarray(g) == 0)
 
 
@@ -353,6 +389,7 @@ def test_gradient_steps_push_surface_out_of_sphere():
 
 
 # --- forces -----------------------------------------------------------------------------------
+
 
 def test_forces_spring_sum_direction_and_reaction():
     tool = Sphere([0.5, 0.5, 0.1], 0.25)
@@ -394,6 +431,7 @@ def test_nodal_forces_nearest_nodes_and_conservation():
 
 
 # --- bad input --------------------------------------------------------------------------------
+
 
 def test_bad_inputs_raise_clear_errors():
     with pytest.raises(ValueError, match="radius"):

@@ -12,7 +12,9 @@ def test_cli_sphere_report(tmp_path, capsys):
     path = tmp_path / "plate.json"
     io.save(shapes.plate(6, 6), path)
     out = tmp_path / "report.json"
-    code = main([str(path), "--sphere", "0.5", "0.5", "0.05", "0.3", "--samples", "15", "15", "--json", str(out)])
+    code = main(
+        [str(path), "--sphere", "0.5", "0.5", "0.05", "0.3", "--samples", "15", "15", "--json", str(out)]
+    )
     assert code == 0
     report = json.loads(out.read_text())
     assert report["hit"] and report["samples_in_contact"] > 0

@@ -45,7 +45,13 @@ def _near_degenerate(rng, count):
         if kind == 0:  # vertex of t2 just above/below the interior of t1
             w = rng.dirichlet(np.ones(3))
             apex = w @ t1 + eps * n
-            t2 = np.stack([apex, apex + rng.normal(size=3) + 0.5 * n * np.sign(eps), apex + rng.normal(size=3) + 0.5 * n * np.sign(eps)])
+            t2 = np.stack(
+                [
+                    apex,
+                    apex + rng.normal(size=3) + 0.5 * n * np.sign(eps),
+                    apex + rng.normal(size=3) + 0.5 * n * np.sign(eps),
+                ]
+            )
         elif kind == 1:  # nearly coplanar, offset by eps along the normal, overlapping or not
             t2 = (t1 - t1.mean(0)) @ _rot(rng, n) + t1.mean(0) + rng.normal(size=3) * 0.8
             t2 = t2 - ((t2 - t1[0]) @ n)[:, None] * n + eps * n
@@ -54,7 +60,9 @@ def _near_degenerate(rng, count):
             d = np.cross(t1[1] - t1[0], n)
             d /= np.linalg.norm(d)
             side = np.cross(d, n)
-            t2 = np.stack([p + eps * d + side, p + eps * d - side, p + eps * d + 2 * d + rng.normal(size=3) * 0.3])
+            t2 = np.stack(
+                [p + eps * d + side, p + eps * d - side, p + eps * d + 2 * d + rng.normal(size=3) * 0.3]
+            )
         else:  # shared vertex, second triangle tilted away or into t1
             t2 = np.stack([t1[0] + eps * n, t1[0] + rng.normal(size=3), t1[0] + rng.normal(size=3)])
         out.append((t1, t2))
@@ -133,6 +141,8 @@ def test_closest_point_matches_trimesh():
     pts = rng.normal(size=(500, 3)) * 2
     got, bary = closest_point_on_triangle(jnp.asarray(pts), jnp.asarray(tris))
     ref = trimesh.triangles.closest_point(tris, pts)
-    np.testing.assert_allclose(np.linalg.norm(np.asarray(got) - pts, axis=1), np.linalg.norm(ref - pts, axis=1), atol=1e-9)
+    np.testing.assert_allclose(
+        np.linalg.norm(np.asarray(got) - pts, axis=1), np.linalg.norm(ref - pts, axis=1), atol=1e-9
+    )
     np.testing.assert_allclose(np.asarray(jnp.einsum("nk,nkc->nc", bary, tris)), np.asarray(got), atol=1e-12)
     assert np.all(np.asarray(bary) >= -1e-12)

@@ -28,7 +28,9 @@ def test_demo_runs_the_spoon_case_study(tmp_path, capsys):
     jelly = report["jelly"]
     assert jelly["inverted_hexahedra"] == 0
     assert [row["tilt_deg"] for row in jelly["tilts"]] == [0.0, 10.0, 20.0]
-    assert all(0.0 <= row["spill_fraction"] <= 1.0 and 0.0 <= row["spill_risk"] <= 1.0 for row in jelly["tilts"])
+    assert all(
+        0.0 <= row["spill_fraction"] <= 1.0 and 0.0 <= row["spill_risk"] <= 1.0 for row in jelly["tilts"]
+    )
     assert all(math.isfinite(h["d_risk_d_tilt"]) for h in jelly["optimisation"])
     assert jelly["best"]["spill_risk"] <= jelly["optimisation"][0]["spill_risk"] + 1e-12
     assert (tmp_path / "spoon.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

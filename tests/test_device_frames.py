@@ -44,7 +44,16 @@ def test_truncated_crc_and_malformed_frames_are_counted_and_dropped():
     too_long = bytes([frames.START, 200, 0, 0, 1]) + b"\x00" * 10
     wrong_size = encode_frame(4, frames.KIND_POSE, b"\x00" * 8)  # valid CRC, POSE needs 36 bytes
     unknown = encode_frame(5, 99, b"abc")
-    stream = good1 + encode_pose(9, (0, 0, 9))[:20] + bytes(bad_crc) + b"junk" + too_long + wrong_size + unknown + good2
+    stream = (
+        good1
+        + encode_pose(9, (0, 0, 9))[:20]
+        + bytes(bad_crc)
+        + b"junk"
+        + too_long
+        + wrong_size
+        + unknown
+        + good2
+    )
     got = decode_frames(stream)
     assert [f.seq for f in got.frames] == [1, 2]
     assert got.truncated >= 1 and got.crc_errors >= 1 and got.malformed >= 3
@@ -83,15 +92,22 @@ def test_decoder_never_raises_and_never_yields_a_bad_frame(data):
 
 @settings(max_examples=100, deadline=None)
 @given(
-    st.lists(st.tuples(st.integers(0, 65535), st.floats(-1, 1), st.binary(max_size=12).map(
-        lambda b: b.replace(bytes([frames.START]), b""))), min_size=1, max_size=12),
+    st.lists(
+        st.tuples(
+            st.integers(0, 65535),
+            st.floats(-1, 1),
+            st.binary(max_size=12).map(lambda b: b.replace(bytes([frames.START]), b"")),
+        ),
+        min_size=1,
+        max_size=12,
+    ),
     st.lists(st.integers(1, 60), max_size=8),
 )
 def test_frames_between_garbage_all_recovered_from_any_chunking(items, cuts):
     stream = b"".join(junk + encode_pose(seq, (x, 0.0, -x)) for seq, x, junk in items)
     chunks, start = [], 0
     for c in cuts:
-        chunks.append(stream[start:start + c])
+        chunks.append(stream[start : start + c])
         start += c
     chunks.append(stream[start:])
     rest, seqs = b"", []

@@ -65,8 +65,12 @@ def test_device_reads_newest_drops_stale_and_short_reports_writes_forces():
     dev = HidDevice(HidLayout.generic(0x1234, 0x5678), device=fake, workspace=Workspace(scale=10.0))
     assert isinstance(dev, HapticDevice) and isinstance(SimulatedDevice(), HapticDevice)
     assert fake.opened == (0x1234, 0x5678) and fake.nonblocking == 1
-    fake.queue += [generic_report(5, (0.01, 0, 0)), generic_report(6, (0.02, 0, 0)), b"\x01\x02",
-                   generic_report(4, (0.05, 0, 0))]
+    fake.queue += [
+        generic_report(5, (0.01, 0, 0)),
+        generic_report(6, (0.02, 0, 0)),
+        b"\x01\x02",
+        generic_report(4, (0.05, 0, 0)),
+    ]
     sample = dev.read()
     assert sample.sequence == 6 and sample.position[0] == pytest.approx(0.2)
     assert dev.counters == {"frames": 2, "malformed": 1, "out_of_order": 1}
@@ -91,7 +95,9 @@ def test_device_loss_and_reconnect():
 
 def test_layout_from_json_and_validation():
     spec = {
-        "vendor_id": 1, "product_id": 2, "report_length": 13,
+        "vendor_id": 1,
+        "product_id": 2,
+        "report_length": 13,
         "position": [{"offset": 0, "fmt": "<f"}, {"offset": 4, "fmt": "<f"}, {"offset": 8, "fmt": "<f"}],
         "buttons": {"offset": 12, "fmt": "B"},
         "force": [{"offset": 1, "fmt": "<f"}, {"offset": 5, "fmt": "<f"}, {"offset": 9, "fmt": "<f"}],

@@ -20,7 +20,9 @@ def model():
 
 
 def at(x, pressed=False, y=0.0, z=0.0):
-    return DeviceSample(np.array([x, y, z]), np.array([1.0, 0.0, 0.0, 0.0]), int(pressed), 0.0, 0, time.perf_counter())
+    return DeviceSample(
+        np.array([x, y, z]), np.array([1.0, 0.0, 0.0, 0.0]), int(pressed), 0.0, 0, time.perf_counter()
+    )
 
 
 def displacement(model):

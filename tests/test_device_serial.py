@@ -58,8 +58,11 @@ class Emulator:
                     break
                 got = frames.decode_frames(self._rest + chunk)
                 self._rest = got.rest
-                self.forces += [(f.seq, frames.parse_force(f.payload)[0]) for f in got.frames
-                                if f.kind == frames.KIND_FORCE]
+                self.forces += [
+                    (f.seq, frames.parse_force(f.payload)[0])
+                    for f in got.frames
+                    if f.kind == frames.KIND_FORCE
+                ]
             next_t += self.period
             time.sleep(max(0.0, next_t - time.perf_counter()))
 
@@ -106,7 +109,9 @@ def test_bad_frames_counted_and_dropped_without_stopping():
         assert dev.read().sequence == 10
         bad = bytearray(emu.pose(11))
         bad[-1] ^= 0x55
-        emu.send(bytes(bad) + emu.pose(12)[:17] + emu.pose(13) + emu.pose(9) + b"\xa5\xff garbage" + emu.pose(14))
+        emu.send(
+            bytes(bad) + emu.pose(12)[:17] + emu.pose(13) + emu.pose(9) + b"\xa5\xff garbage" + emu.pose(14)
+        )
         assert _wait(lambda: dev.read().sequence == 14)
         c = dev.counters
         assert c["crc_errors"] >= 1 and c["truncated"] >= 1 and c["out_of_order"] == 1 and c["malformed"] >= 1
@@ -168,8 +173,22 @@ def test_cli_ctrl_c_writes_zero_force(emulator):
     emulator.position = (0.058, 0.0, 0.0)  # device metres ×10 → in contact with the wall
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bsjax.cli", "haptics", "--serial", emulator.path, "--proxy-only",
-         "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+        [
+            sys.executable,
+            "-m",
+            "bsjax.cli",
+            "haptics",
+            "--serial",
+            emulator.path,
+            "--proxy-only",
+            "--duration",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
     try:
         assert _wait(lambda: sum(1 for _, f in emulator.forces if f[0] > 0) > 200, timeout=30)
         proc.send_signal(signal.SIGINT)

@@ -10,8 +10,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bsjax.device import DeviceError, Proxy, Recording, ServoLoop, SimulatedDevice, Workspace, plot_recording
-from bsjax.device import cli
+from bsjax.device import (
+    DeviceError,
+    Proxy,
+    Recording,
+    ServoLoop,
+    SimulatedDevice,
+    Workspace,
+    cli,
+    plot_recording,
+)
 from bsjax.device._shaping import ForceShaper, Watchdog
 
 WALL = dict(point=(0.62, 0.0, 0.0), normal=(1.0, 0.0, 0.0), stiffness=30.0, damping=0.3, tool_radius=0.25)
@@ -95,14 +103,23 @@ class ChaosModel:
         r = self.rng
         k = 10.0 ** r.uniform(-2, 9)
         if r.random() < 0.5:
-            return Proxy.plane(r.normal(size=3), r.normal(size=3), k, r.uniform(0, 1e4), tool_radius=r.uniform(0, 5))
-        return Proxy.sphere(r.normal(size=3), r.uniform(0, 3), k, r.uniform(0, 1e4), tool_radius=r.uniform(0, 2),
-                            inside=bool(r.random() < 0.5))
+            return Proxy.plane(
+                r.normal(size=3), r.normal(size=3), k, r.uniform(0, 1e4), tool_radius=r.uniform(0, 5)
+            )
+        return Proxy.sphere(
+            r.normal(size=3),
+            r.uniform(0, 3),
+            k,
+            r.uniform(0, 1e4),
+            tool_radius=r.uniform(0, 2),
+            inside=bool(r.random() < 0.5),
+        )
 
 
 def test_clamp_and_rate_limit_hold_for_any_model_state():
-    wobble = SimulatedDevice(lambda t: ((math.sin(40 * t), math.cos(33 * t), 0.3 * math.sin(7 * t)), 0),
-                             workspace=Workspace())
+    wobble = SimulatedDevice(
+        lambda t: ((math.sin(40 * t), math.cos(33 * t), 0.3 * math.sin(7 * t)), 0), workspace=Workspace()
+    )
     loop = ServoLoop(wobble, ChaosModel(), max_force=2.5, max_force_rate=500.0, physics_hz=500, record=True)
     loop.start()
     time.sleep(0.6)
@@ -236,8 +253,11 @@ finite_or_not = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(st.tuples(finite_or_not, finite_or_not, finite_or_not), min_size=1, max_size=40),
-       st.floats(0.1, 10.0), st.floats(1e-3, 5.0))
+@given(
+    st.lists(st.tuples(finite_or_not, finite_or_not, finite_or_not), min_size=1, max_size=40),
+    st.floats(0.1, 10.0),
+    st.floats(1e-3, 5.0),
+)
 def test_force_shaper_bounds_any_input(forces, max_force, step_max):
     shape = ForceShaper(max_force, step_max)
     last = (0.0, 0.0, 0.0)

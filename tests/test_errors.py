@@ -20,8 +20,13 @@ def surface():
 
 
 def _make(surface, **change):
-    args = dict(ctrl=np.asarray(surface.ctrl), knots_u=np.asarray(surface.knots_u),
-                knots_v=np.asarray(surface.knots_v), degree_u=3, degree_v=2)
+    args = dict(
+        ctrl=np.asarray(surface.ctrl),
+        knots_u=np.asarray(surface.knots_u),
+        knots_v=np.asarray(surface.knots_v),
+        degree_u=3,
+        degree_v=2,
+    )
     args.update(change)
     return BSplineSurface(**args)
 
@@ -38,26 +43,29 @@ def _ctrl_inf():
     return c
 
 
-@pytest.mark.parametrize("change, name, got", [
-    (dict(ctrl=np.zeros((R, S, 2))), "ctrl", "(6, 5, 2)"),
-    (dict(ctrl=np.zeros((R * S, 3))), "ctrl", "(30, 3)"),
-    (dict(ctrl=_ctrl_nan()), "ctrl", "NaN"),
-    (dict(ctrl=_ctrl_inf()), "ctrl", "inf"),
-    (dict(degree_u=6), "degree_u", "6"),  # degree >= number of control points
-    (dict(degree_u=7, knots_u=np.r_[np.zeros(8), np.ones(6)][:14]), "degree_u", "7"),
-    (dict(degree_v=0), "degree_v", "0"),
-    (dict(knots_u=np.asarray(clamped_knots(R + 1, 3))), "knots_u", "11"),  # wrong length
-    (dict(knots_u=np.r_[0, 0, 0, 0, 0.6, 0.4, 1, 1, 1, 1]), "knots_u", "decrease"),
-    (dict(knots_v=np.r_[0, 0, 0.1, 0.4, 0.7, 0.9, 1, 1]), "knots_v", "clamped"),
-    (dict(knots_v=np.r_[0, 0, 0, 0.4, 0.7, 2, 2, 2.0]), "knots_v", "[0.0, 2.0]"),
-    (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5 * np.nan, 1, 1, 1, 1]), "knots_u", "NaN"),
-    (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5, 0.5, 0.5, 1, 1, 1, 1][:10]), "knots_u", ""),
-    (dict(knots_u=np.zeros((10, 1))), "knots_u", "(10, 1)"),
-    (dict(knots_u=None), "knots_u", "None"),
-    (dict(weights=np.ones((S, R))), "weights", "(5, 6)"),
-    (dict(weights=-np.ones((R, S))), "weights", "-1"),
-    (dict(weights=np.full((R, S), np.nan)), "weights", "nan"),
-])
+@pytest.mark.parametrize(
+    "change, name, got",
+    [
+        (dict(ctrl=np.zeros((R, S, 2))), "ctrl", "(6, 5, 2)"),
+        (dict(ctrl=np.zeros((R * S, 3))), "ctrl", "(30, 3)"),
+        (dict(ctrl=_ctrl_nan()), "ctrl", "NaN"),
+        (dict(ctrl=_ctrl_inf()), "ctrl", "inf"),
+        (dict(degree_u=6), "degree_u", "6"),  # degree >= number of control points
+        (dict(degree_u=7, knots_u=np.r_[np.zeros(8), np.ones(6)][:14]), "degree_u", "7"),
+        (dict(degree_v=0), "degree_v", "0"),
+        (dict(knots_u=np.asarray(clamped_knots(R + 1, 3))), "knots_u", "11"),  # wrong length
+        (dict(knots_u=np.r_[0, 0, 0, 0, 0.6, 0.4, 1, 1, 1, 1]), "knots_u", "decrease"),
+        (dict(knots_v=np.r_[0, 0, 0.1, 0.4, 0.7, 0.9, 1, 1]), "knots_v", "clamped"),
+        (dict(knots_v=np.r_[0, 0, 0, 0.4, 0.7, 2, 2, 2.0]), "knots_v", "[0.0, 2.0]"),
+        (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5 * np.nan, 1, 1, 1, 1]), "knots_u", "NaN"),
+        (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5, 0.5, 0.5, 1, 1, 1, 1][:10]), "knots_u", ""),
+        (dict(knots_u=np.zeros((10, 1))), "knots_u", "(10, 1)"),
+        (dict(knots_u=None), "knots_u", "None"),
+        (dict(weights=np.ones((S, R))), "weights", "(5, 6)"),
+        (dict(weights=-np.ones((R, S))), "weights", "-1"),
+        (dict(weights=np.full((R, S), np.nan)), "weights", "nan"),
+    ],
+)
 def test_surface_constructor_errors(surface, change, name, got):
     with pytest.raises(ValueError) as info:
         _make(surface, **change)
@@ -78,37 +86,43 @@ def test_non_int_degree_is_a_type_error(surface):
         _make(surface, degree_u=3.0)
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda s: s.evaluate(np.zeros(3), np.zeros(4)), "v"),
-    (lambda s: s.evaluate(0.5, 0.5, -1, 0), "nu"),
-    (lambda s: s.evaluate(0.5, 0.5, 0, -2), "nv"),
-    (lambda s: s.normal(np.zeros((2, 2)), np.zeros(4)), "v"),
-    (lambda s: s.rows("w", np.zeros(3)), "direction"),
-    (lambda s: s.with_ctrl(np.zeros((R, S + 1, 3))), "ctrl"),
-    (lambda s: s.with_ctrl(_ctrl_nan()), "ctrl"),
-    (lambda s: s.blending(1, 9), "m"),
-    (lambda s: s.blending(9, 0), "n"),
-    (lambda s: s.blending(params_u=np.zeros((3, 3)), n=9), "params_u"),
-    (lambda s: s.blending(9, params_v=np.array([0.0, np.nan, 1.0])), "params_v"),
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda s: s.evaluate(np.zeros(3), np.zeros(4)), "v"),
+        (lambda s: s.evaluate(0.5, 0.5, -1, 0), "nu"),
+        (lambda s: s.evaluate(0.5, 0.5, 0, -2), "nv"),
+        (lambda s: s.normal(np.zeros((2, 2)), np.zeros(4)), "v"),
+        (lambda s: s.rows("w", np.zeros(3)), "direction"),
+        (lambda s: s.with_ctrl(np.zeros((R, S + 1, 3))), "ctrl"),
+        (lambda s: s.with_ctrl(_ctrl_nan()), "ctrl"),
+        (lambda s: s.blending(1, 9), "m"),
+        (lambda s: s.blending(9, 0), "n"),
+        (lambda s: s.blending(params_u=np.zeros((3, 3)), n=9), "params_u"),
+        (lambda s: s.blending(9, params_v=np.array([0.0, np.nan, 1.0])), "params_v"),
+    ],
+)
 def test_surface_method_errors(surface, call, name):
     with pytest.raises(ValueError, match=f"^{name}: expected"):
         call(surface)
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda b, s: b.points(np.zeros((R, S, 2))), "ctrl"),
-    (lambda b, s: b.points(np.zeros((S, R, 3))), "ctrl"),
-    (lambda b, s: b.derivative(s.ctrl, 3, 0), "nu, nv"),
-    (lambda b, s: b.derivative(s.ctrl, 0, -1), "nu, nv"),
-    (lambda b, s: b.refit(np.zeros((9, 8, 3))), "points"),
-    (lambda b, s: b.refit(np.zeros((9, 9))), "points"),
-    (lambda b, s: b.window(0.01, 0.02, 0.0, 1.0), "window"),
-    (lambda b, s: b.window(0.6, 0.2, 0.0, 1.0), "window"),
-    (lambda b, s: b.lod(0), "q_u"),
-    (lambda b, s: b.lod(2, 1.5), "q_v"),
-    (lambda b, s: b.lod(2).refit(np.zeros((5, 5, 3))), "Blending.refit"),  # views carry no inverse
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda b, s: b.points(np.zeros((R, S, 2))), "ctrl"),
+        (lambda b, s: b.points(np.zeros((S, R, 3))), "ctrl"),
+        (lambda b, s: b.derivative(s.ctrl, 3, 0), "nu, nv"),
+        (lambda b, s: b.derivative(s.ctrl, 0, -1), "nu, nv"),
+        (lambda b, s: b.refit(np.zeros((9, 8, 3))), "points"),
+        (lambda b, s: b.refit(np.zeros((9, 9))), "points"),
+        (lambda b, s: b.window(0.01, 0.02, 0.0, 1.0), "window"),
+        (lambda b, s: b.window(0.6, 0.2, 0.0, 1.0), "window"),
+        (lambda b, s: b.lod(0), "q_u"),
+        (lambda b, s: b.lod(2, 1.5), "q_v"),
+        (lambda b, s: b.lod(2).refit(np.zeros((5, 5, 3))), "Blending.refit"),  # views carry no inverse
+    ],
+)
 def test_blending_errors(surface, call, name):
     b = surface.blending(9, 9)
     with pytest.raises(ValueError, match=f"^{name}: expected"):
@@ -122,18 +136,21 @@ def test_refit_with_fewer_samples_than_control_points(surface, m, n):
         b.refit(np.zeros((m, n, 3)))
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda: clamped_knots(3, 3), "degree"),
-    (lambda: clamped_knots(5, 0), "degree"),
-    (lambda: blending_matrix(np.zeros((4, 2)), 1, np.array([0.5])), "knots"),
-    (lambda: blending_matrix(clamped_knots(5, 3), 3, np.zeros((2, 2))), "params"),
-    (lambda: blending_matrix(clamped_knots(5, 3), 5, np.array([0.5])), "degree"),
-    (lambda: blending_matrix(clamped_knots(5, 3), 3, np.array([0.5]), nu=-1), "nu"),
-    (lambda: blending_matrix(clamped_knots(5, 3), 3, np.array([0.5]), nu=1.0), "nu"),
-    (lambda: periodic_blending_matrix(3, 3, np.array([0.5])), "degree"),
-    (lambda: periodic_blending_matrix(5, 3, np.array([0.5]), nu=-2), "nu"),
-    (lambda: periodic_blending_matrix(5, 3, np.zeros((1, 1))), "params"),
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda: clamped_knots(3, 3), "degree"),
+        (lambda: clamped_knots(5, 0), "degree"),
+        (lambda: blending_matrix(np.zeros((4, 2)), 1, np.array([0.5])), "knots"),
+        (lambda: blending_matrix(clamped_knots(5, 3), 3, np.zeros((2, 2))), "params"),
+        (lambda: blending_matrix(clamped_knots(5, 3), 5, np.array([0.5])), "degree"),
+        (lambda: blending_matrix(clamped_knots(5, 3), 3, np.array([0.5]), nu=-1), "nu"),
+        (lambda: blending_matrix(clamped_knots(5, 3), 3, np.array([0.5]), nu=1.0), "nu"),
+        (lambda: periodic_blending_matrix(3, 3, np.array([0.5])), "degree"),
+        (lambda: periodic_blending_matrix(5, 3, np.array([0.5]), nu=-2), "nu"),
+        (lambda: periodic_blending_matrix(5, 3, np.zeros((1, 1))), "params"),
+    ],
+)
 def test_basis_function_errors(call, name):
     with pytest.raises(ValueError, match=f"^{name}: expected"):
         call()

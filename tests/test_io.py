@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import rhino3dm
 import trimesh
+from helpers import random_surface
 
 from bsjax import io, shapes
 from bsjax.basis import BSplineSurface, clamped_knots
-from helpers import random_surface
 
 GRID = np.linspace(0.0, 1.0, 9)
 U, V = np.meshgrid(GRID, GRID, indexing="ij")
@@ -22,8 +22,14 @@ def _surfaces():
         "teardrop (periodic v)": shapes.teardrop(),
         "random nonuniform": random_surface(rng, 6, 5, 3, 2),
         "rational": random_surface(rng, 5, 7, 2, 3, weights=True),
-        "periodic u": BSplineSurface(np.asarray(shapes.teardrop().ctrl).transpose(1, 0, 2), None,
-                                     clamped_knots(8, 3), 3, 3, periodic_u=True),
+        "periodic u": BSplineSurface(
+            np.asarray(shapes.teardrop().ctrl).transpose(1, 0, 2),
+            None,
+            clamped_knots(8, 3),
+            3,
+            3,
+            periodic_u=True,
+        ),
     }
 
 
@@ -33,11 +39,19 @@ def test_round_trip_is_exact(tmp_path, name, ext):
     surface = _surfaces()[name]
     back = io.load(io.save(surface, tmp_path / f"s{ext}"))
     assert (back.degree_u, back.degree_v, back.periodic_u, back.periodic_v) == (
-        surface.degree_u, surface.degree_v, surface.periodic_u, surface.periodic_v)
+        surface.degree_u,
+        surface.degree_v,
+        surface.periodic_u,
+        surface.periodic_v,
+    )
     assert back.shape == surface.shape
     tol = 0.0 if ext == ".json" else 1e-15  # .3dm stores w·P: one rounding on the way back
     np.testing.assert_allclose(back.ctrl, surface.ctrl, rtol=0, atol=tol * 10)
-    for a, b in ((back.knots_u, surface.knots_u), (back.knots_v, surface.knots_v), (back.weights, surface.weights)):
+    for a, b in (
+        (back.knots_u, surface.knots_u),
+        (back.knots_v, surface.knots_v),
+        (back.weights, surface.weights),
+    ):
         assert (a is None) == (b is None)
         if a is not None:
             np.testing.assert_allclose(a, b, rtol=0, atol=tol)
@@ -51,7 +65,9 @@ def test_rhino_evaluates_the_same_surface(tmp_path, name):
     srf = rhino3dm.File3dm.Read(str(tmp_path / "s.3dm")).Objects[0].Geometry
     (u0, u1), (v0, v1) = (srf.Domain(0).T0, srf.Domain(0).T1), (srf.Domain(1).T0, srf.Domain(1).T1)
     ours = np.asarray(surface.evaluate(U, V))
-    theirs = np.array([[_xyz(srf.PointAt(u0 + (u1 - u0) * a, v0 + (v1 - v0) * b)) for b in GRID] for a in GRID])
+    theirs = np.array(
+        [[_xyz(srf.PointAt(u0 + (u1 - u0) * a, v0 + (v1 - v0) * b)) for b in GRID] for a in GRID]
+    )
     np.testing.assert_allclose(theirs, ours, rtol=0, atol=1e-12)
     assert srf.IsClosed(1) == surface.periodic_v and srf.IsClosed(0) == surface.periodic_u
 
@@ -101,8 +117,18 @@ def test_bad_files_name_the_file(tmp_path):
     with pytest.raises(ValueError, match="bad.json"):
         io.load(bad)
     wrong = tmp_path / "wrong.json"
-    wrong.write_text(json.dumps({"format": "bsjax.surface", "degree_u": 3, "degree_v": 3,
-                                 "knots_u": [0, 1], "knots_v": [0, 1], "ctrl": np.zeros((4, 4, 3)).tolist()}))
+    wrong.write_text(
+        json.dumps(
+            {
+                "format": "bsjax.surface",
+                "degree_u": 3,
+                "degree_v": 3,
+                "knots_u": [0, 1],
+                "knots_v": [0, 1],
+                "ctrl": np.zeros((4, 4, 3)).tolist(),
+            }
+        )
+    )
     with pytest.raises(ValueError, match="wrong.json.*knots_u"):
         io.load(wrong)
     with pytest.raises(ValueError, match="path"):

@@ -11,16 +11,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import check_grad, random_knots, random_surface
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from oracles import ndbspline_surface
 from scipy import interpolate
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.merge import _orient
 from bsjax.merge._layout import changed_degree_knots
-from helpers import check_grad, random_knots, random_surface
-from oracles import ndbspline_surface
 
 S = 16  # samples per patch direction: small, and one size so compiled kernels are shared
 U1 = [0, 0, 0, 0, 0.2138, 0.4959, 0.7262, 1, 1, 1, 1]
@@ -51,9 +51,9 @@ def split(surface: BSplineSurface, direction: str, t: float):
     ku, ctrl = _insert(surface.knots_u, k, surface.ctrl, t, k - have)
     i = int(np.searchsorted(ku, t - 1e-12))
     ka = np.concatenate([ku[:i], [t] * (k + 1)]) / t
-    kb = (np.concatenate([[t] * (k + 1), ku[i + k:]]) - t) / (1 - t)
+    kb = (np.concatenate([[t] * (k + 1), ku[i + k :]]) - t) / (1 - t)
     a = BSplineSurface(ctrl[:i], ka, surface.knots_v, k, surface.degree_v)
-    b = BSplineSurface(ctrl[i - 1:], kb, surface.knots_v, k, surface.degree_v)
+    b = BSplineSurface(ctrl[i - 1 :], kb, surface.knots_v, k, surface.degree_v)
     return a, b
 
 
@@ -72,12 +72,20 @@ def elevated(b: BSplineSurface) -> BSplineSurface:
     values, counts = np.unique(np.asarray(b.knots_u), return_counts=True)
     t = np.repeat(values, counts + 1)
     x = np.linspace(0, 1, 4 * len(t))
-    pts = np.stack([ndbspline_surface(b, x, np.full_like(x, vj)) for vj in np.asarray(greville(b.knots_v, 3))], 1)
+    pts = np.stack(
+        [ndbspline_surface(b, x, np.full_like(x, vj)) for vj in np.asarray(greville(b.knots_v, 3))], 1
+    )
     rows = interpolate.make_lsq_spline(x, pts.reshape(len(x), -1), t, k + 1).c
     grid = rows.reshape(len(t) - k - 2, -1, 3)
     # columns: the cubic in v is interpolated at its Greville points by the v-basis
-    av = interpolate.BSpline.design_matrix(np.asarray(greville(b.knots_v, 3)), np.asarray(b.knots_v), 3).toarray()
-    ctrl = np.linalg.solve(av, grid.transpose(1, 0, 2).reshape(av.shape[0], -1)).reshape(av.shape[0], -1, 3).transpose(1, 0, 2)
+    av = interpolate.BSpline.design_matrix(
+        np.asarray(greville(b.knots_v, 3)), np.asarray(b.knots_v), 3
+    ).toarray()
+    ctrl = (
+        np.linalg.solve(av, grid.transpose(1, 0, 2).reshape(av.shape[0], -1))
+        .reshape(av.shape[0], -1, 3)
+        .transpose(1, 0, 2)
+    )
     return BSplineSurface(ctrl, t, b.knots_v, k + 1, b.degree_v)
 
 
@@ -93,8 +101,50 @@ def test_merge_knots_thesis_433():
     0.2478 (C⁰) vs 0.2480 (C²) is a rounding slip of 0.24795."""
     c0 = mg.merge_knots(U1, U2, 3, 0)
     c2 = mg.merge_knots(U1, U2, 3, 2)
-    thesis_c0 = [0, 0, 0, 0, .1069, .2478, .3631, .5, .5, .5, .5608, .6256, .6845, .7524, .8642, .9316, 1, 1, 1, 1]
-    thesis_c2 = [0, 0, 0, 0, .1069, .2480, .3631, .4317, .5, .5304, .5608, .6256, .6845, .7524, .8642, .9316, 1, 1, 1, 1]
+    thesis_c0 = [
+        0,
+        0,
+        0,
+        0,
+        0.1069,
+        0.2478,
+        0.3631,
+        0.5,
+        0.5,
+        0.5,
+        0.5608,
+        0.6256,
+        0.6845,
+        0.7524,
+        0.8642,
+        0.9316,
+        1,
+        1,
+        1,
+        1,
+    ]
+    thesis_c2 = [
+        0,
+        0,
+        0,
+        0,
+        0.1069,
+        0.2480,
+        0.3631,
+        0.4317,
+        0.5,
+        0.5304,
+        0.5608,
+        0.6256,
+        0.6845,
+        0.7524,
+        0.8642,
+        0.9316,
+        1,
+        1,
+        1,
+        1,
+    ]
     assert len(c0) == len(c2) == (7 + 10 - 1) + 3 + 1
     np.testing.assert_allclose(c0, thesis_c0, atol=2e-4)
     np.testing.assert_allclose(c2, thesis_c2, atol=2e-4)
@@ -124,8 +174,16 @@ def test_merge_knots_properties(degree, extra_a, extra_b, seed):
         assert len(t) == len(ka) + len(kb) - degree - 2  # r = r_a + r_b − 1
         assert np.all(np.diff(t) >= 0)
         assert np.sum(t == 0.5) == degree - c  # C^c at the seam
-        np.testing.assert_allclose(t[: degree + 1 + extra_a], np.concatenate([ka[: degree + 1], ka[degree + 1:-degree - 1] / 2]))
-        BSplineSurface(np.zeros((len(t) - degree - 1, degree + 1, 3)), t, clamped_knots(degree + 1, degree), degree, degree)
+        np.testing.assert_allclose(
+            t[: degree + 1 + extra_a], np.concatenate([ka[: degree + 1], ka[degree + 1 : -degree - 1] / 2])
+        )
+        BSplineSurface(
+            np.zeros((len(t) - degree - 1, degree + 1, 3)),
+            t,
+            clamped_knots(degree + 1, degree),
+            degree,
+            degree,
+        )
 
 
 def test_cross_knots_modes():
@@ -147,7 +205,9 @@ def test_merge_halves_reproduces(surface, direction):
     a, b = split(surface, direction, 0.5)
     for c in (0, 1, 2):  # the original is C² at 0.5: every continuity up to 2 contains it
         merged = mg.merge([a, b], direction, c, samples=S)
-        assert merged.shape == ((a.shape[0] + b.shape[0] - 1, 6) if direction == "u" else (7, a.shape[1] + b.shape[1] - 1))
+        assert merged.shape == (
+            (a.shape[0] + b.shape[0] - 1, 6) if direction == "u" else (7, a.shape[1] + b.shape[1] - 1)
+        )
         assert grid_error(merged, surface) < 1e-6
 
 
@@ -168,7 +228,9 @@ def test_oriented_edges_match_evaluation(surface):
         for d in "uv":
             for e in (0, 1):
                 uu, vv = (np.full_like(t, e), t) if d == "u" else (t, np.full_like(t, e))
-                np.testing.assert_allclose(_orient._oriented_edge(edges, op, d, e), ndbspline_surface(s, uu, vv), atol=1e-12)
+                np.testing.assert_allclose(
+                    _orient._oriented_edge(edges, op, d, e), ndbspline_surface(s, uu, vv), atol=1e-12
+                )
 
 
 def test_merge_three_in_a_row_and_grid(surface):
@@ -259,8 +321,11 @@ def test_reduction_error(surface):
     reduced, _ = reduce_degree(quartic, "u", 1)
     g = np.linspace(0, 1, S)
     uu, vv = np.meshgrid(g, g, indexing="ij")
-    sampled = np.linalg.norm(ndbspline_surface(quartic, uu.ravel(), vv.ravel())
-                             - ndbspline_surface(reduced, uu.ravel(), vv.ravel()), axis=-1)
+    sampled = np.linalg.norm(
+        ndbspline_surface(quartic, uu.ravel(), vv.ravel())
+        - ndbspline_surface(reduced, uu.ravel(), vv.ravel()),
+        axis=-1,
+    )
     assert err == pytest.approx(sampled.max(), rel=1e-9) and err > 1e-4
     # the merge cannot beat the lower degree: the merged quartic part deviates at least ~ as much
     merged = layout.surface(layout.apply([a.ctrl, quartic.ctrl]))
@@ -272,7 +337,9 @@ def test_merge_trimmed_patch(surface):
     parameter range leaves exactly the missing half, and the merge gives back the surface."""
     left, _ = split(surface, "u", 0.6)
     _, right = split(surface, "u", 0.5)
-    merged = mg.merge([left, right], "u", 2, samples=(30, S), trim=[(0.0, 0.5 / 0.6), None], orient="as_given")
+    merged = mg.merge(
+        [left, right], "u", 2, samples=(30, S), trim=[(0.0, 0.5 / 0.6), None], orient="as_given"
+    )
     assert grid_error(merged, surface) < 1e-6
 
 
@@ -288,12 +355,17 @@ def test_merge_degree_policies(surface):
     down_layout = mg.plan([a, b_up], "u", 2, samples=S, degrees="reduce")
     # the knot rules are the foundation's: elevation adds to every multiplicity; reduction drops
     # the end multiplicities and caps interior ones at the new degree
-    np.testing.assert_allclose(changed_degree_knots([0, 0, 0, 0, .4, .4, .7, 1, 1, 1, 1], 3, 4),
-                               [0, 0, 0, 0, 0, .4, .4, .4, .7, .7, 1, 1, 1, 1, 1])
-    t = np.array([0, 0, 0, 0, 0, .3, .3, .6, 1, 1, 1, 1, 1.0])
-    np.testing.assert_allclose(changed_degree_knots(t, 4, 2), [0, 0, 0, .3, .3, .6, 1, 1, 1])
+    np.testing.assert_allclose(
+        changed_degree_knots([0, 0, 0, 0, 0.4, 0.4, 0.7, 1, 1, 1, 1], 3, 4),
+        [0, 0, 0, 0, 0, 0.4, 0.4, 0.4, 0.7, 0.7, 1, 1, 1, 1, 1],
+    )
+    t = np.array([0, 0, 0, 0, 0, 0.3, 0.3, 0.6, 1, 1, 1, 1, 1.0])
+    np.testing.assert_allclose(changed_degree_knots(t, 4, 2), [0, 0, 0, 0.3, 0.3, 0.6, 1, 1, 1])
     b_down_count = len(changed_degree_knots(b_up.knots_u, 4, 3)) - 4
-    assert (down_layout.merged.degree_u, down_layout.merged.ctrl_shape[0]) == (3, a.shape[0] + b_down_count - 1)
+    assert (down_layout.merged.degree_u, down_layout.merged.ctrl_shape[0]) == (
+        3,
+        a.shape[0] + b_down_count - 1,
+    )
     down = down_layout.surface(down_layout.apply([a.ctrl, b_up.ctrl]))
     assert grid_error(down, surface) < 1e-6
 
@@ -310,7 +382,12 @@ def test_thesis_case6_degrees():
     assert (k, l, len(ku) - k - 1, len(kv) - l - 1) == (4, 5, max(6 + 3, 8), (6 + 3 * 2) + 12 - 1)
     assert np.sum(kv == 0.5) == l - 2  # C² seam
     k, l, ku, kv = mg.merged_knots([[a, b]], (0, 2), degrees="reduce")
-    assert (k, l, len(ku) - k - 1, len(kv) - l - 1) == (3, 3, max(6, 8 - 1), 6 + (12 - 2) - 1)  # −d per reduced patch
+    assert (k, l, len(ku) - k - 1, len(kv) - l - 1) == (
+        3,
+        3,
+        max(6, 8 - 1),
+        6 + (12 - 2) - 1,
+    )  # −d per reduced patch
     with pytest.raises(ValueError, match="degrees"):
         mg.merged_knots([[a, b]], 2)
 
@@ -373,13 +450,18 @@ def test_deviation_closed_form_and_brute_force():
     dense = ndbspline_surface(merged, uu.ravel(), vv.ravel())
     cell = np.max(np.linalg.norm(np.diff(dense.reshape(401, 401, 3), axis=0), axis=-1))
     from scipy.spatial import cKDTree
+
     tree = cKDTree(dense)
     for orig, d in zip([roof_a, roof_b], report.distances):
         x = np.linspace(0, 1, 12)
         xu, xv = np.meshgrid(x, x, indexing="ij")
         brute = tree.query(ndbspline_surface(orig, xu.ravel(), xv.ravel()))[0].reshape(12, 12)
         assert np.all(d <= brute + 1e-9) and np.all(d >= brute - cell)
-    assert report.max > 1e-3 and report.median <= report.max and report.mean == pytest.approx(np.mean(np.concatenate([x.ravel() for x in report.distances])))
+    assert (
+        report.max > 1e-3
+        and report.median <= report.max
+        and report.mean == pytest.approx(np.mean(np.concatenate([x.ravel() for x in report.distances])))
+    )
     assert report.row()["total points"] == 288
 
 
@@ -421,8 +503,13 @@ def test_float32_merge_keeps_dtype():
     b = _plate(1.0, 2.5, 5, 4, lambda x, y: 0.4 * (2.0 - x))
 
     def f32(s):
-        return BSplineSurface(np.asarray(s.ctrl, np.float32), np.asarray(s.knots_u, np.float32),
-                              np.asarray(s.knots_v, np.float32), 3, 3)
+        return BSplineSurface(
+            np.asarray(s.ctrl, np.float32),
+            np.asarray(s.knots_u, np.float32),
+            np.asarray(s.knots_v, np.float32),
+            3,
+            3,
+        )
 
     single = mg.merge([f32(a), f32(b)], "u", 2, samples=S)
     double = mg.merge([a, b], "u", 2, samples=S)
@@ -467,6 +554,7 @@ def test_bad_input(surface):
         mg.merge_grid([[a, b], [a]])
     with pytest.raises(ValueError, match="periodic"):
         from bsjax.shapes import teardrop
+
         mg.merge([a, teardrop()], "u", samples=S)
     with pytest.raises(ValueError, match="knots"):
         mg.merge_knots(U1, U2[:-1], 3, 0)

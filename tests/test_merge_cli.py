@@ -5,16 +5,18 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from oracles import ndbspline_surface
 
 from bsjax import io
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.cli import main as bsjax_main
-from oracles import ndbspline_surface
 
 
 def _plate(x0, x1, r, s, degree=3):
     ku, kv = clamped_knots(r, degree), clamped_knots(s, 3)
-    x, y = np.meshgrid(x0 + (x1 - x0) * np.asarray(greville(ku, degree)), np.asarray(greville(kv, 3)), indexing="ij")
+    x, y = np.meshgrid(
+        x0 + (x1 - x0) * np.asarray(greville(ku, degree)), np.asarray(greville(kv, 3)), indexing="ij"
+    )
     return BSplineSurface(np.stack([x, y, 0.4 * np.minimum(x, 2.0 - x)], -1), ku, kv, degree, 3)
 
 
@@ -23,9 +25,24 @@ def test_merge_command_writes_merged_surface(tmp_path, capsys):
     io.save(a, tmp_path / "a.json")
     io.save(b, tmp_path / "b.json")
     out = tmp_path / "merged.json"
-    code = bsjax_main(["merge", str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--direction", "u",
-                       "--continuity", "0", "--samples", "16", "-o", str(out), "--report",
-                       "--report-samples", "12"])
+    code = bsjax_main(
+        [
+            "merge",
+            str(tmp_path / "a.json"),
+            str(tmp_path / "b.json"),
+            "--direction",
+            "u",
+            "--continuity",
+            "0",
+            "--samples",
+            "16",
+            "-o",
+            str(out),
+            "--report",
+            "--report-samples",
+            "12",
+        ]
+    )
     assert code == 0
     merged = io.load(out)
     assert merged.shape == (9, 4) and (merged.degree_u, merged.degree_v) == (3, 3)
@@ -52,14 +69,44 @@ def test_merge_command_reports_reduction_error(tmp_path, capsys):
     patch — zero while it is a plane (exactly quadratic), positive once a control point is bumped."""
     a, b = _plate(0.0, 1.0, 5, 4), _plate(1.0, 2.0, 5, 4, degree=2)
     io.save([a, b], tmp_path / "flat.json")
-    code = bsjax_main(["merge", str(tmp_path / "flat.json"), "-o", str(tmp_path / "f.json"), "--samples", "16",
-                       "--degrees", "reduce", "--continuity", "0", "--report", "--report-samples", "12"])
+    code = bsjax_main(
+        [
+            "merge",
+            str(tmp_path / "flat.json"),
+            "-o",
+            str(tmp_path / "f.json"),
+            "--samples",
+            "16",
+            "--degrees",
+            "reduce",
+            "--continuity",
+            "0",
+            "--report",
+            "--report-samples",
+            "12",
+        ]
+    )
     assert code == 0 and json.loads(capsys.readouterr().out)["reduction error"] < 1e-9
     a = a.with_ctrl(np.asarray(a.ctrl) + np.where(np.arange(5)[:, None, None] == 2, [0.0, 0.0, 0.3], 0.0))
     io.save([a, b], tmp_path / "ab.json")
     out = tmp_path / "m.json"
-    code = bsjax_main(["merge", str(tmp_path / "ab.json"), "-o", str(out), "--samples", "16", "--degrees", "reduce",
-                       "--continuity", "0", "--report", "--report-samples", "12"])
+    code = bsjax_main(
+        [
+            "merge",
+            str(tmp_path / "ab.json"),
+            "-o",
+            str(out),
+            "--samples",
+            "16",
+            "--degrees",
+            "reduce",
+            "--continuity",
+            "0",
+            "--report",
+            "--report-samples",
+            "12",
+        ]
+    )
     assert code == 0 and io.load(out).degree_u == 2
     report = json.loads(capsys.readouterr().out)
     assert report["reduction error"] > 1e-3 and report["max"] >= 0.0

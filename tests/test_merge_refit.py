@@ -11,12 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
+from helpers import random_surface
+from oracles import ndbspline_surface
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.merge import _nonlinear, cases
-from helpers import random_surface
-from oracles import ndbspline_surface
 
 
 def _plate(r=5, s=4):

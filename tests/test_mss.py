@@ -5,15 +5,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import check_grad
 
 from bsjax import mss, shapes
-from helpers import check_grad
 
 GRAVITY = jnp.array([0.0, 0.0, -9.81])
 
 # Jitted once per lattice structure and reused across tests (compile time dominates on 2 cores).
-simulate = jax.jit(mss.simulate, static_argnames=("n_steps", "method", "cg_iterations", "checkpoint_every",
-                                                 "check_stability"))
+simulate = jax.jit(
+    mss.simulate,
+    static_argnames=("n_steps", "method", "cg_iterations", "checkpoint_every", "check_stability"),
+)
 trajectory = jax.jit(mss.trajectory, static_argnames=("n_steps", "save_every", "method", "check_stability"))
 relax = jax.jit(mss.relax, static_argnames=("max_steps", "check_every", "method", "cg_iterations"))
 
@@ -73,8 +75,15 @@ def test_ratio_and_frequency_formulas():
 
 def plain_hex(shape, stiffness, damping, mass, fixed=None, node_damping=0.0, spacing=1.0):
     """A hexahedral lattice on the edge-list (segment_sum) kernel: smaller programs, faster compiles."""
-    return mss.Lattice(grid(shape, spacing).reshape(-1, 3), mss.hex_edges(shape), stiffness, damping, mass, fixed,
-                       node_damping=node_damping)
+    return mss.Lattice(
+        grid(shape, spacing).reshape(-1, 3),
+        mss.hex_edges(shape),
+        stiffness,
+        damping,
+        mass,
+        fixed,
+        node_damping=node_damping,
+    )
 
 
 def perturbed_hex(shape=(3, 3, 3), seed=0, scale=0.05):
@@ -106,7 +115,7 @@ def linear_stiffness(lat):
         e = (x[i] - x[j]) / np.linalg.norm(x[i] - x[j])
         b = k * np.outer(e, e)
         for a, bb, s in ((i, i, 1), (j, j, 1), (i, j, -1), (j, i, -1)):
-            kmat[3 * a:3 * a + 3, 3 * bb:3 * bb + 3] += s * b
+            kmat[3 * a : 3 * a + 3, 3 * bb : 3 * bb + 3] += s * b
     return kmat
 
 
@@ -114,8 +123,17 @@ def test_clamped_bar_static_deflection_matches_linear_solve():
     g = grid((5, 2, 2))
     fixed = (g[..., 0] == 0).reshape(-1)
     lat = plain_hex((5, 2, 2), 1e4, 20.0, 0.01, fixed, node_damping=0.5)
-    state, steps, ok = relax(lat, mss.init(lat), 0.02, gravity=GRAVITY, method="implicit",
-                             cg_iterations=60, tol=1e-16, max_steps=4000, check_every=20)
+    state, steps, ok = relax(
+        lat,
+        mss.init(lat),
+        0.02,
+        gravity=GRAVITY,
+        method="implicit",
+        cg_iterations=60,
+        tol=1e-16,
+        max_steps=4000,
+        check_every=20,
+    )
     assert bool(ok)
     free = ~np.asarray(lat.fixed)
     dofs = np.repeat(free, 3)
@@ -137,8 +155,16 @@ def test_fixed_nodes_never_move():
     force = jnp.asarray(rng.normal(size=(300, 54, 3)))
     state = mss.init(lat, x.reshape(-1, 3))
     for method in ("semi_implicit", "implicit"):
-        out = simulate(lat, state, 1e-3, n_steps=300, external_force=force, gravity=GRAVITY, method=method,
-                       cg_iterations=30)
+        out = simulate(
+            lat,
+            state,
+            1e-3,
+            n_steps=300,
+            external_force=force,
+            gravity=GRAVITY,
+            method=method,
+            cg_iterations=30,
+        )
         assert np.array_equal(np.asarray(out.position)[fixed], x.reshape(-1, 3)[fixed])
         assert np.all(np.asarray(out.velocity)[fixed] == 0)
         assert not np.allclose(np.asarray(out.position)[~fixed], x.reshape(-1, 3)[~fixed])
@@ -149,8 +175,9 @@ def test_constant_force_converges_to_rest():
     fixed = (g[..., 2] == 0).reshape(-1)
     lat = plain_hex((3, 3, 2), 100.0, 2.0, 0.05, fixed, node_damping=0.2)
     force = jnp.zeros((18, 3)).at[:, 0].set(0.5)
-    state, steps, ok = relax(lat, mss.init(lat), 0.5 * float(mss.stable_dt(lat)), force,
-                             tol=1e-18, max_steps=200_000)
+    state, steps, ok = relax(
+        lat, mss.init(lat), 0.5 * float(mss.stable_dt(lat)), force, tol=1e-18, max_steps=200_000
+    )
     assert bool(ok) and int(steps) < 200_000
     residual = mss.forces(lat, state, force)
     assert float(jnp.abs(jnp.where(lat.fixed[:, None], 0.0, residual)).max()) < 1e-6
@@ -181,8 +208,16 @@ def test_implicit_is_stable_for_steel_at_1khz():
     with pytest.raises(ValueError):
         mss.simulate(lat, mss.init(lat), 1e-3, 10)
     push = jnp.zeros((300, 54, 3)).at[:, -9:, 2].set(-50.0)
-    out = simulate(lat, mss.init(lat), 1e-3, n_steps=300, external_force=push, gravity=GRAVITY,
-                   method="implicit", cg_iterations=30)
+    out = simulate(
+        lat,
+        mss.init(lat),
+        1e-3,
+        n_steps=300,
+        external_force=push,
+        gravity=GRAVITY,
+        method="implicit",
+        cg_iterations=30,
+    )
     u = np.asarray(out.position - lat.rest_positions)
     assert np.all(np.isfinite(u)) and np.abs(u).max() < 1e-4  # steel barely bends
     assert u[-9:, 2].mean() < 0  # but it bends the right way
@@ -241,7 +276,9 @@ def test_zero_length_spring_is_finite_with_finite_gradient():
 def test_vmap_over_materials():
     g = grid((3, 3, 2), 0.01)
     fixed = (g[..., 2] == 0).reshape(-1)
-    mats = mss.Material(jnp.array([1e4, 3e4, 1e5]), jnp.array([1000.0, 1200.0, 900.0]), jnp.array([0.1, 0.5, 1.0]))
+    mats = mss.Material(
+        jnp.array([1e4, 3e4, 1e5]), jnp.array([1000.0, 1200.0, 900.0]), jnp.array([0.1, 0.5, 1.0])
+    )
 
     def run(mat):
         lat = mss.from_material(g.reshape(-1, 3), mss.hex_edges((3, 3, 2)), mat, 0.02 * 0.02 * 0.01, fixed)
@@ -266,18 +303,27 @@ def test_material_presets():
     assert np.isclose(float(jnp.sum(lat.stiffness * lat.rest_length**2)), 13e6 * 0.02**3)
 
 
-@pytest.mark.parametrize("bad, match", [
-    (dict(mass=-1.0), "mass"),
-    (dict(stiffness=np.array([1.0, -2.0])), "stiffness"),
-    (dict(edges=np.array([[0, 1], [1, 3]])), r"edges: expected node indices in \[0, 3\)"),
-    (dict(rest_positions=np.array([[0, 0, 0], [np.nan, 0, 0], [1, 1, 1.0]])), "rest_positions"),
-    (dict(fixed=np.array([True, False])), "fixed"),
-    (dict(edges=np.array([[0, 1], [2, 2]])), "self-loop"),
-    (dict(damping=np.ones(5)), "damping"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (dict(mass=-1.0), "mass"),
+        (dict(stiffness=np.array([1.0, -2.0])), "stiffness"),
+        (dict(edges=np.array([[0, 1], [1, 3]])), r"edges: expected node indices in \[0, 3\)"),
+        (dict(rest_positions=np.array([[0, 0, 0], [np.nan, 0, 0], [1, 1, 1.0]])), "rest_positions"),
+        (dict(fixed=np.array([True, False])), "fixed"),
+        (dict(edges=np.array([[0, 1], [2, 2]])), "self-loop"),
+        (dict(damping=np.ones(5)), "damping"),
+    ],
+)
 def test_bad_inputs(bad, match):
-    args = dict(rest_positions=np.eye(3), edges=np.array([[0, 1], [1, 2]]), stiffness=1.0, damping=0.1,
-                mass=1.0, fixed=None)
+    args = dict(
+        rest_positions=np.eye(3),
+        edges=np.array([[0, 1], [1, 2]]),
+        stiffness=1.0,
+        damping=0.1,
+        mass=1.0,
+        fixed=None,
+    )
     args.update(bad)
     with pytest.raises(ValueError, match=match):
         mss.Lattice(**args)
@@ -354,7 +400,9 @@ def test_surface_coupling_roundtrip_and_refit_rate():
     np.testing.assert_allclose(coupling.ctrl(coupling.nodes(surf.ctrl)), surf.ctrl, atol=1e-12)
     np.testing.assert_allclose(coupling.grid(lat.rest_positions), blend.points(surf.ctrl), atol=1e-12)
     state = mss.init(lat)
-    final, ctrls = jax.jit(lambda s: mss.simulate_coupled(lat, coupling, s, 1e-4, 60, 20, gravity=GRAVITY))(state)
+    final, ctrls = jax.jit(lambda s: mss.simulate_coupled(lat, coupling, s, 1e-4, 60, 20, gravity=GRAVITY))(
+        state
+    )
     assert ctrls.shape == (3, 8, 8, 3)
     np.testing.assert_allclose(ctrls[-1], coupling.ctrl(final.position), atol=1e-12)
     assert float(ctrls[-1, ..., 2].mean()) < float(surf.ctrl[..., 2].mean())
@@ -389,24 +437,40 @@ def test_grad_wrt_tool_trajectory_and_initial_ctrl():
 
     def pushed(offset):
         centers = jnp.stack([0.2 + 0 * t, 0.05 + 0 * t, 0.16 - 0.06 * t * offset], axis=-1)
-        path = (eqx.tree_at(lambda s: (s.center, s.radius), mss.RigidSphere(jnp.zeros(3), 0.05),
-                            (centers, jnp.full((n,), 0.05))),)
+        path = (
+            eqx.tree_at(
+                lambda s: (s.center, s.radius),
+                mss.RigidSphere(jnp.zeros(3), 0.05),
+                (centers, jnp.full((n,), 0.05)),
+            ),
+        )
         out = mss.simulate(lat, mss.init(lat), 2e-3, n, tool_path=path, contact=mss.Contact(500.0))
         return jnp.sum(out.position[:, 2])
 
     check_grad(jax.jit(pushed), jnp.array(1.0).reshape(()), eps=1e-6, rtol=1e-4, n_dirs=1)
 
     surf, blend = teardrop_blending()
-    slat, coupling = mss.surface_lattice(blend, surf.ctrl, stiffness=20.0, damping=0.1, mass=0.01,
-                                         fixed=np.pad(np.ones((1, 10), bool), ((11, 0), (0, 0))))
+    slat, coupling = mss.surface_lattice(
+        blend,
+        surf.ctrl,
+        stiffness=20.0,
+        damping=0.1,
+        mass=0.01,
+        fixed=np.pad(np.ones((1, 10), bool), ((11, 0), (0, 0))),
+    )
 
     def from_ctrl(ctrl):
         s = mss.init(slat, coupling.nodes(ctrl))
         out = mss.simulate(slat, s, 2e-3, 100, gravity=GRAVITY)
         return jnp.sum(coupling.ctrl(out.position)[..., 2] ** 2)
 
-    check_grad(jax.jit(lambda c: from_ctrl(c.reshape(8, 8, 3))), surf.ctrl.reshape(-1) + 0.001, eps=1e-6,
-               rtol=1e-4, n_dirs=2)
+    check_grad(
+        jax.jit(lambda c: from_ctrl(c.reshape(8, 8, 3))),
+        surf.ctrl.reshape(-1) + 0.001,
+        eps=1e-6,
+        rtol=1e-4,
+        n_dirs=2,
+    )
 
 
 def test_checkpointed_long_rollout_gradient_and_memory():
@@ -415,7 +479,9 @@ def test_checkpointed_long_rollout_gradient_and_memory():
 
     def loss(k, every):
         l2 = eqx.tree_at(lambda l: l.stiffness, lat, lat.stiffness * k)
-        return jnp.sum(mss.simulate(l2, s0, 1e-3, 10_000, gravity=GRAVITY, checkpoint_every=every).position[:, 2])
+        return jnp.sum(
+            mss.simulate(l2, s0, 1e-3, 10_000, gravity=GRAVITY, checkpoint_every=every).position[:, 2]
+        )
 
     g_ckpt = jax.jit(jax.grad(lambda k: loss(k, 100))).lower(1.0).compile()
     g_plain = jax.jit(jax.grad(lambda k: loss(k, None))).lower(1.0).compile()

@@ -11,8 +11,21 @@ from bsjax.cli import main
 def test_simulate_cli_clamped_plate_sags(tmp_path, capsys):
     src, out = tmp_path / "plate.json", tmp_path / "sagged.json"
     io.save(shapes.plate(5, 5, 0.2), src)
-    rc = main(["simulate", str(src), "-o", str(out), "--clamp", "0.02,0,0,1,0,0", "--steps", "300",
-               "--samples", "8", "8"])
+    rc = main(
+        [
+            "simulate",
+            str(src),
+            "-o",
+            str(out),
+            "--clamp",
+            "0.02,0,0,1,0,0",
+            "--steps",
+            "300",
+            "--samples",
+            "8",
+            "8",
+        ]
+    )
     assert rc == 0
     report = json.loads(capsys.readouterr().out)
     assert report["fixed"] == 8 and report["finite"] and report["dt"] <= report["stable_dt"]

@@ -86,18 +86,30 @@ def _grid_and_back(b, ctrl):
 @settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     st.sampled_from([(4, 6), (7, 5)]),  # non-square nets
-    st.integers(1, 3), st.integers(1, 3),
-    st.booleans(), st.booleans(),
+    st.integers(1, 3),
+    st.integers(1, 3),
+    st.booleans(),
+    st.booleans(),
     st.integers(0, 2**31 - 1),
 )
 def test_surface_grid_matches_scipy_and_refits(shape, k, l, periodic_v, rational, seed):
     r, s = shape
     rng = np.random.default_rng(seed)
     tu = np.concatenate([np.zeros(k + 1), np.sort(rng.uniform(0.1, 0.9, r - k - 1)), np.ones(k + 1)])
-    tv = None if periodic_v else np.concatenate([np.zeros(l + 1), np.sort(rng.uniform(0.1, 0.9, s - l - 1)),
-                                                 np.ones(l + 1)])
-    surface = BSplineSurface(rng.normal(size=(r, s, 3)), tu, tv, k, l, periodic_v=periodic_v,
-                             weights=rng.uniform(0.5, 2.0, (r, s)) if rational else None)
+    tv = (
+        None
+        if periodic_v
+        else np.concatenate([np.zeros(l + 1), np.sort(rng.uniform(0.1, 0.9, s - l - 1)), np.ones(l + 1)])
+    )
+    surface = BSplineSurface(
+        rng.normal(size=(r, s, 3)),
+        tu,
+        tv,
+        k,
+        l,
+        periodic_v=periodic_v,
+        weights=rng.uniform(0.5, 2.0, (r, s)) if rational else None,
+    )
     # Greville-like parameters in u keep the refit well posed; v is sampled on a fine grid.
     b = surface.blending(params_u=np.linspace(0, 1, 24), params_v=np.linspace(0, 1, 24, endpoint=False))
     pts, back = _grid_and_back(b, surface.ctrl)

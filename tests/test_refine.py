@@ -16,7 +16,9 @@ R, S = 7, 6
 
 def _surface(rng, k=3, l=2, weights=False, r=R, s=S):
     w = rng.uniform(0.5, 2.0, (r, s)) if weights else None
-    return BSplineSurface(rng.normal(size=(r, s, 3)), random_knots(rng, r, k), random_knots(rng, s, l), k, l, weights=w)
+    return BSplineSurface(
+        rng.normal(size=(r, s, 3)), random_knots(rng, r, k), random_knots(rng, s, l), k, l, weights=w
+    )
 
 
 def _dense(rng, count=400):
@@ -46,14 +48,19 @@ def test_insert_knots_matches_geomdl_and_keeps_geometry(direction, weights):
     values = [0.31, 0.77, 0.77]
     refined = insert_knots(surface, direction, values)
     old = np.asarray(getattr(surface, f"knots_{direction}"))
-    np.testing.assert_array_equal(getattr(refined, f"knots_{direction}"), np.sort(np.concatenate([old, values])))
+    np.testing.assert_array_equal(
+        getattr(refined, f"knots_{direction}"), np.sort(np.concatenate([old, values]))
+    )
     assert refined.shape == ((R + 3, S) if direction == "u" else (R, S + 3))
     _same_geometry(surface, refined, rng)
     g = geomdl_surface(surface)
     for value, count in ((0.31, 1), (0.77, 2)):
         g = copy.deepcopy(g)
-        operations.insert_knot(g, [value, None] if direction == "u" else [None, value],
-                               [count, 0] if direction == "u" else [0, count])
+        operations.insert_knot(
+            g,
+            [value, None] if direction == "u" else [None, value],
+            [count, 0] if direction == "u" else [0, count],
+        )
     pts, w = _geomdl_net(g, weights)
     np.testing.assert_allclose(refined.ctrl, pts, rtol=0, atol=1e-12)
     if weights:
@@ -65,8 +72,14 @@ def test_elevate_bezier_direction_matches_geomdl(weights, times):
     """u is a single Bézier segment (r = k + 1): the NURBS Book elevation formula, per column."""
     rng = np.random.default_rng(10 + times)
     k = 3
-    surface = BSplineSurface(rng.normal(size=(k + 1, S, 3)), clamped_knots(k + 1, k), random_knots(rng, S, 2),
-                             k, 2, weights=rng.uniform(0.5, 2.0, (k + 1, S)) if weights else None)
+    surface = BSplineSurface(
+        rng.normal(size=(k + 1, S, 3)),
+        clamped_knots(k + 1, k),
+        random_knots(rng, S, 2),
+        k,
+        2,
+        weights=rng.uniform(0.5, 2.0, (k + 1, S)) if weights else None,
+    )
     up = elevate_degree(surface, "u", times)
     assert up.degree_u == k + times and up.shape == (k + 1 + times, S)
     w = np.ones((k + 1, S)) if not weights else np.asarray(surface.weights)
@@ -93,7 +106,9 @@ def test_elevate_degree_keeps_geometry_and_continuity(direction, weights):
     u, v = _dense(rng, 50)
     nu, nv = (2, 0) if direction == "u" else (0, 2)
     ref = ndbspline_surface(surface, u, v, nu, nv)
-    np.testing.assert_allclose(ndbspline_surface(up, u, v, nu, nv), ref, rtol=0, atol=1e-9 * np.abs(ref).max())
+    np.testing.assert_allclose(
+        ndbspline_surface(up, u, v, nu, nv), ref, rtol=0, atol=1e-9 * np.abs(ref).max()
+    )
 
 
 def test_elevated_coefficients_equal_scipy_least_squares_fit():
@@ -155,11 +170,14 @@ def test_reduce_twice_and_errors_grow():
     assert down2.degree_u == 2 and e2 >= e1 > 0
 
 
-@pytest.mark.parametrize("call", [
-    lambda s: insert_knots(s, "w", [0.5]),
-    lambda s: elevate_degree(s, "x"),
-    lambda s: reduce_degree(s, 0),
-])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda s: insert_knots(s, "w", [0.5]),
+        lambda s: elevate_degree(s, "x"),
+        lambda s: reduce_degree(s, 0),
+    ],
+)
 def test_bad_direction_names_the_argument(call):
     with pytest.raises(ValueError, match="direction"):
         call(_surface(np.random.default_rng(0)))

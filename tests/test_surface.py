@@ -75,7 +75,9 @@ def test_evaluate_matches_geomdl(weights):
         skl = g.derivatives(float(u[i]), float(v[i]), order=2)
         for (a, b), values in zip(ORDERS, got):
             ref = np.asarray(skl[a][b])
-            np.testing.assert_allclose(values[i], ref, rtol=0, atol=tolerance(ref, 1e-11), err_msg=str((a, b)))
+            np.testing.assert_allclose(
+                values[i], ref, rtol=0, atol=tolerance(ref, 1e-11), err_msg=str((a, b))
+            )
 
 
 def test_periodic_surface_matches_ndbspline_and_closes():
@@ -157,9 +159,13 @@ def test_teardrop_normals_finite_at_poles_and_grad_finite():
     # Away from the poles the normal is T_u × T_v / |·|.
     u = jnp.full_like(v, 0.4)
     ref = np.cross(ndbspline_surface(surface, u, v, 1, 0), ndbspline_surface(surface, u, v, 0, 1))
-    np.testing.assert_allclose(_normal(surface, u, v), ref / np.linalg.norm(ref, axis=-1, keepdims=True), atol=1e-12)
+    np.testing.assert_allclose(
+        _normal(surface, u, v), ref / np.linalg.norm(ref, axis=-1, keepdims=True), atol=1e-12
+    )
     # Gradient of a normal component w.r.t. the control net, exactly at the pole, is finite.
-    g = jax.jit(jax.grad(lambda c: surface.with_ctrl(c).normal(jnp.array(0.0), jnp.array(0.3))[2]))(surface.ctrl)
+    g = jax.jit(jax.grad(lambda c: surface.with_ctrl(c).normal(jnp.array(0.0), jnp.array(0.3))[2]))(
+        surface.ctrl
+    )
     assert np.all(np.isfinite(np.asarray(g)))
 
 
@@ -174,8 +180,12 @@ def test_jit_and_vmap_over_control_nets_equal_loop():
     for b in range(4):
         loop = single(nets[b])
         np.testing.assert_allclose(batched[b], loop, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(batched[b], ndbspline_surface(surface.with_ctrl(nets[b]), u, v, 1, 1),
-                                   rtol=0, atol=tolerance(loop))
+        np.testing.assert_allclose(
+            batched[b],
+            ndbspline_surface(surface.with_ctrl(nets[b]), u, v, 1, 1),
+            rtol=0,
+            atol=tolerance(loop),
+        )
 
 
 def test_grad_wrt_control_points_weights_and_parameters():
@@ -188,7 +198,9 @@ def test_grad_wrt_control_points_weights_and_parameters():
         return jnp.sum(s.evaluate(uu, vv) * probe) + jnp.sum(s.normal(uu, vv) * probe)
 
     check_grad(jax.jit(lambda c: loss(eqx.tree_at(lambda s: s.ctrl, surface, c))), surface.ctrl)
-    points_only = jax.jit(lambda w: jnp.sum(eqx.tree_at(lambda s: s.weights, surface, w).evaluate(u, v) * probe))
+    points_only = jax.jit(
+        lambda w: jnp.sum(eqx.tree_at(lambda s: s.weights, surface, w).evaluate(u, v) * probe)
+    )
     check_grad(points_only, surface.weights)
     inner = (jnp.asarray(rng.uniform(0.05, 0.95, 6)), jnp.asarray(rng.uniform(0.05, 0.95, 6)))
     probe6 = probe[:6]
@@ -217,8 +229,12 @@ def test_float32_stays_float32(weights):
     rng = np.random.default_rng(14)
     s64 = _surface(rng, 3, 2, weights=weights)
     s32 = BSplineSurface(
-        np.asarray(s64.ctrl, np.float32), np.asarray(s64.knots_u, np.float32), clamped_knots(S, 2),
-        3, 2, weights=None if s64.weights is None else np.asarray(s64.weights, np.float32),
+        np.asarray(s64.ctrl, np.float32),
+        np.asarray(s64.knots_u, np.float32),
+        clamped_knots(S, 2),
+        3,
+        2,
+        weights=None if s64.weights is None else np.asarray(s64.weights, np.float32),
     )
     assert s32.ctrl.dtype == s32.knots_u.dtype == s32.knots_v.dtype == jnp.float32
     u = np.linspace(0, 1, 7, dtype=np.float32)

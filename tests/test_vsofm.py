@@ -123,12 +123,15 @@ def test_corner_jacobians_detect_inversion():
     assert rep.inverted > 0 and rep.min_scaled_jacobian < 0
 
 
-@pytest.mark.parametrize("args, match", [
-    ((np.zeros((10, 2)), (4, 4, 4)), "points"),
-    ((np.full((10, 3), np.nan), (4, 4, 4)), "points"),
-    ((np.random.default_rng(0).normal(size=(10, 3)), (4, 1, 4)), "shape"),
-    ((np.random.default_rng(0).normal(size=(10, 3)), (4, 4)), "shape"),
-])
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        ((np.zeros((10, 2)), (4, 4, 4)), "points"),
+        ((np.full((10, 3), np.nan), (4, 4, 4)), "points"),
+        ((np.random.default_rng(0).normal(size=(10, 3)), (4, 1, 4)), "shape"),
+        ((np.random.default_rng(0).normal(size=(10, 3)), (4, 4)), "shape"),
+    ],
+)
 def test_bad_inputs(args, match):
     with pytest.raises(ValueError, match=match):
         vsofm.fit(*args)

@@ -12,14 +12,39 @@ from bsjax.collide.contact import Contact, SurfaceContact, contacts, surface_con
 from bsjax.collide.force import contact_force, nodal_forces, sample_forces
 from bsjax.collide.hierarchy import cell_triangles, sphere_hierarchy, tessellate
 from bsjax.collide.tools import (
-    AbstractTool, Ellipsoid, Implicit, Plane, Point, ProjectionSolver, Sphere, TriangleMesh,
+    AbstractTool,
+    Ellipsoid,
+    Implicit,
+    Plane,
+    Point,
+    ProjectionSolver,
+    Sphere,
+    TriangleMesh,
 )
 from bsjax.collide.triangles import closest_point_on_triangle, triangles_intersect
 
 __all__ = [
-    "AbstractTool", "Contact", "Ellipsoid", "Implicit", "Plane", "Point", "ProjectionSolver",
-    "Sphere", "SurfaceContact", "TriangleMesh", "cell_triangles", "closest_point_on_triangle",
-    "contact_force", "contacts", "hulls_apart", "nodal_forces", "parametric_window",
-    "sample_forces", "sample_window", "sphere_hierarchy", "surface_contacts", "tessellate",
+    "AbstractTool",
+    "Contact",
+    "Ellipsoid",
+    "Implicit",
+    "Plane",
+    "Point",
+    "ProjectionSolver",
+    "Sphere",
+    "SurfaceContact",
+    "TriangleMesh",
+    "cell_triangles",
+    "closest_point_on_triangle",
+    "contact_force",
+    "contacts",
+    "hulls_apart",
+    "nodal_forces",
+    "parametric_window",
+    "sample_forces",
+    "sample_window",
+    "sphere_hierarchy",
+    "surface_contacts",
+    "tessellate",
     "triangles_intersect",
 ]

@@ -16,7 +16,10 @@ _FW_STEPS = 24
 
 
 def hulls_apart(
-    a: Float[Array, "p 3"], b: Float[Array, "q 3"], margin: Float[Array, ""] | float = 0.0, steps: int = _FW_STEPS
+    a: Float[Array, "p 3"],
+    b: Float[Array, "q 3"],
+    margin: Float[Array, ""] | float = 0.0,
+    steps: int = _FW_STEPS,
 ) -> Bool[Array, ""]:
     """Certify that `dist(conv(a), conv(b)) > margin` (False means "maybe touching").
 
@@ -62,6 +65,7 @@ def support_start(a: Float[Array, "m r"], degree: int, periodic: bool) -> Array:
 
 def _blocks(ctrl, k, l, periodic_u, periodic_v):
     """Bounding boxes of every `(k+1) × (l+1)` block of control points, `(r', s', 3)` lo and hi."""
+
     def extend(x, size, axis, periodic):
         if periodic:
             return jnp.concatenate([x, jax.lax.slice_in_dim(x, 0, size, axis=axis)], axis=axis)
@@ -96,7 +100,11 @@ def parametric_window(mask, params_u, params_v) -> Float[Array, "4"]:
     """`[u_min, u_max, v_min, v_max]` of the True entries of an `(m, n)` mask."""
     rows, cols = jnp.any(mask, 1), jnp.any(mask, 0)
     one, zero = jnp.ones((), params_u.dtype), jnp.zeros((), params_u.dtype)
-    return jnp.stack([
-        jnp.min(jnp.where(rows, params_u, one)), jnp.max(jnp.where(rows, params_u, zero)),
-        jnp.min(jnp.where(cols, params_v, one)), jnp.max(jnp.where(cols, params_v, zero)),
-    ])
+    return jnp.stack(
+        [
+            jnp.min(jnp.where(rows, params_u, one)),
+            jnp.max(jnp.where(rows, params_u, zero)),
+            jnp.min(jnp.where(cols, params_v, one)),
+            jnp.max(jnp.where(cols, params_v, zero)),
+        ]
+    )

@@ -23,7 +23,12 @@ from bsjax._tensor import safe_norm, unit
 from bsjax.collide.broad import hulls_apart, parametric_window, sample_window
 from bsjax.collide.flat import flat_pairs, normal_cones, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
-    block_order, candidate_triangles, cell_triangles, levels_for, sphere_hierarchy, traverse,
+    block_order,
+    candidate_triangles,
+    cell_triangles,
+    levels_for,
+    sphere_hierarchy,
+    traverse,
 )
 from bsjax.collide.tools import AbstractTool, Point
 from bsjax.collide.triangles import candidate_pairs_intersect, closest_point_on_triangle, triangles_intersect
@@ -93,7 +98,9 @@ def _unless_apart(apart, query, *args):
 
 def _check_net(blending, ctrl, name):
     if np.shape(ctrl) != tuple(blending.ctrl_shape) + (3,):
-        _checks.fail(name, f"shape {tuple(blending.ctrl_shape) + (3,)} (the blending's control net)", np.shape(ctrl))
+        _checks.fail(
+            name, f"shape {tuple(blending.ctrl_shape) + (3,)} (the blending's control net)", np.shape(ctrl)
+        )
 
 
 def contacts(blending, ctrl: Float[Array, "r s 3"], tool: AbstractTool, *, method: str = "window") -> Contact:
@@ -136,16 +143,25 @@ def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
     points, normals = points_normals(blending, ctrl)
     inside = tool.value(points) < 0
     if use_window:
-        window_mask, window = sample_window(blending, jax.lax.stop_gradient(ctrl), jax.lax.stop_gradient(tool))
+        window_mask, window = sample_window(
+            blending, jax.lax.stop_gradient(ctrl), jax.lax.stop_gradient(tool)
+        )
         inside = inside & window_mask
     else:
         window = parametric_window(jnp.ones(inside.shape, bool), blending.params_u, blending.params_v)
     depth, tool_normals = tool.penetration(points, normals)
     depth = jnp.where(inside, depth, 0)
     return Contact(
-        hit=jnp.any(inside), mask=inside, depth=depth, points=points, normals=normals,
-        tool_normals=tool_normals, params_u=blending.params_u, params_v=blending.params_v,
-        window=window, apart=jnp.zeros((), bool),
+        hit=jnp.any(inside),
+        mask=inside,
+        depth=depth,
+        points=points,
+        normals=normals,
+        tool_normals=tool_normals,
+        params_u=blending.params_u,
+        params_v=blending.params_v,
+        window=window,
+        apart=jnp.zeros((), bool),
     )
 
 
@@ -192,8 +208,7 @@ def _nearest_on_grid(x, points):
     inside = (r >= i0) & (r < i0 + bu - 1) & (c >= j0) & (c < j0 + bv - 1)
     outside_bound = jnp.min(jnp.where(inside, jnp.inf, bound))
     certain = safe_norm(x - closest) <= outside_bound
-    return jax.lax.cond(certain, lambda: (face, closest, bary),
-                        lambda: _cast_face(search(points)))
+    return jax.lax.cond(certain, lambda: (face, closest, bary), lambda: _cast_face(search(points)))
 
 
 def _cast_face(result):
@@ -216,15 +231,28 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
     probe = jnp.where(dist > 0, unit(offset), -face_normal)
     tool_normals = jnp.zeros((m * n, 3), x.dtype).at[face].set(probe).reshape(m, n, 3)
     return Contact(
-        hit=inside, mask=mask, depth=depth, points=points, normals=normals, tool_normals=tool_normals,
-        params_u=blending.params_u, params_v=blending.params_v,
-        window=parametric_window(mask, blending.params_u, blending.params_v), apart=jnp.zeros((), bool),
+        hit=inside,
+        mask=mask,
+        depth=depth,
+        points=points,
+        normals=normals,
+        tool_normals=tool_normals,
+        params_u=blending.params_u,
+        params_v=blending.params_v,
+        window=parametric_window(mask, blending.params_u, blending.params_v),
+        apart=jnp.zeros((), bool),
     )
 
 
 def surface_contacts(
-    blending_a, ctrl_a: Float[Array, "ra sa 3"], blending_b, ctrl_b: Float[Array, "rb sb 3"],
-    *, capacity: int = 2048, method: str = "hierarchy", flat_angle: float | None = 0.05,
+    blending_a,
+    ctrl_a: Float[Array, "ra sa 3"],
+    blending_b,
+    ctrl_b: Float[Array, "rb sb 3"],
+    *,
+    capacity: int = 2048,
+    method: str = "hierarchy",
+    flat_angle: float | None = 0.05,
 ) -> SurfaceContact:
     """Contact regions of two deformable B-spline surfaces (thesis §3.3).
 
@@ -248,11 +276,18 @@ def surface_contacts(
     ctrl_a, ctrl_b = jnp.asarray(ctrl_a), jnp.asarray(ctrl_b)
     if method == "dense":
         return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
-    apart = hulls_apart(jax.lax.stop_gradient(ctrl_a).reshape(-1, 3), jax.lax.stop_gradient(ctrl_b).reshape(-1, 3))
-    if flat_angle is not None and not (isinstance(flat_angle, (int, float, np.floating)) and 0 <= flat_angle < np.pi / 2):
+    apart = hulls_apart(
+        jax.lax.stop_gradient(ctrl_a).reshape(-1, 3), jax.lax.stop_gradient(ctrl_b).reshape(-1, 3)
+    )
+    if flat_angle is not None and not (
+        isinstance(flat_angle, (int, float, np.floating)) and 0 <= flat_angle < np.pi / 2
+    ):
         _checks.fail("flat_angle", "None or an angle in radians in [0, π/2)", flat_angle)
-    query = functools.partial(_hierarchy_surfaces, capacity=int(capacity),
-                              flat_angle=None if flat_angle is None else float(flat_angle))
+    query = functools.partial(
+        _hierarchy_surfaces,
+        capacity=int(capacity),
+        flat_angle=None if flat_angle is None else float(flat_angle),
+    )
     return _unless_apart(apart, query, blending_a, ctrl_a, blending_b, ctrl_b)
 
 
@@ -297,8 +332,15 @@ def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
     else:
         flat_hit = jnp.zeros((), jnp.int32)
     return SurfaceContact(
-        hit=jnp.any(pair_hit) | (flat_hit > 0), mask_a=mask_a, mask_b=mask_b, cells_a=cell_a, cells_b=cell_b,
-        pair_hit=pair_hit, candidates=count.astype(jnp.int32), overflow=overflow, flat_pairs=flat_hit,
+        hit=jnp.any(pair_hit) | (flat_hit > 0),
+        mask_a=mask_a,
+        mask_b=mask_b,
+        cells_a=cell_a,
+        cells_b=cell_b,
+        pair_hit=pair_hit,
+        candidates=count.astype(jnp.int32),
+        overflow=overflow,
+        flat_pairs=flat_hit,
         apart=jnp.zeros((), bool),
     )
 
@@ -309,10 +351,16 @@ def _flat_contacts(pa, lev_a, pb, lev_b, flat_steps, cones):
     mask_a, mask_b = jnp.zeros(pa.shape[:2], bool), jnp.zeros(pb.shape[:2], bool)
     count = jnp.zeros((), jnp.int32)
     for la, lb, ia, ib, is_flat in flat_steps:
+
         def resolve(la=la, lb=lb, ia=ia, ib=ib, is_flat=is_flat):
-            corners_a, hit_a, corners_b, hit_b = resolve_flat_pairs(pa, lev_a, la, ia, pb, lev_b, lb, ib, is_flat, *cones)
-            return (_vertex_mask(corners_a, hit_a, pa.shape[:2]), _vertex_mask(corners_b, hit_b, pb.shape[:2]),
-                    jnp.any(hit_a, 1).sum(dtype=jnp.int32))
+            corners_a, hit_a, corners_b, hit_b = resolve_flat_pairs(
+                pa, lev_a, la, ia, pb, lev_b, lb, ib, is_flat, *cones
+            )
+            return (
+                _vertex_mask(corners_a, hit_a, pa.shape[:2]),
+                _vertex_mask(corners_b, hit_b, pb.shape[:2]),
+                jnp.any(hit_a, 1).sum(dtype=jnp.int32),
+            )
 
         def skip():
             return jnp.zeros(pa.shape[:2], bool), jnp.zeros(pb.shape[:2], bool), jnp.zeros((), jnp.int32)
@@ -339,7 +387,14 @@ def _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b):
     mask_b = _vertex_mask(fb, jnp.any(hits, 0), pb.shape[:2])
     empty = jnp.zeros((0, 2), jnp.int32)
     return SurfaceContact(
-        hit=jnp.any(hits), mask_a=mask_a, mask_b=mask_b, cells_a=empty, cells_b=empty,
-        pair_hit=jnp.zeros((0,), bool), candidates=jnp.sum(hits).astype(jnp.int32),
-        overflow=jnp.zeros((), bool), flat_pairs=jnp.zeros((), jnp.int32), apart=jnp.zeros((), bool),
+        hit=jnp.any(hits),
+        mask_a=mask_a,
+        mask_b=mask_b,
+        cells_a=empty,
+        cells_b=empty,
+        pair_hit=jnp.zeros((0,), bool),
+        candidates=jnp.sum(hits).astype(jnp.int32),
+        overflow=jnp.zeros((), bool),
+        flat_pairs=jnp.zeros((), jnp.int32),
+        apart=jnp.zeros((), bool),
     )

@@ -138,7 +138,9 @@ def _cells_against_plane(x, present, quad, axis, y, slab_present):
     return present & straddle & over
 
 
-def resolve_flat_pairs(pa, levels_a: int, la: int, ia, pb, levels_b: int, lb: int, ib, flat, cones_a, cones_b):
+def resolve_flat_pairs(
+    pa, levels_a: int, la: int, ia, pb, levels_b: int, lb: int, ib, flat, cones_a, cones_b
+):
     """Contact cells of flat pairs, each block against the other's plane (module doc).
 
     **Arguments:** sample grids `pa (ma, na, 3)`, `pb`; hierarchy depths and the static levels

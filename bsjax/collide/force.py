@@ -11,9 +11,9 @@ surface receives equal and opposite forces, per sample and then per lattice node
 from __future__ import annotations
 
 import jax
-import numpy as np
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+import numpy as np
+from jaxtyping import Array, Float
 
 from bsjax import _checks
 from bsjax._tensor import unit
@@ -49,8 +49,11 @@ def _magnitudes(contact, stiffness, damping, velocity, direction):
 
 
 def contact_force(
-    contact, stiffness: float | Array, method: str = "surface_normal",
-    damping: float | Array = 0.0, velocity: Float[Array, "3"] | None = None,
+    contact,
+    stiffness: float | Array,
+    method: str = "surface_normal",
+    damping: float | Array = 0.0,
+    velocity: Float[Array, "3"] | None = None,
 ) -> Float[Array, "3"]:
     """Force on the tool from the distributed contact springs (paper 002 §3.2).
 
@@ -70,8 +73,11 @@ def contact_force(
 
 
 def sample_forces(
-    contact, stiffness: float | Array, method: str = "surface_normal",
-    damping: float | Array = 0.0, velocity: Float[Array, "3"] | None = None,
+    contact,
+    stiffness: float | Array,
+    method: str = "surface_normal",
+    damping: float | Array = 0.0,
+    velocity: Float[Array, "3"] | None = None,
 ) -> Float[Array, "m n 3"]:
     """Per-sample reaction forces on the surface, equal and opposite to `contact_force`.
 

@@ -37,7 +37,9 @@ def three_point_sphere(p00, p10, p01, p11):
     ww = jnp.sum(w * w, -1)
     uu, vv = jnp.sum(u * u, -1), jnp.sum(v * v, -1)
     ok = ww > jnp.finfo(ww.dtype).eps * uu * vv
-    off = (uu[..., None] * jnp.cross(v, w) + vv[..., None] * jnp.cross(w, u)) / (2 * jnp.where(ok, ww, 1))[..., None]
+    off = (uu[..., None] * jnp.cross(v, w) + vv[..., None] * jnp.cross(w, u)) / (2 * jnp.where(ok, ww, 1))[
+        ..., None
+    ]
     return jnp.where(ok[..., None], a + off, 0.5 * (a + b))
 
 

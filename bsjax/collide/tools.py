@@ -10,7 +10,8 @@ control-hull broad phase, and a conservative overlap test against boxes of contr
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -90,7 +91,9 @@ class AbstractTool(eqx.Module):
     def cast(self, dtype) -> "AbstractTool":
         """The same tool with its floating arrays in `dtype`."""
         return jax.tree_util.tree_map(
-            lambda a: a.astype(dtype) if isinstance(a, jax.Array) and jnp.issubdtype(a.dtype, jnp.floating) else a,
+            lambda a: (
+                a.astype(dtype) if isinstance(a, jax.Array) and jnp.issubdtype(a.dtype, jnp.floating) else a
+            ),
             self,
         )
 
@@ -181,7 +184,9 @@ class Ellipsoid(AbstractTool):
         if _checks.is_concrete(rotation):
             err = float(np.max(np.abs(np.asarray(rotation).T @ np.asarray(rotation) - np.eye(3))))
             if err > 1e-6 or np.linalg.det(np.asarray(rotation)) < 0:
-                _checks.fail("rotation", "a proper rotation matrix (R^T R = I, det 1)", f"|R^T R - I| = {err:.2g}")
+                _checks.fail(
+                    "rotation", "a proper rotation matrix (R^T R = I, det 1)", f"|R^T R - I| = {err:.2g}"
+                )
         self.rotation = rotation
 
     def _local(self, x):
@@ -208,8 +213,11 @@ class Ellipsoid(AbstractTool):
     def box_overlap(self, lo, hi):
         # the 8 box corners in the unit-sphere frame bound the box's image (a parallelepiped)
         corners = jnp.stack(
-            [jnp.stack([jnp.where(bit, hi[..., k], lo[..., k]) for k, bit in enumerate(bits)], -1)
-             for bits in np.ndindex(2, 2, 2)], -2,
+            [
+                jnp.stack([jnp.where(bit, hi[..., k], lo[..., k]) for k, bit in enumerate(bits)], -1)
+                for bits in np.ndindex(2, 2, 2)
+            ],
+            -2,
         )
         local = self._local(corners)
         return _sphere_box(jnp.zeros(3, lo.dtype), jnp.ones((), lo.dtype), local.min(-2), local.max(-2))
@@ -309,8 +317,11 @@ class Implicit(AbstractTool):
         rtol, atol = max(self.solver.rtol, float(10 * eps)), max(self.solver.atol, float(100 * eps))
         lam0 = jax.lax.stop_gradient(-jnp.dot(y0 - x, grad) / safe)
         sol = optx.root_find(
-            residual, optx.Newton(rtol=rtol, atol=atol), jnp.concatenate([y0, lam0[None]]),
-            max_steps=self.solver.max_steps, throw=False,
+            residual,
+            optx.Newton(rtol=rtol, atol=atol),
+            jnp.concatenate([y0, lam0[None]]),
+            max_steps=self.solver.max_steps,
+            throw=False,
         )
         y = sol.value[:3]
         # accept the Newton point unless it failed or wandered off to a farther stationary point
@@ -376,7 +387,9 @@ class TriangleMesh(AbstractTool):
         if not np.issubdtype(faces_np.dtype, np.integer):
             _checks.fail("faces", "integer vertex indices", faces_np.dtype)
         if faces_np.min() < 0 or faces_np.max() >= vertices.shape[0]:
-            _checks.fail("faces", f"indices in [0, {vertices.shape[0]})", (int(faces_np.min()), int(faces_np.max())))
+            _checks.fail(
+                "faces", f"indices in [0, {vertices.shape[0]})", (int(faces_np.min()), int(faces_np.max()))
+            )
         self.vertices = vertices
         self.faces = jnp.asarray(faces_np.astype(np.int32))
 

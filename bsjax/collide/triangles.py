@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+
 def _dot(a, b):
     return jnp.sum(a * b, axis=-1)
 
@@ -38,11 +39,18 @@ def _canonical(d0, d1, d2):
     """
     pos, neg = d0 > 0, d0 < 0
     conds = [
-        pos & (d1 > 0), pos & (d2 > 0), pos,
-        neg & (d1 < 0), neg & (d2 < 0), neg,
-        (d1 < 0) & (d2 >= 0), d1 < 0,
-        (d1 > 0) & (d2 > 0), d1 > 0,
-        d2 > 0, d2 < 0,
+        pos & (d1 > 0),
+        pos & (d2 > 0),
+        pos,
+        neg & (d1 < 0),
+        neg & (d2 < 0),
+        neg,
+        (d1 < 0) & (d2 >= 0),
+        d1 < 0,
+        (d1 > 0) & (d2 > 0),
+        d1 > 0,
+        d2 > 0,
+        d2 < 0,
     ]
     rot = jnp.select(conds, [2, 1, 0, 2, 1, 0, 1, 0, 0, 1, 2, 2], default=0)
     swap = jnp.select(conds, [1, 1, 0, 0, 0, 1, 1, 0, 1, 0, 0, 1], default=0)
@@ -52,6 +60,7 @@ def _canonical(d0, d1, d2):
 
 # Structure-of-arrays helpers: a vector is a tuple (x, y, z) of same-shape arrays, which lets
 # XLA fuse the whole test into one elementwise loop (a trailing axis of size 3 does not).
+
 
 def _v(t, i):
     return (t[..., i, 0], t[..., i, 1], t[..., i, 2])
@@ -121,6 +130,7 @@ def _guigue_devillers(t1, t2):
 
 
 # --- robust path ---------------------------------------------------------------------------
+
 
 def _sign(x):
     return jnp.sign(x)
@@ -219,9 +229,7 @@ def _intersect_flat(f1, f2, active=None):
     fast, robust = _guigue_devillers(f1, f2)
     if active is not None:
         fast, robust = fast & active, robust & active
-    exact = jax.lax.cond(
-        jnp.any(robust), lambda: _robust(f1, f2), lambda: jnp.zeros(f1.shape[:1], bool)
-    )
+    exact = jax.lax.cond(jnp.any(robust), lambda: _robust(f1, f2), lambda: jnp.zeros(f1.shape[:1], bool))
     return jnp.where(robust, exact, fast)
 
 
@@ -230,7 +238,9 @@ def candidate_pairs_intersect(t1, t2, active):
     inactive pairs (padding of a fixed-capacity candidate list) cost no exact test."""
     t1, t2, active = jnp.broadcast_arrays(t1, t2, active[..., None, None])
     batch = t1.shape[:-2]
-    return _intersect_flat(t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3), active[..., 0, 0].reshape(-1)).reshape(batch)
+    return _intersect_flat(t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3), active[..., 0, 0].reshape(-1)).reshape(
+        batch
+    )
 
 
 def closest_point_on_triangle(x: Float[Array, "... 3"], tri: Float[Array, "... 3 3"]) -> tuple[Array, Array]:

@@ -13,7 +13,12 @@ print(loop.stats.report())
 from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
 from bsjax.device.hid import HidDevice, HidField, HidLayout
 from bsjax.device.protocol import (
-    BUTTON_PRESS, DeviceError, DeviceSample, DeviceTimeout, HapticDevice, Workspace,
+    BUTTON_PRESS,
+    DeviceError,
+    DeviceSample,
+    DeviceTimeout,
+    HapticDevice,
+    Workspace,
 )
 from bsjax.device.proxy import Proxy
 from bsjax.device.record import Recorder, Recording
@@ -23,10 +28,32 @@ from bsjax.device.simulated import SimulatedDevice, sculpt_script
 from bsjax.device.telemetry import ServoStats, plot_recording
 
 __all__ = [
-    "BUTTON_PRESS", "Decoded", "DeviceError", "DeviceSample", "DeviceTimeout", "Frame", "HapticDevice",
-    "HidDevice", "HidField", "HidLayout", "PhysicsModel", "Proxy", "Recorder", "Recording", "SerialDevice", "ServoLoop",
-    "SculptModel", "ServoStats", "SimulatedDevice", "Workspace", "decode_frames", "encode_force", "encode_frame",
-    "encode_pose", "plot_recording", "sculpt_script",
+    "BUTTON_PRESS",
+    "Decoded",
+    "DeviceError",
+    "DeviceSample",
+    "DeviceTimeout",
+    "Frame",
+    "HapticDevice",
+    "HidDevice",
+    "HidField",
+    "HidLayout",
+    "PhysicsModel",
+    "Proxy",
+    "Recorder",
+    "Recording",
+    "SculptModel",
+    "SerialDevice",
+    "ServoLoop",
+    "ServoStats",
+    "SimulatedDevice",
+    "Workspace",
+    "decode_frames",
+    "encode_force",
+    "encode_frame",
+    "encode_pose",
+    "plot_recording",
+    "sculpt_script",
 ]
 
 

@@ -16,7 +16,7 @@ class ForceShaper:
     `max_force` (the rate limiter moves along a segment between two points of the ball).
     """
 
-    __slots__ = ("max_force", "step_max", "last", "clamped", "limited", "nonfinite")
+    __slots__ = ("clamped", "last", "limited", "max_force", "nonfinite", "step_max")
 
     def __init__(self, max_force: float, step_max: float):
         self.max_force, self.step_max = max_force, step_max
@@ -47,7 +47,7 @@ class Watchdog:
     """A gain in [0, 1] that ramps linearly down over `ramp_time` while the inputs are stale and
     back up while they are fresh; it starts at 0 (soft start). Counts trips (fresh → stale)."""
 
-    __slots__ = ("rate", "gain", "tripped", "trips", "attenuated")
+    __slots__ = ("attenuated", "gain", "rate", "tripped", "trips")
 
     def __init__(self, ramp_time: float):
         self.rate = 1.0 / ramp_time
@@ -83,6 +83,9 @@ class VelocityFilter:
                 a = 1.0 - math.exp(-h / self.tau)
                 p, q = sample.position, prev.position
                 vx, vy, vz = self.v
-                self.v = (vx + a * ((p[0] - q[0]) / h - vx), vy + a * ((p[1] - q[1]) / h - vy),
-                          vz + a * ((p[2] - q[2]) / h - vz))
+                self.v = (
+                    vx + a * ((p[0] - q[0]) / h - vx),
+                    vy + a * ((p[1] - q[1]) / h - vy),
+                    vz + a * ((p[2] - q[2]) / h - vz),
+                )
         return self.v

@@ -33,13 +33,17 @@ def _parser() -> argparse.ArgumentParser:
     src.add_argument("--replay", metavar="FILE", help="replay a recorded session (.npz)")
     p.add_argument("--hid-layout", metavar="JSON", help="HID report layout (default: HidLayout.generic)")
     p.add_argument("--baud", type=int, default=921600)
-    p.add_argument("--scale", type=float, default=DEFAULT_WORKSPACE.scale, help="model units per device metre")
+    p.add_argument(
+        "--scale", type=float, default=DEFAULT_WORKSPACE.scale, help="model units per device metre"
+    )
     p.add_argument("--duration", type=float, default=10.0, help="seconds (0: until Ctrl-C)")
     p.add_argument("--rate", type=float, default=1000.0, help="servo rate, Hz")
     p.add_argument("--physics-hz", type=float, default=100.0)
     p.add_argument("--max-force", type=float, default=3.0, help="newtons")
     p.add_argument("--tool-radius", type=float, default=0.25, help="sphere tool radius, model units")
-    p.add_argument("--ellipsoid", type=float, nargs=3, metavar=("A", "B", "C"), help="ellipsoid tool semi-axes")
+    p.add_argument(
+        "--ellipsoid", type=float, nargs=3, metavar=("A", "B", "C"), help="ellipsoid tool semi-axes"
+    )
     p.add_argument("--proxy-only", action="store_true", help="a fixed plane proxy, no physics (no JAX work)")
     p.add_argument("--record", metavar="FILE", help="save the session (.npz)")
     p.add_argument("--plot", metavar="PNG", help="plot the session")
@@ -70,8 +74,14 @@ def _device(args):
 
 def _model(args):
     if args.proxy_only:  # the teardrop's equator as a wall facing +x
-        return Proxy.plane((0.62, 0.0, 0.0), (1.0, 0.0, 0.0), stiffness=30.0, damping=0.3,
-                           tool_radius=args.tool_radius, stamp=0.0)
+        return Proxy.plane(
+            (0.62, 0.0, 0.0),
+            (1.0, 0.0, 0.0),
+            stiffness=30.0,
+            damping=0.3,
+            tool_radius=args.tool_radius,
+            stamp=0.0,
+        )
     from bsjax.device.physics import SculptModel
 
     return SculptModel(physics_hz=args.physics_hz, tool_radius=args.tool_radius, tool_axes=args.ellipsoid)
@@ -88,8 +98,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bsjax haptics: cannot open the device: {err}", file=sys.stderr)
         return 2
     with device:
-        loop = ServoLoop(device, model, rate_hz=args.rate, max_force=args.max_force, physics_hz=args.physics_hz,
-                         record=bool(args.record or args.plot), cpu=args.cpu)
+        loop = ServoLoop(
+            device,
+            model,
+            rate_hz=args.rate,
+            max_force=args.max_force,
+            physics_hz=args.physics_hz,
+            record=bool(args.record or args.plot),
+            cpu=args.cpu,
+        )
         try:
             loop.start()
             print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
@@ -114,7 +131,9 @@ def main(argv: list[str] | None = None) -> int:
         import numpy as np
 
         moved = np.abs(np.asarray(model.ctrl) - np.asarray(model.surface0.ctrl)).max()
-        print(f"sculpted surface: {model.ticks} physics ticks, largest control-point displacement {moved:.4f}")
+        print(
+            f"sculpted surface: {model.ticks} physics ticks, largest control-point displacement {moved:.4f}"
+        )
     return 130 if interrupted else 0
 
 

@@ -140,8 +140,9 @@ def decode_frames(buffer: bytes | bytearray | memoryview) -> Decoded:
     return Decoded(frames, data[i:], crc_errors, truncated, malformed, skipped)
 
 
-def encode_pose(seq: int, position, orientation=(1.0, 0.0, 0.0, 0.0), buttons: int = 0,
-                timestamp_us: int = 0) -> bytes:
+def encode_pose(
+    seq: int, position, orientation=(1.0, 0.0, 0.0, 0.0), buttons: int = 0, timestamp_us: int = 0
+) -> bytes:
     """A POSE frame (device → host)."""
     x, y, z = (float(c) for c in position)
     w, qx, qy, qz = (float(c) for c in orientation)
@@ -154,7 +155,9 @@ def encode_force(seq: int, force, torque=(0.0, 0.0, 0.0)) -> bytes:
     return encode_frame(seq, KIND_FORCE, _FORCE.pack(*(float(c) for c in force), *(float(c) for c in torque)))
 
 
-def parse_pose(payload: bytes) -> tuple[tuple[float, float, float], tuple[float, float, float, float], int, int]:
+def parse_pose(
+    payload: bytes,
+) -> tuple[tuple[float, float, float], tuple[float, float, float, float], int, int]:
     """POSE payload → `(position, orientation wxyz, buttons, timestamp_us)`."""
     v = _POSE.unpack(payload)
     return v[0:3], v[3:7], v[7], v[8]

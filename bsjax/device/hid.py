@@ -31,7 +31,9 @@ class HidField:
         try:
             n = len(struct.unpack(self.fmt, bytes(struct.calcsize(self.fmt))))
         except struct.error as err:
-            raise ValueError(f"fmt: expected a struct format of one number, got {self.fmt!r} ({err})") from None
+            raise ValueError(
+                f"fmt: expected a struct format of one number, got {self.fmt!r} ({err})"
+            ) from None
         if n != 1:
             raise ValueError(f"fmt: expected a struct format of one number, got {self.fmt!r}")
         if self.offset < 0:
@@ -101,9 +103,13 @@ class HidLayout:
                 object.__setattr__(self, name, HidField(**value))
         need = max(f.end for f in self._input_fields())
         if self.report_length < need:
-            raise ValueError(f"report_length: expected >= {need} (the last field's end), got {self.report_length}")
+            raise ValueError(
+                f"report_length: expected >= {need} (the last field's end), got {self.report_length}"
+            )
         if self.force_length < max(f.end for f in self.force):
-            raise ValueError(f"force_length: expected >= {max(f.end for f in self.force)}, got {self.force_length}")
+            raise ValueError(
+                f"force_length: expected >= {max(f.end for f in self.force)}, got {self.force_length}"
+            )
 
     def _input_fields(self):
         fields = list(self.position) + list(self.orientation or ())
@@ -124,11 +130,24 @@ class HidLayout:
         pos = tuple(HidField(1 + 2 * k, "<h", 1e-4) for k in range(3))
         quat = tuple(HidField(7 + 2 * k, "<h", 1.0 / 32767) for k in range(4))
         force = tuple(HidField(1 + 2 * k, "<h", 1e-3) for k in range(3))
-        return cls(vendor_id, product_id, 20, pos, force, 8, orientation=quat, buttons=HidField(15, "B"),
-                   sequence=HidField(16, "<H"), report_id=1, force_report_id=2)
+        return cls(
+            vendor_id,
+            product_id,
+            20,
+            pos,
+            force,
+            8,
+            orientation=quat,
+            buttons=HidField(15, "B"),
+            sequence=HidField(16, "<H"),
+            report_id=1,
+            force_report_id=2,
+        )
 
 
-def parse_report(layout: HidLayout, report) -> tuple[np.ndarray, np.ndarray, int, float | None, int | None] | None:
+def parse_report(
+    layout: HidLayout, report
+) -> tuple[np.ndarray, np.ndarray, int, float | None, int | None] | None:
     """Input report → `(position, orientation, buttons, timestamp, sequence)`, or None when the
     report is short or carries another report id."""
     data = bytes(report)
@@ -167,12 +186,24 @@ class HidDevice(DeviceBase):
     (`open`, `open_path`, `set_nonblocking`, `read`, `write`, `close`), default `hid.device()`.
     """
 
-    def __init__(self, layout: HidLayout, path: bytes | None = None, timeout: float = 1.0,
-                 reconnect_interval: float = 0.2, workspace: Workspace | None = None, device=None):
+    def __init__(
+        self,
+        layout: HidLayout,
+        path: bytes | None = None,
+        timeout: float = 1.0,
+        reconnect_interval: float = 0.2,
+        workspace: Workspace | None = None,
+        device=None,
+    ):
         super().__init__(workspace)
         if not isinstance(layout, HidLayout):
             raise TypeError(f"layout: expected a HidLayout, got {type(layout).__name__}")
-        self.layout, self.path, self.timeout, self.reconnect_interval = layout, path, timeout, reconnect_interval
+        self.layout, self.path, self.timeout, self.reconnect_interval = (
+            layout,
+            path,
+            timeout,
+            reconnect_interval,
+        )
         self._factory = device
         self._dev = None
         self._closed = False
@@ -199,7 +230,7 @@ class HidDevice(DeviceBase):
         self._count("disconnects")
         try:
             self._dev.close()
-        except Exception:  # noqa: BLE001 - already broken
+        except Exception:
             pass
         self._dev = None
         self._retry_at = time.perf_counter() + self.reconnect_interval
@@ -211,13 +242,13 @@ class HidDevice(DeviceBase):
             try:
                 self._open()
                 self._count("reconnects")
-            except (OSError, IOError, ValueError):
+            except (OSError, ValueError):
                 self._retry_at = time.perf_counter() + self.reconnect_interval
                 return
         for _ in range(64):  # drain what is queued, keep the newest valid report
             try:
                 report = self._dev.read(self.layout.report_length)
-            except (OSError, IOError, ValueError):
+            except (OSError, ValueError):
                 self._lost()
                 return
             if not report:
@@ -245,8 +276,10 @@ class HidDevice(DeviceBase):
         give_up = time.perf_counter() + self.timeout
         while self._last is None:
             if time.perf_counter() > give_up:
-                raise DeviceTimeout(f"HID {self.layout.vendor_id:04x}:{self.layout.product_id:04x}: "
-                                    f"no input report within {self.timeout} s")
+                raise DeviceTimeout(
+                    f"HID {self.layout.vendor_id:04x}:{self.layout.product_id:04x}: "
+                    f"no input report within {self.timeout} s"
+                )
             time.sleep(0.0005)
             self._poll()
         return self._last
@@ -259,7 +292,7 @@ class HidDevice(DeviceBase):
         try:
             if self._dev.write(report) < 0:
                 self._count("write_dropped")
-        except (OSError, IOError, ValueError):
+        except (OSError, ValueError):
             self._lost()
 
     def close(self) -> None:
@@ -268,7 +301,7 @@ class HidDevice(DeviceBase):
             return
         try:
             self._dev.write(force_report(self.layout, np.zeros(3)))
-        except (OSError, IOError, ValueError):
+        except (OSError, ValueError):
             pass
         self._dev.close()
         self._dev = None

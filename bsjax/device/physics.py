@@ -47,7 +47,6 @@ from bsjax.device.protocol import DeviceSample
 from bsjax.device.proxy import Proxy
 
 
-
 @runtime_checkable
 class PhysicsModel(Protocol):
     """What `ServoLoop` runs in its physics thread."""
@@ -73,8 +72,9 @@ def seam_edges(m: int, n: int, layers: int) -> np.ndarray:
     return np.concatenate(pairs).astype(np.int32)
 
 
-def lattice_nodes(surface_points: np.ndarray, normals: np.ndarray, layers: int, periodic_v: bool,
-                  thickness: float) -> np.ndarray:
+def lattice_nodes(
+    surface_points: np.ndarray, normals: np.ndarray, layers: int, periodic_v: bool, thickness: float
+) -> np.ndarray:
     """`(m, n, layers, 3)` node positions; layer `layers − 1` is the surface grid itself."""
     rho = (np.arange(layers) + 1.0) / layers
     if periodic_v:
@@ -89,8 +89,10 @@ def check_step(lattice, dt: float, tool_stiffness: float) -> None:
     try:
         mss.check_dt(lattice, dt, contact_stiffness=tool_stiffness)
     except ValueError as err:
-        raise ValueError(f"substeps: the explicit step is unstable for this material ({err}); "
-                         "raise substeps or lower the stiffness") from None
+        raise ValueError(
+            f"substeps: the explicit step is unstable for this material ({err}); "
+            "raise substeps or lower the stiffness"
+        ) from None
 
 
 def quat_to_matrix(q) -> np.ndarray:
@@ -100,11 +102,13 @@ def quat_to_matrix(q) -> np.ndarray:
     if not n > 0:
         return np.eye(3)
     s = 2.0 / n
-    return np.array([
-        [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
-        [s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)],
-        [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
+            [s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)],
+            [s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)],
+        ]
+    )
 
 
 class SculptModel:
@@ -126,22 +130,46 @@ class SculptModel:
     - `thickness`: lattice depth of an open (not closed-in-v) surface.
     """
 
-    def __init__(self, surface=None, grid: tuple[int, int] = (12, 12), layers: int = 12,
-                 physics_hz: float = 100.0, substeps: int = 3, node_mass: float = 0.01,
-                 stiffness: float = 10.0, damping: float = 0.05, drag: float = 2.0,
-                 tool_stiffness: float = 100.0, tool_radius: float = 0.25, tool_axes=None,
-                 proxy_stiffness: float = 30.0, proxy_damping: float = 0.3, proxy_grid: int = 40,
-                 reaction_gain: float = 0.2, contact_stiffness: float = 4.0,
-                 fixed_layers: int = 2, thickness: float = 0.2):
+    def __init__(
+        self,
+        surface=None,
+        grid: tuple[int, int] = (12, 12),
+        layers: int = 12,
+        physics_hz: float = 100.0,
+        substeps: int = 3,
+        node_mass: float = 0.01,
+        stiffness: float = 10.0,
+        damping: float = 0.05,
+        drag: float = 2.0,
+        tool_stiffness: float = 100.0,
+        tool_radius: float = 0.25,
+        tool_axes=None,
+        proxy_stiffness: float = 30.0,
+        proxy_damping: float = 0.3,
+        proxy_grid: int = 40,
+        reaction_gain: float = 0.2,
+        contact_stiffness: float = 4.0,
+        fixed_layers: int = 2,
+        thickness: float = 0.2,
+    ):
         surface = shapes.teardrop() if surface is None else surface
         m, n = grid
         r, s = surface.shape
         if m < r or n < s:
-            raise ValueError(f"grid: expected at least the control net {surface.shape} for the refit, got {grid}")
+            raise ValueError(
+                f"grid: expected at least the control net {surface.shape} for the refit, got {grid}"
+            )
         if not 1 <= fixed_layers < layers:
-            raise ValueError(f"fixed_layers: expected 1 <= fixed_layers < layers = {layers}, got {fixed_layers}")
-        for name, value in dict(physics_hz=physics_hz, node_mass=node_mass, stiffness=stiffness,
-                                tool_stiffness=tool_stiffness, proxy_stiffness=proxy_stiffness).items():
+            raise ValueError(
+                f"fixed_layers: expected 1 <= fixed_layers < layers = {layers}, got {fixed_layers}"
+            )
+        for name, value in dict(
+            physics_hz=physics_hz,
+            node_mass=node_mass,
+            stiffness=stiffness,
+            tool_stiffness=tool_stiffness,
+            proxy_stiffness=proxy_stiffness,
+        ).items():
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: expected a finite value > 0, got {value}")
         self.dtype = surface.ctrl.dtype
@@ -165,7 +193,9 @@ class SculptModel:
         # Hexahedral stencil (edges, face and body diagonals) through mss's dense-slice kernel;
         # for a body closed in v the springs across the seam form a second, small edge-list
         # lattice on the same nodes whose forces enter `mss.step` as external force.
-        self.lattice = mss.hex_lattice(x0, stiffness, damping, node_mass, fixed, node_damping=drag * node_mass)
+        self.lattice = mss.hex_lattice(
+            x0, stiffness, damping, node_mass, fixed, node_damping=drag * node_mass
+        )
         seam = seam_edges(m, n, layers) if surface.periodic_v else np.zeros((0, 2), np.int32)
         self.seam = mss.Lattice(x0.reshape(-1, 3), seam, stiffness, damping, node_mass) if len(seam) else None
         # The seam nodes' springs split between the two lattices add up to an interior node's
@@ -252,13 +282,18 @@ class SculptModel:
     # --- model interface ----------------------------------------------------------------------
     def _tool_args(self, position, orientation):
         dt = self.dtype
-        return (jnp.asarray(position, dt), jnp.asarray(self.tool_axes, dt), jnp.asarray(quat_to_matrix(orientation), dt))
+        return (
+            jnp.asarray(position, dt),
+            jnp.asarray(self.tool_axes, dt),
+            jnp.asarray(quat_to_matrix(orientation), dt),
+        )
 
     def warmup(self) -> None:
         """Compile the tick (all shapes are fixed, so this happens once)."""
         centre, axes, rot = self._tool_args(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0))
-        jax.block_until_ready(self._tick(self._state, centre, axes, rot, jnp.asarray(0.0, self.dtype),
-                                         jnp.asarray(False)))
+        jax.block_until_ready(
+            self._tick(self._state, centre, axes, rot, jnp.asarray(0.0, self.dtype), jnp.asarray(False))
+        )
 
     def update(self, sample: DeviceSample) -> Proxy:
         """One physics tick with the tool at `sample`; returns the plane proxy for the servo."""
@@ -266,8 +301,9 @@ class SculptModel:
         with self._lock:
             centre, axes, rot = self._tool_args(sample.position, sample.orientation)
             settle = jnp.asarray(self._was_pressed and not pressed)  # released: set the shape first
-            state, ctrl, out = self._tick(self._state, centre, axes, rot, jnp.asarray(float(pressed), self.dtype),
-                                          settle)
+            state, ctrl, out = self._tick(
+                self._state, centre, axes, rot, jnp.asarray(float(pressed), self.dtype), settle
+            )
             self._was_pressed = pressed
             out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
             self._state, self.ctrl = state, ctrl

@@ -112,8 +112,14 @@ class DeviceBase:
             self.counters[name] = self.counters.get(name, 0) + n
 
     def _sample(self, position, orientation, buttons, timestamp, sequence) -> DeviceSample:
-        return DeviceSample(self.workspace.to_model(position), np.asarray(orientation, dtype=np.float64),
-                            int(buttons), float(timestamp), int(sequence), time.perf_counter())
+        return DeviceSample(
+            self.workspace.to_model(position),
+            np.asarray(orientation, dtype=np.float64),
+            int(buttons),
+            float(timestamp),
+            int(sequence),
+            time.perf_counter(),
+        )
 
     def __enter__(self):
         return self

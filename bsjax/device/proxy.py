@@ -59,13 +59,33 @@ class Proxy:
 
     @classmethod
     def plane(cls, point, normal, stiffness, damping=0.0, tool_radius=0.0, stamp=None) -> "Proxy":
-        return cls(PLANE, _vec(point), _vec(normal), 0.0, False, float(tool_radius), float(stiffness),
-                   float(damping), time.perf_counter() if stamp is None else stamp)
+        return cls(
+            PLANE,
+            _vec(point),
+            _vec(normal),
+            0.0,
+            False,
+            float(tool_radius),
+            float(stiffness),
+            float(damping),
+            time.perf_counter() if stamp is None else stamp,
+        )
 
     @classmethod
-    def sphere(cls, centre, radius, stiffness, damping=0.0, tool_radius=0.0, inside=False, stamp=None) -> "Proxy":
-        return cls(SPHERE, _vec(centre), (0.0, 0.0, 1.0), float(radius), bool(inside), float(tool_radius),
-                   float(stiffness), float(damping), time.perf_counter() if stamp is None else stamp)
+    def sphere(
+        cls, centre, radius, stiffness, damping=0.0, tool_radius=0.0, inside=False, stamp=None
+    ) -> "Proxy":
+        return cls(
+            SPHERE,
+            _vec(centre),
+            (0.0, 0.0, 1.0),
+            float(radius),
+            bool(inside),
+            float(tool_radius),
+            float(stiffness),
+            float(damping),
+            time.perf_counter() if stamp is None else stamp,
+        )
 
     def contact(self, x: float, y: float, z: float) -> tuple[float, float, float, float]:
         """`(depth, nx, ny, nz)`: penetration of a tool centred at (x, y, z) and the push direction."""

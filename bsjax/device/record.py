@@ -40,7 +40,11 @@ class Recording:
 
     def save(self, path: str | os.PathLike) -> None:
         with open(path, "wb") as fh:  # a file object keeps numpy from appending ".npz"
-            np.savez(fh, format=np.array("bsjax-haptics-1"), **{f.name: getattr(self, f.name) for f in fields(self)})
+            np.savez(
+                fh,
+                format=np.array("bsjax-haptics-1"),
+                **{f.name: getattr(self, f.name) for f in fields(self)},
+            )
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Recording":
@@ -54,8 +58,9 @@ class Recording:
         n = len(cols["time"])
         for name, (tail, _) in _COLUMNS.items():
             if cols[name].shape != (n, *tail):
-                raise ValueError(f"{os.fspath(path)}: column {name}: expected shape {(n, *tail)}, "
-                                 f"got {cols[name].shape}")
+                raise ValueError(
+                    f"{os.fspath(path)}: column {name}: expected shape {(n, *tail)}, got {cols[name].shape}"
+                )
         return cls(**cols)
 
 

@@ -35,11 +35,21 @@ class SerialDevice(DeviceBase):
     - `workspace`: device → model mapping.
     """
 
-    def __init__(self, port: str, baudrate: int = 921600, timeout: float = 1.0, write_timeout: float = 0.0,
-                 reconnect_interval: float = 0.1, workspace: Workspace | None = None):
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 921600,
+        timeout: float = 1.0,
+        write_timeout: float = 0.0,
+        reconnect_interval: float = 0.1,
+        workspace: Workspace | None = None,
+    ):
         super().__init__(workspace)
-        for name, value in (("timeout", timeout), ("write_timeout", write_timeout),
-                            ("reconnect_interval", reconnect_interval)):
+        for name, value in (
+            ("timeout", timeout),
+            ("write_timeout", write_timeout),
+            ("reconnect_interval", reconnect_interval),
+        ):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: expected a finite number of seconds >= 0, got {value}")
         if not isinstance(baudrate, int) or baudrate <= 0:
@@ -58,8 +68,9 @@ class SerialDevice(DeviceBase):
 
     # --- connection ---------------------------------------------------------------------------
     def _open(self) -> None:
-        self._port = pyserial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=0,
-                                             write_timeout=self.write_timeout)
+        self._port = pyserial.serial_for_url(
+            self.port_name, baudrate=self.baudrate, timeout=0, write_timeout=self.write_timeout
+        )
         self._buffer = b""
         self._last_seq = None  # a re-plugged device restarts its sequence
 
@@ -67,7 +78,7 @@ class SerialDevice(DeviceBase):
         self._count("disconnects")
         try:
             self._port.close()
-        except Exception:  # noqa: BLE001 - the port is already broken
+        except Exception:
             pass
         self._port = None
         self._retry_at = time.perf_counter() + self.reconnect_interval

@@ -65,14 +65,33 @@ class ServoLoop:
       at start so that a garbage collection cannot stall a tick (undone on stop).
     """
 
-    def __init__(self, device, model, rate_hz: float = 1000.0, max_force: float = 3.0,
-                 max_force_rate: float | None = None, physics_hz: float = 100.0,
-                 proxy_timeout: float = 0.05, device_timeout: float = 0.05, ramp_time: float = 0.02,
-                 velocity_tau: float = 0.005, record: bool | str | os.PathLike = False,
-                 realtime: bool = True, cpu: int | None = None, spin_us: float = 150.0,
-                 switch_interval: float | None = 1e-4, freeze_gc: bool = True):
-        positive = dict(rate_hz=rate_hz, max_force=max_force, physics_hz=physics_hz, proxy_timeout=proxy_timeout,
-                        device_timeout=device_timeout, ramp_time=ramp_time)
+    def __init__(
+        self,
+        device,
+        model,
+        rate_hz: float = 1000.0,
+        max_force: float = 3.0,
+        max_force_rate: float | None = None,
+        physics_hz: float = 100.0,
+        proxy_timeout: float = 0.05,
+        device_timeout: float = 0.05,
+        ramp_time: float = 0.02,
+        velocity_tau: float = 0.005,
+        record: bool | str | os.PathLike = False,
+        realtime: bool = True,
+        cpu: int | None = None,
+        spin_us: float = 150.0,
+        switch_interval: float | None = 1e-4,
+        freeze_gc: bool = True,
+    ):
+        positive = dict(
+            rate_hz=rate_hz,
+            max_force=max_force,
+            physics_hz=physics_hz,
+            proxy_timeout=proxy_timeout,
+            device_timeout=device_timeout,
+            ramp_time=ramp_time,
+        )
         for name, value in positive.items():
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
@@ -80,7 +99,9 @@ class ServoLoop:
         if not (math.isfinite(max_force_rate) and max_force_rate > 0):
             raise ValueError(f"max_force_rate: expected a finite number > 0, got {max_force_rate!r}")
         if not (isinstance(model, Proxy) or callable(getattr(model, "update", None))):
-            raise TypeError(f"model: expected a Proxy or an object with update(sample) -> Proxy, got {type(model).__name__}")
+            raise TypeError(
+                f"model: expected a Proxy or an object with update(sample) -> Proxy, got {type(model).__name__}"
+            )
         self.device, self.model = device, model
         self.rate_hz, self.physics_hz = float(rate_hz), float(physics_hz)
         self.max_force, self.max_force_rate = float(max_force), float(max_force_rate)
@@ -197,7 +218,7 @@ class ServoLoop:
     def _zero(self) -> None:
         try:
             self.device.write((0.0, 0.0, 0.0))
-        except Exception as err:  # noqa: BLE001 - nothing more can be done; say so
+        except Exception as err:
             log.error("could not write zero force: %r", err)
 
     # --- servo thread ---------------------------------------------------------------------------
@@ -218,7 +239,7 @@ class ServoLoop:
         self._configure_thread()
         try:
             self._servo_loop()
-        except BaseException as err:  # noqa: BLE001 - recorded, force zeroed, re-raised by stop()
+        except BaseException as err:
             self.error = err
         finally:
             self._zero()
@@ -248,7 +269,7 @@ class ServoLoop:
             except EOFError as err:
                 self.error = err
                 break
-            except Exception:  # noqa: BLE001 - a device hiccup must not stop the loop
+            except Exception:
                 self._device_errors += 1
                 sample = prev
             out = self._render(sample, velocity(sample, prev), (start - last_start) * 1e-9)
@@ -277,7 +298,7 @@ class ServoLoop:
     def _write(self, out, sample, start: int) -> None:
         try:
             self.device.write(out)
-        except Exception:  # noqa: BLE001 - counted; the watchdog handles a dead device
+        except Exception:
             self._device_errors += 1
         f = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2])
         self._force_sum += f
@@ -308,7 +329,7 @@ class ServoLoop:
                 proxy = self.model.update(sample)
                 if not isinstance(proxy, Proxy):
                     raise TypeError(f"model.update: expected a Proxy, got {type(proxy).__name__}")
-            except Exception as err:  # noqa: BLE001 - the watchdog zeroes the force; stop() reports
+            except Exception as err:
                 self._physics_errors += 1
                 log.error("physics update failed, force ramps to zero: %r", err)
                 self.physics_error = err
@@ -343,19 +364,38 @@ class ServoLoop:
         f50, f99, _ = percentiles(phys)
         counters = dict(getattr(self.device, "counters", {}) or {})
         return ServoStats(
-            ticks=n, elapsed_s=elapsed, rate_hz=(n - 1) / elapsed if n > 1 and elapsed else 0.0,
-            target_hz=self.rate_hz, period_p50=p50, period_p99=p99, period_max=pmax,
-            jitter_p50=j50, jitter_p99=j99, jitter_max=jmax, missed_deadlines=int(self._missed),
-            max_late_ms=self._max_late * 1e-6, work_p50=w50, work_p99=w99, work_max=wmax, window=count,
+            ticks=n,
+            elapsed_s=elapsed,
+            rate_hz=(n - 1) / elapsed if n > 1 and elapsed else 0.0,
+            target_hz=self.rate_hz,
+            period_p50=p50,
+            period_p99=p99,
+            period_max=pmax,
+            jitter_p50=j50,
+            jitter_p99=j99,
+            jitter_max=jmax,
+            missed_deadlines=int(self._missed),
+            max_late_ms=self._max_late * 1e-6,
+            work_p50=w50,
+            work_p99=w99,
+            work_max=wmax,
+            window=count,
             physics_updates=self._physics_updates,
             physics_rate_hz=self._physics_updates / elapsed if elapsed else 0.0,
-            physics_p50=f50, physics_p99=f99, physics_errors=self._physics_errors,
+            physics_p50=f50,
+            physics_p99=f99,
+            physics_errors=self._physics_errors,
             device_errors=self._device_errors,
             dropped_frames=sum(int(counters.get(k, 0)) for k in DROPPED_COUNTERS),
-            watchdog_trips=self._watchdog.trips, watchdog_ticks=self._watchdog.attenuated,
-            clamped=self._shaper.clamped, rate_limited=self._shaper.limited, nonfinite=self._shaper.nonfinite,
-            force_mean=self._force_sum / n if n else 0.0, force_max=self._force_max,
-            realtime=self._realtime_ok, device_counters=counters,
+            watchdog_trips=self._watchdog.trips,
+            watchdog_ticks=self._watchdog.attenuated,
+            clamped=self._shaper.clamped,
+            rate_limited=self._shaper.limited,
+            nonfinite=self._shaper.nonfinite,
+            force_mean=self._force_sum / n if n else 0.0,
+            force_max=self._force_max,
+            realtime=self._realtime_ok,
+            device_counters=counters,
         )
 
 

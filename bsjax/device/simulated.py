@@ -32,9 +32,12 @@ class SimulatedDevice(DeviceBase):
     - `duration`: seconds after which `read()` raises `EOFError` (None: forever).
     """
 
-    def __init__(self, script: Script | None = None, workspace: Workspace | None = None,
-                 duration: float | None = None):
-        super().__init__(workspace if workspace is not None else (DEFAULT_WORKSPACE if script is None else None))
+    def __init__(
+        self, script: Script | None = None, workspace: Workspace | None = None, duration: float | None = None
+    ):
+        super().__init__(
+            workspace if workspace is not None else (DEFAULT_WORKSPACE if script is None else None)
+        )
         self.script = script if script is not None else sculpt_script()
         self.duration = duration
         self._recording: Recording | None = None
@@ -48,7 +51,9 @@ class SimulatedDevice(DeviceBase):
         self.closed = False
 
     @classmethod
-    def replay(cls, recording: Recording | str | os.PathLike, realtime: bool = True, loop: bool = False) -> "SimulatedDevice":
+    def replay(
+        cls, recording: Recording | str | os.PathLike, realtime: bool = True, loop: bool = False
+    ) -> "SimulatedDevice":
         """Play a `Recording` (or a file written by `Recording.save`); positions are already in
         model coordinates. At the end: start again (`loop=True`) or raise `EOFError`."""
         rec = recording if isinstance(recording, Recording) else Recording.load(recording)
@@ -99,8 +104,14 @@ class SimulatedDevice(DeviceBase):
                     raise EOFError("replay finished")
                 i %= len(rec)
             self._seq += 1
-        return DeviceSample(rec.position[i].copy(), rec.orientation[i].copy(), int(rec.buttons[i]),
-                            float(rec.device_time[i]), int(rec.sequence[i]), time.perf_counter())
+        return DeviceSample(
+            rec.position[i].copy(),
+            rec.orientation[i].copy(),
+            int(rec.buttons[i]),
+            float(rec.device_time[i]),
+            int(rec.sequence[i]),
+            time.perf_counter(),
+        )
 
     def write(self, force, torque=None) -> None:
         self.last_force = force_vector(force)
@@ -116,8 +127,9 @@ class SimulatedDevice(DeviceBase):
 DEFAULT_WORKSPACE = Workspace(scale=10.0)
 
 
-def sculpt_script(equator: float = 0.62, tool_radius: float = 0.25, period: float = 4.0,
-                  scale: float = 10.0) -> Script:
+def sculpt_script(
+    equator: float = 0.62, tool_radius: float = 0.25, period: float = 4.0, scale: float = 10.0
+) -> Script:
     """A repeating push/pull session on a body of revolution about z (the teardrop).
 
     Each cycle of `period` seconds at azimuth `θ_k = k·45°`: approach from outside (0–25 %),

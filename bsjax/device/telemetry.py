@@ -63,20 +63,22 @@ class ServoStats:
     def report(self) -> str:
         """A few human-readable lines (what `bsjax haptics` prints and logs at the end)."""
         s = self
-        return "\n".join([
-            f"servo    {s.ticks} ticks in {s.elapsed_s:.2f} s = {s.rate_hz:.1f} Hz (target {s.target_hz:.0f}), "
-            f"{'SCHED_FIFO' if s.realtime else 'normal priority'}",
-            f"period   p50 {s.period_p50:.3f}  p99 {s.period_p99:.3f}  max {s.period_max:.3f} ms",
-            f"jitter   p50 {s.jitter_p50:.3f}  p99 {s.jitter_p99:.3f}  max {s.jitter_max:.3f} ms; "
-            f"missed deadlines {s.missed_deadlines}, latest start {s.max_late_ms:.3f} ms late",
-            f"work     p50 {s.work_p50 * 1e3:.1f}  p99 {s.work_p99 * 1e3:.1f}  max {s.work_max * 1e3:.1f} µs per tick",
-            f"physics  {s.physics_updates} updates = {s.physics_rate_hz:.1f} Hz, step p50 {s.physics_p50:.2f} "
-            f"p99 {s.physics_p99:.2f} ms, errors {s.physics_errors}",
-            f"safety   watchdog trips {s.watchdog_trips} ({s.watchdog_ticks} ticks attenuated), clamped {s.clamped}, "
-            f"rate-limited {s.rate_limited}, non-finite {s.nonfinite}",
-            f"force    mean {s.force_mean:.3f} N, max {s.force_max:.3f} N",
-            f"device   dropped frames {s.dropped_frames}, errors {s.device_errors}, counters {s.device_counters}",
-        ])
+        return "\n".join(
+            [
+                f"servo    {s.ticks} ticks in {s.elapsed_s:.2f} s = {s.rate_hz:.1f} Hz (target {s.target_hz:.0f}), "
+                f"{'SCHED_FIFO' if s.realtime else 'normal priority'}",
+                f"period   p50 {s.period_p50:.3f}  p99 {s.period_p99:.3f}  max {s.period_max:.3f} ms",
+                f"jitter   p50 {s.jitter_p50:.3f}  p99 {s.jitter_p99:.3f}  max {s.jitter_max:.3f} ms; "
+                f"missed deadlines {s.missed_deadlines}, latest start {s.max_late_ms:.3f} ms late",
+                f"work     p50 {s.work_p50 * 1e3:.1f}  p99 {s.work_p99 * 1e3:.1f}  max {s.work_max * 1e3:.1f} µs per tick",
+                f"physics  {s.physics_updates} updates = {s.physics_rate_hz:.1f} Hz, step p50 {s.physics_p50:.2f} "
+                f"p99 {s.physics_p99:.2f} ms, errors {s.physics_errors}",
+                f"safety   watchdog trips {s.watchdog_trips} ({s.watchdog_ticks} ticks attenuated), clamped {s.clamped}, "
+                f"rate-limited {s.rate_limited}, non-finite {s.nonfinite}",
+                f"force    mean {s.force_mean:.3f} N, max {s.force_max:.3f} N",
+                f"device   dropped frames {s.dropped_frames}, errors {s.device_errors}, counters {s.device_counters}",
+            ]
+        )
 
 
 def percentiles(values_ns: np.ndarray) -> tuple[float, float, float]:
@@ -98,8 +100,16 @@ def plot_recording(recording, path: str | os.PathLike, title: str = "haptic sess
         ax[0].plot(t, recording.position[:, k], label=name)
     pressed = recording.buttons & 1
     if pressed.any():
-        ax[0].fill_between(t, 0, 1, where=pressed > 0, transform=ax[0].get_xaxis_transform(),
-                           alpha=0.15, color="k", label="button")
+        ax[0].fill_between(
+            t,
+            0,
+            1,
+            where=pressed > 0,
+            transform=ax[0].get_xaxis_transform(),
+            alpha=0.15,
+            color="k",
+            label="button",
+        )
     ax[0].set_ylabel("position (model units)")
     ax[0].legend(loc="upper right", fontsize=8)
     for k, name in enumerate("xyz"):

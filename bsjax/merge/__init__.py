@@ -25,23 +25,48 @@ seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made unif
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 from bsjax.basis import BSplineSurface
 from bsjax.merge._deviation import Deviation, closest_parameters, deviation, plot_deviation
 from bsjax.merge._knots import average_knots, combine_knots, cross_knots, merge_knots
 from bsjax.merge._layout import MergeLayout, common_degree, grid_orientations, merged_knots, plan, plan_grid
 from bsjax.merge._nonlinear import RefitSolution, RefitSolver, refine, refit
-from bsjax.merge._project import Projection, ProjectionSolver, closest_points, project
 from bsjax.merge._orient import orient_grid, orient_row, orient_surface
 from bsjax.merge._overlap import contact_masks, grid_overlap_windows, overlap_trims
+from bsjax.merge._project import Projection, ProjectionSolver, closest_points, project
 
 __all__ = [
-    "merge", "merge_grid", "merge_knots", "average_knots", "combine_knots", "cross_knots",
-    "common_degree", "merged_knots", "plan", "plan_grid", "MergeLayout", "refine", "refit", "RefitSolver",
-    "RefitSolution", "deviation", "Deviation", "plot_deviation", "project", "closest_points", "Projection",
-    "ProjectionSolver", "closest_parameters", "orient_row", "orient_grid",
-    "orient_surface", "grid_orientations", "contact_masks", "overlap_trims", "grid_overlap_windows",
+    "Deviation",
+    "MergeLayout",
+    "Projection",
+    "ProjectionSolver",
+    "RefitSolution",
+    "RefitSolver",
+    "average_knots",
+    "closest_parameters",
+    "closest_points",
+    "combine_knots",
+    "common_degree",
+    "contact_masks",
+    "cross_knots",
+    "deviation",
+    "grid_orientations",
+    "grid_overlap_windows",
+    "merge",
+    "merge_grid",
+    "merge_knots",
+    "merged_knots",
+    "orient_grid",
+    "orient_row",
+    "orient_surface",
+    "overlap_trims",
+    "plan",
+    "plan_grid",
+    "plot_deviation",
+    "project",
+    "refine",
+    "refit",
 ]
 
 
@@ -50,10 +75,20 @@ def _finish(layout: MergeLayout, ctrls, refine_fit: bool) -> BSplineSurface:
     return layout.surface(ctrl)
 
 
-def merge(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: int = 2, *,
-          samples=82, cross_knots: str = "average", degrees=None, orient="auto",
-          trim=None, overlap: str = "keep", overlap_method: str = "collide",
-          refine: bool = False) -> BSplineSurface:
+def merge(
+    surfaces: Sequence[BSplineSurface],
+    direction: str = "u",
+    continuity: int = 2,
+    *,
+    samples=82,
+    cross_knots: str = "average",
+    degrees=None,
+    orient="auto",
+    trim=None,
+    overlap: str = "keep",
+    overlap_method: str = "collide",
+    refine: bool = False,
+) -> BSplineSurface:
     """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
 
     **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
@@ -65,14 +100,33 @@ def merge(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: 
     the merge direction (more or fewer after a degree change), the largest count across.
     """
     surfaces = list(surfaces)
-    layout = plan(surfaces, direction, continuity, samples=samples, cross_knots=cross_knots,
-                  degrees=degrees, orient=orient, trim=trim, overlap=overlap, overlap_method=overlap_method)
+    layout = plan(
+        surfaces,
+        direction,
+        continuity,
+        samples=samples,
+        cross_knots=cross_knots,
+        degrees=degrees,
+        orient=orient,
+        trim=trim,
+        overlap=overlap,
+        overlap_method=overlap_method,
+    )
     return _finish(layout, [s.ctrl for s in surfaces], refine)
 
 
-def merge_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples=82,
-               degrees=None, orient="auto", trim=None, overlap: str = "keep",
-               overlap_method: str = "collide", refine: bool = False) -> BSplineSurface:
+def merge_grid(
+    rows: Sequence[Sequence[BSplineSurface]],
+    continuity=2,
+    *,
+    samples=82,
+    degrees=None,
+    orient="auto",
+    trim=None,
+    overlap: str = "keep",
+    overlap_method: str = "collide",
+    refine: bool = False,
+) -> BSplineSurface:
     """Merge a grid of patches (`rows[i][j]`, rows stacked along u) into one surface (§4.4.3).
 
     **Arguments:** as `plan_grid` (`continuity` one int or `(c_u, c_v)`, `samples`, `degrees`,
@@ -80,6 +134,14 @@ def merge_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, sample
     `overlap_method`), plus `refine` as for `merge`.
     """
     rows = [list(r) for r in rows]
-    layout = plan_grid(rows, continuity, samples=samples, degrees=degrees, orient=orient, trim=trim,
-                       overlap=overlap, overlap_method=overlap_method)
+    layout = plan_grid(
+        rows,
+        continuity,
+        samples=samples,
+        degrees=degrees,
+        orient=orient,
+        trim=trim,
+        overlap=overlap,
+        overlap_method=overlap_method,
+    )
     return _finish(layout, [[s.ctrl for s in row] for row in rows], refine)

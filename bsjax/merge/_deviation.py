@@ -6,13 +6,12 @@ merged surface (closest point, not same parameter) and the distances summarised.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from bsjax import _checks
 from bsjax.basis import BSplineSurface
@@ -50,7 +49,9 @@ def closest_parameters(surface: BSplineSurface, points, candidates: int | None =
     steps). **Returns:** `(uv (N, 2), distances (N,))`."""
     pts = jnp.asarray(points, surface.ctrl.dtype).reshape(-1, 3)
     g = candidates or _candidate_count(surface)
-    return _closest(surface, pts, jnp.linspace(0.0, 1.0, g, dtype=pts.dtype), ProjectionSolver(max_steps=steps))
+    return _closest(
+        surface, pts, jnp.linspace(0.0, 1.0, g, dtype=pts.dtype), ProjectionSolver(max_steps=steps)
+    )
 
 
 @eqx.filter_jit
@@ -78,13 +79,24 @@ class Deviation(eqx.Module):
 
     def row(self) -> dict:
         """The summary as a dict (for tables and JSON)."""
-        return {"total points": self.n_points, "close points": self.n_within, "average": self.mean,
-                "median": self.median, "std": self.std, "max": self.max}
+        return {
+            "total points": self.n_points,
+            "close points": self.n_within,
+            "average": self.mean,
+            "median": self.median,
+            "std": self.std,
+            "max": self.max,
+        }
 
 
-def deviation(originals: Sequence[BSplineSurface] | BSplineSurface, merged: BSplineSurface,
-              samples: int = 101, tolerance: float = 0.1, candidates: int | None = None,
-              windows=None) -> Deviation:
+def deviation(
+    originals: Sequence[BSplineSurface] | BSplineSurface,
+    merged: BSplineSurface,
+    samples: int = 101,
+    tolerance: float = 0.1,
+    candidates: int | None = None,
+    windows=None,
+) -> Deviation:
     """Deviation of `merged` from the `originals` by closest-point projection (thesis App. A).
 
     **Arguments:**
@@ -125,9 +137,14 @@ def summarize(dists: Sequence[np.ndarray], tolerance: float) -> Deviation:
     """Summary statistics of per-patch distance grids."""
     alld = np.concatenate([np.ravel(d) for d in dists])
     return Deviation(
-        n_points=int(alld.size), n_within=int(np.sum(alld <= tolerance)), mean=float(alld.mean()),
-        median=float(np.median(alld)), std=float(alld.std()), max=float(alld.max()),
-        tolerance=float(tolerance), distances=tuple(np.asarray(d) for d in dists),
+        n_points=int(alld.size),
+        n_within=int(np.sum(alld <= tolerance)),
+        mean=float(alld.mean()),
+        median=float(np.median(alld)),
+        std=float(alld.std()),
+        max=float(alld.max()),
+        tolerance=float(tolerance),
+        distances=tuple(np.asarray(d) for d in dists),
     )
 
 
@@ -143,8 +160,9 @@ def plot_deviation(report: Deviation, ax=None, title: str | None = None):
     gap = np.full((report.distances[0].shape[0] // 20 + 1, report.distances[0].shape[1]), np.nan)
     parts = [p for d in report.distances for p in (gap, d)][1:]
     strip = np.concatenate(parts, axis=0).T
-    image = ax.imshow(strip, origin="lower", cmap="viridis", vmin=0.0, vmax=max(report.max, 1e-12),
-                      aspect="auto")
+    image = ax.imshow(
+        strip, origin="lower", cmap="viridis", vmin=0.0, vmax=max(report.max, 1e-12), aspect="auto"
+    )
     ax.figure.colorbar(image, ax=ax, label="distance")
     ax.set_xlabel("patch samples (u, patch after patch)")
     ax.set_ylabel("v samples")

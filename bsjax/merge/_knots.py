@@ -6,7 +6,7 @@ layout of a merge and are decided once, outside `jit`.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -44,8 +44,9 @@ def _check_continuity(continuity, degree: int, name: str = "continuity") -> int:
     if isinstance(continuity, bool) or not isinstance(continuity, (int, np.integer)):
         raise TypeError(f"{name}: expected an int, got {type(continuity).__name__}")
     if not 0 <= continuity < degree:
-        _checks.fail(name, f"an int in 0..{degree - 1} (below the degree {degree} in the merge direction)",
-                     continuity)
+        _checks.fail(
+            name, f"an int in 0..{degree - 1} (below the degree {degree} in the merge direction)", continuity
+        )
     return int(continuity)
 
 

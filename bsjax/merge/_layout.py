@@ -9,7 +9,7 @@ products per patch plus one refit: jittable, and differentiable in the input con
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -52,11 +52,16 @@ class MergeLayout(eqx.Module):
 
     def _rows(self, ctrls):
         ctrls = list(ctrls)
-        rows = [ctrls] if self.flat and len(self.patches) == 1 else ([[c] for c in ctrls] if self.flat else ctrls)
+        rows = (
+            [ctrls]
+            if self.flat and len(self.patches) == 1
+            else ([[c] for c in ctrls] if self.flat else ctrls)
+        )
         R, C = self.grid_shape
         if len(rows) != R or any(len(row) != C for row in rows):
-            _checks.fail("ctrls", f"{R * C} control nets arranged as the layout {R}×{C}",
-                         [len(row) for row in rows])
+            _checks.fail(
+                "ctrls", f"{R * C} control nets arranged as the layout {R}×{C}", [len(row) for row in rows]
+            )
         return rows
 
     def points(self, ctrls) -> Float[Array, "m n 3"]:
@@ -66,8 +71,10 @@ class MergeLayout(eqx.Module):
         """
         rows = self._rows(ctrls)
         blocks = [
-            jnp.concatenate([b.points(_orient.orient_ctrl(jnp.asarray(c), op))
-                             for b, c, op in zip(brow, crow, orow)], axis=1)
+            jnp.concatenate(
+                [b.points(_orient.orient_ctrl(jnp.asarray(c), op)) for b, c, op in zip(brow, crow, orow)],
+                axis=1,
+            )
             for brow, crow, orow in zip(self.patches, rows, self.orientations)
         ]
         return jnp.concatenate(blocks, axis=0)
@@ -116,8 +123,11 @@ def common_degree(surfaces: Sequence[BSplineSurface], degrees=None):
     du = [s.degree_u for s in surfaces]
     dv = [s.degree_v for s in surfaces]
     if degrees is None and (len(set(du)) > 1 or len(set(dv)) > 1):
-        _checks.fail("degrees", "'elevate' or 'reduce' for patches of different degrees",
-                     f"None with degrees {list(zip(du, dv))}")
+        _checks.fail(
+            "degrees",
+            "'elevate' or 'reduce' for patches of different degrees",
+            f"None with degrees {list(zip(du, dv))}",
+        )
     pick = min if degrees == "reduce" else max
     k, l = pick(du), pick(dv)
     out_u = [_direction_knots(s, "u", k) for s in surfaces]
@@ -144,8 +154,11 @@ def _check_patch(s, name):
     if not isinstance(s, BSplineSurface):
         raise TypeError(f"{name}: expected a BSplineSurface, got {type(s).__name__}")
     if s.periodic_u or s.periodic_v:
-        _checks.fail(name, "an open (clamped) patch; periodic patches have no free edge to merge",
-                     f"periodic_u={s.periodic_u}, periodic_v={s.periodic_v}")
+        _checks.fail(
+            name,
+            "an open (clamped) patch; periodic patches have no free edge to merge",
+            f"periodic_u={s.periodic_u}, periodic_v={s.periodic_v}",
+        )
 
 
 def _samples(samples) -> tuple[int, int]:
@@ -200,13 +213,18 @@ def _windows(trim, grid, direction):
         flat = [_window(t, f"trim[{i}]", direction) for i, t in enumerate(trim)]
         return [flat[r * C : (r + 1) * C] for r in range(R)]
     if len(trim) != R or any(len(row) != C for row in trim):
-        _checks.fail("trim", f"{R} rows of {C} entries (None or (u0, u1, v0, v1))", [len(row) for row in trim])
+        _checks.fail(
+            "trim", f"{R} rows of {C} entries (None or (u0, u1, v0, v1))", [len(row) for row in trim]
+        )
     win = [[_window(t, f"trim[{r}][{c}]", None) for c, t in enumerate(row)] for r, row in enumerate(trim)]
     for r in range(R):
         for c in range(C):
             if win[r][c][:2] != win[r][0][:2] or win[r][c][2:] != win[0][c][2:]:
-                _checks.fail("trim", "the same u-window along each row of patches and the same v-window "
-                             "down each column", f"patch ({r}, {c}): {win[r][c]}")
+                _checks.fail(
+                    "trim",
+                    "the same u-window along each row of patches and the same v-window down each column",
+                    f"patch ({r}, {c}): {win[r][c]}",
+                )
     return win
 
 
@@ -240,8 +258,18 @@ def merged_knots(oriented, continuity=2, *, cross="average", degrees=None, windo
     return k, l, knots_u, knots_v
 
 
-def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=None,
-                 orientations=None, trim=None, direction="u", flat=False) -> MergeLayout:
+def build_layout(
+    grid,
+    continuity=2,
+    *,
+    samples=82,
+    cross="average",
+    degrees=None,
+    orientations=None,
+    trim=None,
+    direction="u",
+    flat=False,
+) -> MergeLayout:
     """Plan the merge of an `R × C` grid of (already oriented) patches; see `plan`."""
     R, C = len(grid), len(grid[0])
     ops = orientations or [[_orient.IDENTITY] * C for _ in range(R)]
@@ -253,35 +281,64 @@ def build_layout(grid, continuity=2, *, samples=82, cross="average", degrees=Non
 
     dtype = o_flat[0].ctrl.dtype
     blends = [[s.blending(m, n) for s in row] for row in oriented]
-    blends = [[b.window(*w) if w != (0.0, 1.0, 0.0, 1.0) else b for b, w in zip(brow, wrow)]
-              for brow, wrow in zip(blends, win)]
+    blends = [
+        [b.window(*w) if w != (0.0, 1.0, 0.0, 1.0) else b for b, w in zip(brow, wrow)]
+        for brow, wrow in zip(blends, win)
+    ]
     bu, bv = np.linspace(0.0, 1.0, R + 1), np.linspace(0.0, 1.0, C + 1)
-    pu = np.concatenate([_affine(np.asarray(blends[r][0].params_u), win[r][0][0], win[r][0][1], bu[r], bu[r + 1])
-                         for r in range(R)])
-    pv = np.concatenate([_affine(np.asarray(blends[0][c].params_v), win[0][c][2], win[0][c][3], bv[c], bv[c + 1])
-                         for c in range(C)])
+    pu = np.concatenate(
+        [
+            _affine(np.asarray(blends[r][0].params_u), win[r][0][0], win[r][0][1], bu[r], bu[r + 1])
+            for r in range(R)
+        ]
+    )
+    pv = np.concatenate(
+        [
+            _affine(np.asarray(blends[0][c].params_v), win[0][c][2], win[0][c][3], bv[c], bv[c + 1])
+            for c in range(C)
+        ]
+    )
     for r in range(R):
         for c in range(C):
             if blends[r][c].grid_shape != (blends[r][0].grid_shape[0], blends[0][c].grid_shape[1]):
                 _checks.fail("trim", "the same kept rows for patches side by side", f"patch ({r}, {c})")
     r_ctrl, s_ctrl = len(knots_u) - k - 1, len(knots_v) - l - 1
     if len(pu) < r_ctrl or len(pv) < s_ctrl:
-        _checks.fail("samples", f"at least {r_ctrl} × {s_ctrl} samples in all for the merged net",
-                     f"{len(pu)} × {len(pv)}")
-    dummy = BSplineSurface(jnp.zeros((r_ctrl, s_ctrl, 3), dtype), knots_u.astype(dtype),
-                           knots_v.astype(dtype), k, l)
+        _checks.fail(
+            "samples",
+            f"at least {r_ctrl} × {s_ctrl} samples in all for the merged net",
+            f"{len(pu)} × {len(pv)}",
+        )
+    dummy = BSplineSurface(
+        jnp.zeros((r_ctrl, s_ctrl, 3), dtype), knots_u.astype(dtype), knots_v.astype(dtype), k, l
+    )
     merged = dummy.blending(params_u=pu.astype(dtype), params_v=pv.astype(dtype))
-    errors = jnp.asarray([[reduction_error(s, b, k, l) for s, b in zip(srow, brow)]
-                          for srow, brow in zip(oriented, blends)], dtype)
+    errors = jnp.asarray(
+        [[reduction_error(s, b, k, l) for s, b in zip(srow, brow)] for srow, brow in zip(oriented, blends)],
+        dtype,
+    )
     return MergeLayout(
-        patches=tuple(tuple(row) for row in blends), merged=merged, reduction_error=errors,
-        orientations=tuple(tuple(row) for row in ops), flat=flat,
+        patches=tuple(tuple(row) for row in blends),
+        merged=merged,
+        reduction_error=errors,
+        orientations=tuple(tuple(row) for row in ops),
+        flat=flat,
     )
 
 
-def plan(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: int = 2, *,
-         samples=82, cross_knots: str = "average", degrees=None, orient: str = "auto",
-         trim=None, overlap: str = "keep", overlap_method: str = "collide") -> MergeLayout:
+def plan(
+    surfaces: Sequence[BSplineSurface],
+    direction: str = "u",
+    continuity: int = 2,
+    *,
+    samples=82,
+    cross_knots: str = "average",
+    degrees=None,
+    orient: str = "auto",
+    trim=None,
+    overlap: str = "keep",
+    overlap_method: str = "collide",
+) -> MergeLayout:
     """Plan the merge of N ≥ 2 patches in a row along `direction` (thesis §4.3, §4.4).
 
     **Arguments:**
@@ -314,20 +371,34 @@ def plan(surfaces: Sequence[BSplineSurface], direction: str = "u", continuity: i
         _check_patch(s, f"surfaces[{i}]")
     if isinstance(orient, str):
         _check_orient_mode(orient)
-        ops = (_orient.orient_row(surfaces, direction, _samples(samples)) if orient == "auto"
-               else [_orient.IDENTITY] * len(surfaces))
+        ops = (
+            _orient.orient_row(surfaces, direction, _samples(samples))
+            if orient == "auto"
+            else [_orient.IDENTITY] * len(surfaces)
+        )
     else:
         ops = _explicit_orientations([orient], 1, len(surfaces))[0]
     if _drop_overlap(overlap, trim):
         m, n = _samples(samples)
         oriented = [_orient.orient_surface(s, op) for s, op in zip(surfaces, ops)]
-        trim = _overlap.overlap_trims(oriented, direction, m if direction == "u" else n, method=overlap_method)
+        trim = _overlap.overlap_trims(
+            oriented, direction, m if direction == "u" else n, method=overlap_method
+        )
     grid = [[s] for s in surfaces] if direction == "u" else [surfaces]
     ogrid = [[op] for op in ops] if direction == "u" else [ops]
     cont = list(continuity) if isinstance(continuity, (tuple, list)) else continuity
     cont = (cont, 0) if direction == "u" else (0, cont)
-    return build_layout(grid, cont, samples=samples, cross=cross_knots, degrees=degrees,
-                        orientations=ogrid, trim=trim, direction=direction, flat=True)
+    return build_layout(
+        grid,
+        cont,
+        samples=samples,
+        cross=cross_knots,
+        degrees=degrees,
+        orientations=ogrid,
+        trim=trim,
+        direction=direction,
+        flat=True,
+    )
 
 
 def _drop_overlap(overlap, trim) -> bool:
@@ -340,19 +411,25 @@ def _drop_overlap(overlap, trim) -> bool:
 
 def _check_orient_mode(orient):
     if orient not in ("auto", "as_given"):
-        _checks.fail("orient", "'auto', 'as_given' or explicit (transpose, flip_u, flip_v) per patch", repr(orient))
+        _checks.fail(
+            "orient", "'auto', 'as_given' or explicit (transpose, flip_u, flip_v) per patch", repr(orient)
+        )
 
 
 def _explicit_orientations(orient, R: int, C: int):
     """Validate rows of explicit `(transpose, flip_u, flip_v)` orientations."""
     rows = [list(r) for r in orient]
     if len(rows) != R or any(len(r) != C for r in rows):
-        _checks.fail("orient", f"{R} rows of {C} (transpose, flip_u, flip_v) orientations", [len(r) for r in rows])
+        _checks.fail(
+            "orient", f"{R} rows of {C} (transpose, flip_u, flip_v) orientations", [len(r) for r in rows]
+        )
     out = []
     for r, row in enumerate(rows):
         for c, op in enumerate(row):
             if len(tuple(op)) != 3 or not all(isinstance(x, (bool, np.bool_)) for x in op):
-                _checks.fail(f"orient[{r}][{c}]" if R > 1 else f"orient[{c}]", "(transpose, flip_u, flip_v) bools", op)
+                _checks.fail(
+                    f"orient[{r}][{c}]" if R > 1 else f"orient[{c}]", "(transpose, flip_u, flip_v) bools", op
+                )
         out.append([tuple(bool(x) for x in op) for op in row])
     return out
 
@@ -369,9 +446,17 @@ def grid_orientations(rows, orient="auto", samples=82):
     return _explicit_orientations(orient, R, C)
 
 
-def plan_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples=82,
-              degrees=None, orient="auto", trim=None, overlap: str = "keep",
-              overlap_method: str = "collide") -> MergeLayout:
+def plan_grid(
+    rows: Sequence[Sequence[BSplineSurface]],
+    continuity=2,
+    *,
+    samples=82,
+    degrees=None,
+    orient="auto",
+    trim=None,
+    overlap: str = "keep",
+    overlap_method: str = "collide",
+) -> MergeLayout:
     """Plan the merge of a grid of patches, `M = [M11 M12 …; M21 M22 …]` (thesis §4.4.3).
 
     `rows[i][j]`: patches side by side along v within a row, rows stacked along u; after
@@ -389,8 +474,9 @@ def plan_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples
     if not rows or not rows[0]:
         _checks.fail("rows", "a non-empty list of non-empty rows of patches", rows)
     if any(len(r) != len(rows[0]) for r in rows):
-        _checks.fail("rows", f"rows of equal length {len(rows[0])} (a rectangular grid)",
-                     [len(r) for r in rows])
+        _checks.fail(
+            "rows", f"rows of equal length {len(rows[0])} (a rectangular grid)", [len(r) for r in rows]
+        )
     if len(rows) * len(rows[0]) < 2:
         _checks.fail("rows", "at least 2 patches", 1)
     for i, row in enumerate(rows):
@@ -398,7 +484,17 @@ def plan_grid(rows: Sequence[Sequence[BSplineSurface]], continuity=2, *, samples
             _check_patch(s, f"rows[{i}][{j}]")
     ops = grid_orientations(rows, orient, samples)
     if _drop_overlap(overlap, trim):
-        oriented = [[_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(rows, ops)]
+        oriented = [
+            [_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(rows, ops)
+        ]
         trim = _overlap.grid_overlap_windows(oriented, _samples(samples), method=overlap_method)
-    return build_layout(rows, continuity, samples=samples, cross="average", degrees=degrees,
-                        orientations=ops, trim=trim, direction=None)
+    return build_layout(
+        rows,
+        continuity,
+        samples=samples,
+        cross="average",
+        degrees=degrees,
+        orientations=ops,
+        trim=trim,
+        direction=None,
+    )

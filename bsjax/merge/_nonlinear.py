@@ -85,7 +85,9 @@ def collocation(surface: BSplineSurface, uv: Float[Array, "N 2"]) -> Float[Array
 def _band_indices(r: int, k: int, s: int, l: int):
     """Static index pairs of the normal matrix entries `((i, j), (i + d, j + e))`, `0 ≤ d ≤ k`,
     `|e| ≤ l`, held by the band products of `normal_matrix`, and where they sit in them."""
-    i, d, j, e = np.meshgrid(np.arange(r), np.arange(k + 1), np.arange(s), np.arange(-l, l + 1), indexing="ij")
+    i, d, j, e = np.meshgrid(
+        np.arange(r), np.arange(k + 1), np.arange(s), np.arange(-l, l + 1), indexing="ij"
+    )
     keep = (i + d < r) & (j + e >= 0) & (j + e < s)
     rows, cols = (i * s + j)[keep], ((i + d) * s + j + e)[keep]
     flat = np.ravel_multi_index((i[keep], d[keep], j[keep], e[keep] + l), (r, k + 1, s, 2 * l + 1))
@@ -111,8 +113,9 @@ def normal_matrix(bu: Float[Array, "N r"], bv: Float[Array, "N s"], k: int, l: i
     return jnp.zeros((r * s, r * s), bu.dtype).at[rows, cols].set(vals).at[cols, rows].set(vals)
 
 
-def fit_scattered(surface: BSplineSurface, uv: Float[Array, "N 2"], points: Float[Array, "N 3"],
-                  ridge: float | None = None) -> tuple[Float[Array, "r s 3"], Float[Array, " N"]]:
+def fit_scattered(
+    surface: BSplineSurface, uv: Float[Array, "N 2"], points: Float[Array, "N 3"], ridge: float | None = None
+) -> tuple[Float[Array, "r s 3"], Float[Array, " N"]]:
     """Least-squares control net of `surface`'s basis through `points` at parameters `uv`.
 
     Normal equations `(KᵀK + μI) P = KᵀX + μ P₀` (Cholesky) with `K` the collocation matrix,
@@ -129,7 +132,9 @@ def fit_scattered(surface: BSplineSurface, uv: Float[Array, "N 2"], points: Floa
     mu = (1e3 * jnp.finfo(a.dtype).eps if ridge is None else ridge) * jnp.trace(a) / n
     rhs = jnp.einsum("ai,aj,ac->ijc", bu, bv, points).reshape(n, 3)
     factor = jax.scipy.linalg.cho_factor(a + mu * jnp.eye(n, dtype=a.dtype))
-    ctrl = jax.scipy.linalg.cho_solve(factor, rhs + mu * surface.ctrl.reshape(n, 3)).reshape(surface.shape + (3,))
+    ctrl = jax.scipy.linalg.cho_solve(factor, rhs + mu * surface.ctrl.reshape(n, 3)).reshape(
+        surface.shape + (3,)
+    )
     fitted = jnp.einsum("ai,ijc,aj->ac", bu, ctrl, bv)
     return ctrl, jnp.linalg.norm(fitted - points, axis=-1)
 
@@ -145,8 +150,15 @@ def _settled(hist, i, rtol):
 
 
 @eqx.filter_jit
-def _refit(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Array, "N 2"],
-           rms0: Float[Array, ""], rtol: Float[Array, ""], rounds: int, projection: ProjectionSolver) -> RefitSolution:
+def _refit(
+    surface: BSplineSurface,
+    points: Float[Array, "N 3"],
+    uv0: Float[Array, "N 2"],
+    rms0: Float[Array, ""],
+    rtol: Float[Array, ""],
+    rounds: int,
+    projection: ProjectionSolver,
+) -> RefitSolution:
     # rtol is traced (changing it does not recompile); rounds fixes the history's length
     history = jnp.full((rounds + 1,), jnp.nan, points.dtype).at[0].set(rms0)
     status0 = jax.vmap(lambda _: optx.RESULTS.successful)(uv0)
@@ -164,8 +176,9 @@ def _refit(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Arra
 
     carry = (surface.ctrl, uv0, history, jnp.asarray(0), status0)
     ctrl, uv, hist, i, status = jax.lax.while_loop(cond, body, carry)
-    result = optx.RESULTS.where(_settled(hist, i, rtol), optx.RESULTS.successful,
-                                optx.RESULTS.max_steps_reached)
+    result = optx.RESULTS.where(
+        _settled(hist, i, rtol), optx.RESULTS.successful, optx.RESULTS.max_steps_reached
+    )
     return RefitSolution(ctrl=ctrl, params=uv, rms=hist, rounds=i, result=result, projection_result=status)
 
 
@@ -190,7 +203,9 @@ def refit(layout, ctrls, solver: RefitSolver = RefitSolver()) -> RefitSolution:
     # the linear fit's RMS at the grid parameters, with the stored blending matrices
     rms0 = _rms(jnp.linalg.norm(layout.merged.points(ctrl) - points, axis=-1))
     rtol = jnp.asarray(solver.rtol, points.dtype)
-    return _refit(layout.surface(ctrl), points.reshape(-1, 3), uv, rms0, rtol, solver.rounds, solver.projection)
+    return _refit(
+        layout.surface(ctrl), points.reshape(-1, 3), uv, rms0, rtol, solver.rounds, solver.projection
+    )
 
 
 def refine(layout, ctrls, iterations: int = 8, steps: int = 3) -> Float[Array, "r s 3"]:

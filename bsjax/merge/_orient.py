@@ -49,8 +49,9 @@ def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
         ku, kv, du, dv, pu, pv = kv, ku, dv, du, pv, pu
     ku = _flip_knots(ku) if flip_u else ku
     kv = _flip_knots(kv) if flip_v else kv
-    return BSplineSurface(orient_ctrl(surface.ctrl, op), ku, kv, du, dv, pu, pv,
-                          orient_ctrl(surface.weights, op))
+    return BSplineSurface(
+        orient_ctrl(surface.ctrl, op), ku, kv, du, dv, pu, pv, orient_ctrl(surface.weights, op)
+    )
 
 
 def _edges(surface: BSplineSurface, count: int = 17, samples: tuple[int, int] = (33, 33)) -> dict:
@@ -63,8 +64,12 @@ def _edges(surface: BSplineSurface, count: int = 17, samples: tuple[int, int] = 
         x = np.linspace(0.0, 1.0, len(curve))
         return np.stack([np.interp(t, x, curve[:, i]) for i in range(3)], -1)
 
-    return {("u", 0): resample(grid[0]), ("u", 1): resample(grid[-1]),
-            ("v", 0): resample(grid[:, 0]), ("v", 1): resample(grid[:, -1])}
+    return {
+        ("u", 0): resample(grid[0]),
+        ("u", 1): resample(grid[-1]),
+        ("v", 0): resample(grid[:, 0]),
+        ("v", 1): resample(grid[:, -1]),
+    }
 
 
 def _oriented_edge(edges: dict, op: Orientation, direction: str, end: int) -> np.ndarray:
@@ -86,15 +91,19 @@ def _pick(gaps: list[float]) -> int:
     return int(np.argmax(g <= g.min() + 1e-9 * (1.0 + abs(g.min()))))
 
 
-def orient_row(surfaces: list[BSplineSurface], direction: str, samples: tuple[int, int] = (33, 33)) -> list[Orientation]:
+def orient_row(
+    surfaces: list[BSplineSurface], direction: str, samples: tuple[int, int] = (33, 33)
+) -> list[Orientation]:
     """Orientations that make the `direction = 1` edge of patch i meet the `direction = 0` edge of
     patch i + 1 (same sense along the shared edge), chosen by the smallest mean edge gap.
     The edges are read off each patch's `samples` grid.
     """
     edges = [_edges(s, samples=samples) for s in surfaces]
     pairs = list(itertools.product(ALL, repeat=2))
-    gaps = [_gap(_oriented_edge(edges[0], a, direction, 1), _oriented_edge(edges[1], b, direction, 0))
-            for a, b in pairs]
+    gaps = [
+        _gap(_oriented_edge(edges[0], a, direction, 1), _oriented_edge(edges[1], b, direction, 0))
+        for a, b in pairs
+    ]
     ops = list(pairs[_pick(gaps)])
     for e in edges[2:]:
         prev_end = _oriented_edge(edges[len(ops) - 1], ops[-1], direction, 1)
@@ -102,7 +111,9 @@ def orient_row(surfaces: list[BSplineSurface], direction: str, samples: tuple[in
     return ops
 
 
-def orient_grid(rows: list[list[BSplineSurface]], samples: tuple[int, int] = (33, 33)) -> list[list[Orientation]]:
+def orient_grid(
+    rows: list[list[BSplineSurface]], samples: tuple[int, int] = (33, 33)
+) -> list[list[Orientation]]:
     """Orientations of an `R × C` grid of patches (thesis §4.4.3) so that patch `(i, j)`'s `u = 1`
     edge meets `(i+1, j)`'s `u = 0` edge and its `v = 1` edge meets `(i, j+1)`'s `v = 0` edge.
 
@@ -121,15 +132,23 @@ def orient_grid(rows: list[list[BSplineSurface]], samples: tuple[int, int] = (33
     def cost(i, j, op, ops):
         total = 0.0
         if i > 0:
-            total += _gap(_oriented_edge(edges[i - 1][j], ops[i - 1][j], "u", 1), _oriented_edge(edges[i][j], op, "u", 0))
+            total += _gap(
+                _oriented_edge(edges[i - 1][j], ops[i - 1][j], "u", 1),
+                _oriented_edge(edges[i][j], op, "u", 0),
+            )
         if j > 0:
-            total += _gap(_oriented_edge(edges[i][j - 1], ops[i][j - 1], "v", 1), _oriented_edge(edges[i][j], op, "v", 0))
+            total += _gap(
+                _oriented_edge(edges[i][j - 1], ops[i][j - 1], "v", 1),
+                _oriented_edge(edges[i][j], op, "v", 0),
+            )
         return total
 
     triples = list(itertools.product(ALL, repeat=3))
-    corner = [_gap(_oriented_edge(edges[0][0], a, "v", 1), _oriented_edge(edges[0][1], b, "v", 0))
-              + _gap(_oriented_edge(edges[0][0], a, "u", 1), _oriented_edge(edges[1][0], c, "u", 0))
-              for a, b, c in triples]
+    corner = [
+        _gap(_oriented_edge(edges[0][0], a, "v", 1), _oriented_edge(edges[0][1], b, "v", 0))
+        + _gap(_oriented_edge(edges[0][0], a, "u", 1), _oriented_edge(edges[1][0], c, "u", 0))
+        for a, b, c in triples
+    ]
     a, b, c = triples[_pick(corner)]
     ops: list[list] = [[None] * C for _ in range(R)]
     ops[0][0], ops[0][1], ops[1][0] = a, b, c

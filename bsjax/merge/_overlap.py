@@ -43,19 +43,28 @@ def collide_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82, capac
 
     method = "dense" if samples <= 24 else "hierarchy"
     for capacity in capacities:
-        result = surface_contacts(a.blending(samples, samples), a.ctrl, b.blending(samples, samples), b.ctrl,
-                                  method=method, capacity=capacity)
+        result = surface_contacts(
+            a.blending(samples, samples),
+            a.ctrl,
+            b.blending(samples, samples),
+            b.ctrl,
+            method=method,
+            capacity=capacity,
+        )
         if not bool(result.overflow):
             return np.asarray(result.mask_a), np.asarray(result.mask_b)
-    raise ValueError(f"overlap: expected the collision query to fit its capacity ({capacities[-1]} cell pairs), "
-                     "got an overflow; use method='dense'")
+    raise ValueError(
+        f"overlap: expected the collision query to fit its capacity ({capacities[-1]} cell pairs), "
+        "got an overflow; use method='dense'"
+    )
 
 
 _TOUCH = 2  # contact confined to this many rows either side of the seam is touching, kept
 
 
-def overlap_trims(surfaces, direction: str, samples: int = 82, tolerance: float | None = None,
-                  method: str = "collide"):
+def overlap_trims(
+    surfaces, direction: str, samples: int = 82, tolerance: float | None = None, method: str = "collide"
+):
     """Per-patch `(lo, hi)` windows along `direction` that leave out the intersecting rows.
 
     For each seam, the first patch keeps the rows before its first contact row and the second
@@ -84,13 +93,16 @@ def overlap_trims(surfaces, direction: str, samples: int = 82, tolerance: float 
             trims[i + 1][0] = max(trims[i + 1][0], params[rows_b.max()] + 0.5 * step)
     for i, (lo, hi) in enumerate(trims):
         if hi - lo < 4 * step:
-            raise ValueError(f"overlap: expected patches that keep some rows after dropping the "
-                             f"intersecting ones, got patch {i} with only [{lo:.3f}, {hi:.3f}] left")
+            raise ValueError(
+                f"overlap: expected patches that keep some rows after dropping the "
+                f"intersecting ones, got patch {i} with only [{lo:.3f}, {hi:.3f}] left"
+            )
     return [tuple(t) for t in trims]
 
 
-def grid_overlap_windows(rows, samples: tuple[int, int] = (82, 82), tolerance: float | None = None,
-                         method: str = "collide"):
+def grid_overlap_windows(
+    rows, samples: tuple[int, int] = (82, 82), tolerance: float | None = None, method: str = "collide"
+):
     """Kept windows `(u0, u1, v0, v1)` of a grid of (oriented) patches that leave out the rows
     where vertical neighbours intersect and the columns where horizontal ones do (§4.4.1).
 

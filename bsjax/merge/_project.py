@@ -35,7 +35,9 @@ class TwoUnknownsSolver(lx.AbstractLinearSolver):
     def init(self, operator, options):
         del options
         if operator.in_size() != 2:
-            raise ValueError(f"TwoUnknownsSolver: expected an operator with 2 inputs, got {operator.in_size()}")
+            raise ValueError(
+                f"TwoUnknownsSolver: expected an operator with 2 inputs, got {operator.in_size()}"
+            )
         return operator.as_matrix()
 
     def compute(self, state, vector, options):
@@ -85,8 +87,9 @@ class ProjectionSolver(eqx.Module):
     def optimistix_solver(self, dtype) -> optx.GaussNewton:
         """The optimistix solver: Gauss–Newton with the pseudo-inverse step (`TwoUnknownsSolver`)."""
         eps = float(jnp.finfo(dtype).eps)
-        return optx.GaussNewton(rtol=max(self.rtol, 10 * eps), atol=max(self.atol, 100 * eps),
-                                linear_solver=TwoUnknownsSolver())
+        return optx.GaussNewton(
+            rtol=max(self.rtol, 10 * eps), atol=max(self.atol, 100 * eps), linear_solver=TwoUnknownsSolver()
+        )
 
 
 class Projection(eqx.Module):
@@ -110,8 +113,14 @@ def _residual(uv: Float[Array, " 2"], args) -> Float[Array, " 3"]:
 
 
 def _project_one(surface: BSplineSurface, x, uv0, solver: ProjectionSolver):
-    sol = optx.least_squares(_residual, solver.optimistix_solver(uv0.dtype), uv0, args=(surface, x),
-                             max_steps=solver.max_steps, throw=False)
+    sol = optx.least_squares(
+        _residual,
+        solver.optimistix_solver(uv0.dtype),
+        uv0,
+        args=(surface, x),
+        max_steps=solver.max_steps,
+        throw=False,
+    )
     both = jnp.clip(jnp.stack([uv0, sol.value]), 0.0, 1.0)
     d2 = jnp.sum((surface.evaluate(both[:, 0], both[:, 1]) - x) ** 2, -1)  # one evaluation, both points
     # Gauss–Newton has no line search: keep the start where the iteration did not improve on it
@@ -121,8 +130,12 @@ def _project_one(surface: BSplineSurface, x, uv0, solver: ProjectionSolver):
 
 
 @eqx.filter_jit
-def closest_points(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Array, "N 2"],
-                   solver: ProjectionSolver = ProjectionSolver()) -> Projection:
+def closest_points(
+    surface: BSplineSurface,
+    points: Float[Array, "N 3"],
+    uv0: Float[Array, "N 2"],
+    solver: ProjectionSolver = ProjectionSolver(),
+) -> Projection:
     """Closest-point parameters of `points` on `surface` from starting guesses `uv0`.
 
     Minimises `|S(u, v) − x|²` per point over [0, 1]² (vmapped `optimistix.least_squares`,
@@ -135,13 +148,12 @@ def closest_points(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Fl
     return Projection(params=uv, distances=dist, result=result)
 
 
-def project(surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Array, "N 2"],
-            steps: int = 8) -> Float[Array, "N 2"]:
+def project(
+    surface: BSplineSurface, points: Float[Array, "N 3"], uv0: Float[Array, "N 2"], steps: int = 8
+) -> Float[Array, "N 2"]:
     """Closest-point parameters of `points` on `surface` from `uv0`, with at most `steps`
     Gauss–Newton steps per point (`closest_points` with `ProjectionSolver(max_steps=steps)`).
 
     **Returns:** `(N, 2)` parameters in [0, 1]².
     """
     return closest_points(surface, points, uv0, ProjectionSolver(max_steps=steps)).params
-
-

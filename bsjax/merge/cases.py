@@ -82,7 +82,9 @@ def case(number: int) -> Case:
         return Case(1, [a, b], "u")
     if number == 2:
         a = _patch(0, 20, 0, 20, lambda x, y: 3.0 * np.sin(np.pi * y / 20.0) * (x / 20.0) ** 0.5)
-        b = _patch(20, 40, 0, 20, lambda x, y: 2.6 * np.sin(np.pi * y / 20.0) - 0.05 * (x - 20.0) ** 1.5 / 20 ** 0.5)
+        b = _patch(
+            20, 40, 0, 20, lambda x, y: 2.6 * np.sin(np.pi * y / 20.0) - 0.05 * (x - 20.0) ** 1.5 / 20**0.5
+        )
         return Case(2, [a, b], "u")
     if number == 3:
         kv_a = _knots([0.25, 0.49, 0.67, 0.75])
@@ -101,10 +103,22 @@ def case(number: int) -> Case:
         return Case(5, [a, b], "u", {"overlap": "drop"})
     if number == 6:
         a = _patch(0, 20, 0, 20, _hill, 6, 6, 3, 3)
-        b = _patch(0, 20, 20, 40, lambda x, y: _hill(x, y) * 0.5 + 2.0 * np.sin(np.pi * x / 20.0) * np.sin(np.pi * (y - 20.0) / 40.0),
-                   8, 12, 4, 5)
+        b = _patch(
+            0,
+            20,
+            20,
+            40,
+            lambda x, y: (
+                _hill(x, y) * 0.5 + 2.0 * np.sin(np.pi * x / 20.0) * np.sin(np.pi * (y - 20.0) / 40.0)
+            ),
+            8,
+            12,
+            4,
+            5,
+        )
         return Case(6, [a, b], "v", {"degrees": "elevate"})
     if number == 7:
+
         def bump(cx, cy, h):
             return lambda x, y: 0.4 * _hill(x, y) + h * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / 30.0)
 
@@ -121,8 +135,16 @@ def all_cases() -> list[Case]:
     return [case(i) for i in range(1, 8)]
 
 
-def run(c: Case, continuity: int, *, refine: bool = False, samples: int = 82, deviation_samples: int = 101,
-        tolerance: float = 0.1, overlap_method: str = "collide"):
+def run(
+    c: Case,
+    continuity: int,
+    *,
+    refine: bool = False,
+    samples: int = 82,
+    deviation_samples: int = 101,
+    tolerance: float = 0.1,
+    overlap_method: str = "collide",
+):
     """Merge case `c` with C^continuity and measure it.
 
     **Returns:** `(merged surface, layout, Deviation)`; for case 5 the deviation is measured on the
@@ -144,5 +166,7 @@ def run(c: Case, continuity: int, *, refine: bool = False, samples: int = 82, de
         ctrls = [s.ctrl for s in c.patches]
     ctrl = mg.refine(layout, ctrls) if refine else layout.apply(ctrls)
     merged = layout.surface(ctrl)
-    report = mg.deviation(c.originals, merged, samples=deviation_samples, tolerance=tolerance, windows=windows)
+    report = mg.deviation(
+        c.originals, merged, samples=deviation_samples, tolerance=tolerance, windows=windows
+    )
     return merged, layout, report

@@ -6,28 +6,95 @@ Pure functions over pytrees: `init(lattice) -> State`, `step(lattice, state, dt,
 """
 
 from bsjax.mss._forces import (
-    RigidPlane, RigidSphere, behind_plane, edge_sum, plane_penalty, sphere_penalty, spring_forces, tool_forces,
+    RigidPlane,
+    RigidSphere,
+    behind_plane,
+    edge_sum,
+    plane_penalty,
+    sphere_penalty,
+    spring_forces,
+    tool_forces,
 )
 from bsjax.mss._integrators import (
-    Contact, Plasticity, check_dt, energy, forces, implicit_step, stable_dt, step,
+    Contact,
+    Plasticity,
+    check_dt,
+    energy,
+    forces,
+    implicit_step,
+    stable_dt,
+    step,
 )
 from bsjax.mss._lattice import (
-    HEX_DIRECTIONS, Lattice, State, from_material, grid_edges, hex_edges, hex_lattice, hex_volume, init,
+    HEX_DIRECTIONS,
+    Lattice,
+    State,
+    from_material,
+    grid_edges,
+    hex_edges,
+    hex_lattice,
+    hex_volume,
+    init,
 )
 from bsjax.mss._materials import (
-    JELLY, PLASTICINE, PRESETS, STEEL, Material, damping_ratio, natural_frequency, spring_damping,
+    JELLY,
+    PLASTICINE,
+    PRESETS,
+    STEEL,
+    Material,
+    damping_ratio,
+    natural_frequency,
+    spring_damping,
     spring_stiffness,
 )
 from bsjax.mss._rollout import relax, simulate, simulate_plastic, trajectory, yield_rest_lengths
 
 __all__ = [
-    "Contact", "HEX_DIRECTIONS", "JELLY", "Lattice", "Material", "PLASTICINE", "PRESETS", "Plasticity", "STEEL",
-    "State", "check_dt", "damping_ratio", "energy", "forces", "from_material", "grid_edges", "hex_edges",
-    "hex_lattice", "hex_volume", "implicit_step", "init", "natural_frequency", "plane_penalty", "relax",
-    "simulate", "simulate_plastic", "sphere_penalty", "spring_damping", "spring_forces", "spring_stiffness",
-    "stable_dt", "step", "tool_forces", "trajectory", "yield_rest_lengths",
+    "HEX_DIRECTIONS",
+    "JELLY",
+    "PLASTICINE",
+    "PRESETS",
+    "STEEL",
+    "Contact",
+    "Lattice",
+    "Material",
+    "Plasticity",
+    "State",
+    "check_dt",
+    "damping_ratio",
+    "energy",
+    "forces",
+    "from_material",
+    "grid_edges",
+    "hex_edges",
+    "hex_lattice",
+    "hex_volume",
+    "implicit_step",
+    "init",
+    "natural_frequency",
+    "plane_penalty",
+    "relax",
+    "simulate",
+    "simulate_plastic",
+    "sphere_penalty",
+    "spring_damping",
+    "spring_forces",
+    "spring_stiffness",
+    "stable_dt",
+    "step",
+    "tool_forces",
+    "trajectory",
+    "yield_rest_lengths",
 ]
 
-from bsjax.mss._coupling import SurfaceCoupling, simulate_coupled, surface_lattice  # noqa: E402
+from bsjax.mss._coupling import SurfaceCoupling, simulate_coupled, surface_lattice
 
-__all__ += ["RigidPlane", "RigidSphere", "behind_plane", "edge_sum", "SurfaceCoupling", "simulate_coupled", "surface_lattice"]
+__all__ += [
+    "RigidPlane",
+    "RigidSphere",
+    "SurfaceCoupling",
+    "behind_plane",
+    "edge_sum",
+    "simulate_coupled",
+    "surface_lattice",
+]

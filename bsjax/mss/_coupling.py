@@ -41,10 +41,21 @@ class SurfaceCoupling(eqx.Module):
         return self.blending.refit(self.grid(position))
 
 
-def surface_lattice(blending: Blending, ctrl: Float[Array, "r s 3"], material: Material | None = None, *,
-                    thickness: float = 0.01, stiffness=None, damping=None, mass=None, fixed=None,
-                    shear: bool = True, bending: bool = True, node_damping=0.0,
-                    tol: float | None = None) -> tuple[Lattice, SurfaceCoupling]:
+def surface_lattice(
+    blending: Blending,
+    ctrl: Float[Array, "r s 3"],
+    material: Material | None = None,
+    *,
+    thickness: float = 0.01,
+    stiffness=None,
+    damping=None,
+    mass=None,
+    fixed=None,
+    shear: bool = True,
+    bending: bool = True,
+    node_damping=0.0,
+    tol: float | None = None,
+) -> tuple[Lattice, SurfaceCoupling]:
     """A surface lattice on the sample grid of `blending` for the control net `ctrl`.
 
     Structural springs join grid neighbours, shear springs the diagonals, bending springs
@@ -56,7 +67,9 @@ def surface_lattice(blending: Blending, ctrl: Float[Array, "r s 3"], material: M
     **Returns:** `(lattice, coupling)`.
     """
     if blending.refit_u is None or blending.refit_v is None:
-        _checks.fail("blending", "a full grid with a stored refit (m >= r, n >= s)", f"grid {blending.grid_shape}")
+        _checks.fail(
+            "blending", "a full grid with a stored refit (m >= r, n >= s)", f"grid {blending.grid_shape}"
+        )
     points = np.asarray(blending.points(ctrl))
     if tol is None:
         tol = 1e-9 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
@@ -67,11 +80,16 @@ def surface_lattice(blending: Blending, ctrl: Float[Array, "r s 3"], material: M
     if fixed is not None:
         fixed = np.asarray(fixed)
         if fixed.shape != points.shape[:2] or fixed.dtype != bool:
-            _checks.fail("fixed", f"a boolean mask of shape {points.shape[:2]}", f"{fixed.dtype} {fixed.shape}")
-        fixed_nodes = jnp.asarray(np.bincount(node_map.ravel(), weights=fixed.ravel(), minlength=len(first)) > 0)
+            _checks.fail(
+                "fixed", f"a boolean mask of shape {points.shape[:2]}", f"{fixed.dtype} {fixed.shape}"
+            )
+        fixed_nodes = jnp.asarray(
+            np.bincount(node_map.ravel(), weights=fixed.ravel(), minlength=len(first)) > 0
+        )
     if material is not None:
-        lattice = from_material(x, edges, material, _grid_area(points) * thickness, fixed_nodes,
-                                node_damping=node_damping)
+        lattice = from_material(
+            x, edges, material, _grid_area(points) * thickness, fixed_nodes, node_damping=node_damping
+        )
     else:
         if stiffness is None or damping is None or mass is None:
             _checks.fail("stiffness, damping, mass", "all three, or a material", "some missing")
@@ -88,12 +106,23 @@ def _grid_area(points: np.ndarray) -> float:
     return 0.5 * float(np.sum(t1 + t2))
 
 
-def simulate_coupled(lattice: Lattice, coupling: SurfaceCoupling, state: State, dt, n_steps: int,
-                     refit_every: int, external_force=None, gravity=None, **kwargs) -> tuple[State, Float[Array, "k r s 3"]]:
+def simulate_coupled(
+    lattice: Lattice,
+    coupling: SurfaceCoupling,
+    state: State,
+    dt,
+    n_steps: int,
+    refit_every: int,
+    external_force=None,
+    gravity=None,
+    **kwargs,
+) -> tuple[State, Float[Array, "k r s 3"]]:
     """Physics every step, control points every `refit_every` steps (e.g. 1 kHz / 50 Hz → 20).
 
     **Returns:** the final state and the control nets after each block of `refit_every` steps,
     `(n_steps // refit_every, r, s, 3)`. Keyword arguments go to `mss.trajectory`.
     """
-    final, saved = trajectory(lattice, state, dt, n_steps, external_force, gravity, save_every=refit_every, **kwargs)
+    final, saved = trajectory(
+        lattice, state, dt, n_steps, external_force, gravity, save_every=refit_every, **kwargs
+    )
     return final, jax.vmap(coupling.ctrl)(saved.position)

@@ -40,8 +40,12 @@ def _pair_force(d, dv, rest, k, c):
     return -coef * d
 
 
-def spring_forces(lattice: Lattice, x: Float[Array, "N 3"], v: Float[Array, "N 3"],
-                  rest_length: Float[Array, " E"] | None = None) -> Float[Array, "N 3"]:
+def spring_forces(
+    lattice: Lattice,
+    x: Float[Array, "N 3"],
+    v: Float[Array, "N 3"],
+    rest_length: Float[Array, " E"] | None = None,
+) -> Float[Array, "N 3"]:
     """`−g_i` (eq. 5.13) plus the Voigt damping of every spring at node i.
 
     Uses dense slices when the lattice is a hexahedral grid (`lattice.grid_shape`), else
@@ -125,7 +129,9 @@ def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
         elif hasattr(tool, "normal"):
             f = f + plane_penalty(x, v, tool.point, tool.normal, stiffness, damping)
         else:
-            raise TypeError(f"tools: expected objects with center/radius or point/normal, got {type(tool).__name__}")
+            raise TypeError(
+                f"tools: expected objects with center/radius or point/normal, got {type(tool).__name__}"
+            )
     return f
 
 

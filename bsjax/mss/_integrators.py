@@ -6,12 +6,9 @@ Pure functions over pytrees (jax-md / brax style): `step(model, state, dt, …) 
 
 from __future__ import annotations
 
-from typing import Any
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _tensor
@@ -54,8 +51,15 @@ class Plasticity(eqx.Module):
 # --- forces and energy -----------------------------------------------------------------------------
 
 
-def forces(lattice: Lattice, state: State, external_force=None, gravity=None, tools=(), contact=None,
-           rest_length=None) -> Float[Array, "N 3"]:
+def forces(
+    lattice: Lattice,
+    state: State,
+    external_force=None,
+    gravity=None,
+    tools=(),
+    contact=None,
+    rest_length=None,
+) -> Float[Array, "N 3"]:
     """Net force on every node: `f − D_i ẋ − g` of eq. 5.12, plus `ρ_i g` and tool contact."""
     x, v = state.position, state.velocity
     f = spring_forces(lattice, x, v, rest_length) - lattice.node_damping[:, None] * v
@@ -98,8 +102,11 @@ def stable_dt(lattice: Lattice, contact_stiffness: ArrayLike = 0.0) -> Float[Arr
     n = m.shape[0]
 
     def bound(per_edge, per_node):
-        b = (jax.ops.segment_sum(per_edge * (1.0 / m[i] + cross), i, n)
-             + jax.ops.segment_sum(per_edge * (1.0 / m[j] + cross), j, n) + per_node / m)
+        b = (
+            jax.ops.segment_sum(per_edge * (1.0 / m[i] + cross), i, n)
+            + jax.ops.segment_sum(per_edge * (1.0 / m[j] + cross), j, n)
+            + per_node / m
+        )
         return jnp.max(jnp.where(lattice.fixed, 0.0, b))
 
     w2 = bound(lattice.stiffness, jnp.asarray(contact_stiffness, dtype=m.dtype))
@@ -118,20 +125,35 @@ def check_dt(lattice: Lattice, dt, contact_stiffness=0.0):
         if not float(dt) > 0:
             _checks.fail("dt", "a time step > 0", dt)
         if float(dt) > float(limit):
-            _checks.fail("dt", f"a time step <= {float(limit):.6g} s, the largest stable step of the "
-                         "semi-implicit Euler scheme for this lattice (stiffest spring, lightest node); "
-                         "use a smaller dt or method='implicit'", f"{float(dt):.6g} s")
+            _checks.fail(
+                "dt",
+                f"a time step <= {float(limit):.6g} s, the largest stable step of the "
+                "semi-implicit Euler scheme for this lattice (stiffest spring, lightest node); "
+                "use a smaller dt or method='implicit'",
+                f"{float(dt):.6g} s",
+            )
         return dt
     dt = jnp.asarray(dt, dtype=lattice.mass.dtype)
-    return eqx.error_if(dt, (dt > limit) | (dt <= 0),
-                        "dt: expected a time step <= the semi-implicit Euler stability limit (mss.stable_dt)")
+    return eqx.error_if(
+        dt,
+        (dt > limit) | (dt <= 0),
+        "dt: expected a time step <= the semi-implicit Euler stability limit (mss.stable_dt)",
+    )
 
 
 # --- steps --------------------------------------------------------------------------------------------
 
 
-def step(lattice: Lattice, state: State, dt, external_force=None, gravity=None, tools=(), contact=None,
-         rest_length=None) -> State:
+def step(
+    lattice: Lattice,
+    state: State,
+    dt,
+    external_force=None,
+    gravity=None,
+    tools=(),
+    contact=None,
+    rest_length=None,
+) -> State:
     """One semi-implicit (symplectic) Euler step, thesis eqs. 5.14–5.16:
     `a = (f − D ẋ − g)/ρ;  v ← v + Δt a;  x ← x + Δt v`. Fixed nodes keep their position and
     have zero velocity. No stability check here (the haptic loop calls this at a fixed rate);
@@ -150,12 +172,14 @@ def _tangent_pair(h, damped=True):
     `K_t = k [ê êᵀ + max(0, 1 − L/l)(I − ê êᵀ)]` is the spring's stiffness matrix with the
     compressive (negative) geometric term dropped, so the system stays positive definite.
     """
+
     def pair(dx, dw, rest, k, c):
         inv, _ = _inv_length(dx)
         lam = _transverse(rest, inv)
         along = _dot3(dx, dw) * inv * inv  # (ê·dw)/l, so along·dx = (ê·dw) ê
         axial = (h * c + h * h * k) if damped else h * h * k
         return (axial - h * h * k * lam) * along * dx + h * h * k * lam * dw
+
     return pair
 
 
@@ -179,8 +203,17 @@ def _contact_diag(tools, x, contact):
     return out
 
 
-def implicit_step(lattice: Lattice, state: State, dt, external_force=None, gravity=None, tools=(), contact=None,
-                  rest_length=None, cg_iterations: int = 20) -> State:
+def implicit_step(
+    lattice: Lattice,
+    state: State,
+    dt,
+    external_force=None,
+    gravity=None,
+    tools=(),
+    contact=None,
+    rest_length=None,
+    cg_iterations: int = 20,
+) -> State:
     """One linearised backward-Euler step (Baraff & Witkin 1998), stable for stiff springs.
 
     Solves `(M + hC + h²K_t) Δv = h f(x, v) − h²K_t v` with `cg_iterations` of Jacobi-
@@ -212,7 +245,11 @@ def implicit_step(lattice: Lattice, state: State, dt, external_force=None, gravi
     if cdiag is not None:
         kv = kv + h * h * jnp.einsum("nij,nj->ni", cdiag, v)
     rhs = jnp.where(free, h * f - kv, 0.0)
-    diag = mass + _diag(lattice, x, rest, h) + (h * h * jnp.diagonal(cdiag, axis1=1, axis2=2) if cdiag is not None else 0.0)
+    diag = (
+        mass
+        + _diag(lattice, x, rest, h)
+        + (h * h * jnp.diagonal(cdiag, axis1=1, axis2=2) if cdiag is not None else 0.0)
+    )
     dv = _pcg(matvec, rhs, 1.0 / diag, cg_iterations)
     v1 = jnp.where(free, v + dv, 0.0)
     return State(jnp.where(free, x + h * v1, x), v1)
@@ -233,6 +270,7 @@ def _diag(lattice, x, rest, h):
 
 def _pcg(matvec, b, inv_diag, iterations: int):
     """Fixed-iteration preconditioned conjugate gradients from zero (safe divisions)."""
+
     def body(_, carry):
         xk, r, z, p, rz = carry
         ap = matvec(p)

@@ -20,9 +20,19 @@ from bsjax.mss._materials import Material, spring_damping, spring_stiffness
 # The 13 half-directions of a 26-neighbour hexahedral lattice: 3 edges, 6 face diagonals,
 # 4 body diagonals (each spring counted once).
 HEX_DIRECTIONS: tuple[tuple[int, int, int], ...] = (
-    (1, 0, 0), (0, 1, 0), (0, 0, 1),
-    (1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1),
-    (1, 1, 1), (1, 1, -1), (1, -1, 1), (1, -1, -1),
+    (1, 0, 0),
+    (0, 1, 0),
+    (0, 0, 1),
+    (1, 1, 0),
+    (1, -1, 0),
+    (1, 0, 1),
+    (1, 0, -1),
+    (0, 1, 1),
+    (0, 1, -1),
+    (1, 1, 1),
+    (1, 1, -1),
+    (1, -1, 1),
+    (1, -1, -1),
 )
 
 
@@ -60,8 +70,19 @@ class Lattice(eqx.Module):
     node_damping: Float[Array, " N"]
     grid_shape: tuple[int, int, int] | None = eqx.field(static=True, default=None)
 
-    def __init__(self, rest_positions, edges, stiffness, damping, mass, fixed=None, *,
-                 node_damping=0.0, rest_length=None, grid_shape=None):
+    def __init__(
+        self,
+        rest_positions,
+        edges,
+        stiffness,
+        damping,
+        mass,
+        fixed=None,
+        *,
+        node_damping=0.0,
+        rest_length=None,
+        grid_shape=None,
+    ):
         _checks.check_ndim(rest_positions, "rest_positions", 2, last=3)
         _checks.check_finite(rest_positions, "rest_positions")
         x = jnp.asarray(rest_positions)
@@ -91,8 +112,9 @@ class Lattice(eqx.Module):
         if grid_shape is not None:
             grid_shape = tuple(int(g) for g in grid_shape)
             if int(np.prod(grid_shape)) != n or n_edges != len(hex_edges(grid_shape)):
-                _checks.fail("grid_shape", f"a grid of {n} nodes whose hex_edges are the {n_edges} edges",
-                             grid_shape)
+                _checks.fail(
+                    "grid_shape", f"a grid of {n} nodes whose hex_edges are the {n_edges} edges", grid_shape
+                )
         self.grid_shape = grid_shape
 
     @property
@@ -106,7 +128,11 @@ class Lattice(eqx.Module):
 
 def init(lattice: Lattice, position: ArrayLike | None = None, velocity: ArrayLike | None = None) -> State:
     """A `State` at the rest shape (or at `position`) with zero (or the given) velocity."""
-    x = lattice.rest_positions if position is None else jnp.asarray(position, dtype=lattice.rest_positions.dtype)
+    x = (
+        lattice.rest_positions
+        if position is None
+        else jnp.asarray(position, dtype=lattice.rest_positions.dtype)
+    )
     if x.shape != lattice.rest_positions.shape:
         _checks.fail("position", f"shape {lattice.rest_positions.shape}", x.shape)
     v = jnp.zeros_like(x) if velocity is None else jnp.asarray(velocity, dtype=x.dtype)
@@ -127,7 +153,11 @@ def _check_edges(edges, n: int) -> Int[Array, "E 2"]:
         if a.size and (a.min() < 0 or a.max() >= n):
             _checks.fail("edges", f"node indices in [0, {n})", f"range [{a.min()}, {a.max()}]")
         if np.any(a[:, 0] == a[:, 1]):
-            _checks.fail("edges", "springs between two different nodes", f"a self-loop at row {int(np.argmax(a[:, 0] == a[:, 1]))}")
+            _checks.fail(
+                "edges",
+                "springs between two different nodes",
+                f"a self-loop at row {int(np.argmax(a[:, 0] == a[:, 1]))}",
+            )
     return e.astype(jnp.int32)
 
 
@@ -172,8 +202,10 @@ def hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
 def hex_volume(positions: Float[Array, "a b c 3"]) -> Float[Array, ""]:
     """Volume enclosed by a hexahedral grid: sum over cells of 6 tetrahedra (signed)."""
     p = positions
-    c = [p[i:p.shape[0] - 1 + i, j:p.shape[1] - 1 + j, k:p.shape[2] - 1 + k]
-         for i, j, k in itertools.product((0, 1), repeat=3)]
+    c = [
+        p[i : p.shape[0] - 1 + i, j : p.shape[1] - 1 + j, k : p.shape[2] - 1 + k]
+        for i, j, k in itertools.product((0, 1), repeat=3)
+    ]
     # corners indexed by (i, j, k) bits: 0=000 1=001 2=010 3=011 4=100 5=101 6=110 7=111
     tets = ((0, 4, 6, 7), (0, 6, 2, 7), (0, 2, 3, 7), (0, 3, 1, 7), (0, 1, 5, 7), (0, 5, 4, 7))
     vol = 0.0
@@ -183,8 +215,16 @@ def hex_volume(positions: Float[Array, "a b c 3"]) -> Float[Array, ""]:
     return vol
 
 
-def hex_lattice(positions: Float[ArrayLike, "a b c 3"], stiffness=None, damping=None, mass=None, fixed=None, *,
-                material: Material | None = None, node_damping=0.0) -> Lattice:
+def hex_lattice(
+    positions: Float[ArrayLike, "a b c 3"],
+    stiffness=None,
+    damping=None,
+    mass=None,
+    fixed=None,
+    *,
+    material: Material | None = None,
+    node_damping=0.0,
+) -> Lattice:
     """A volumetric hexahedral lattice on a node grid (e.g. the output of `bsjax.vsofm.fit`).
 
     Give either `stiffness`, `damping`, `mass` directly, or a `material` (then `from_material`
@@ -198,15 +238,17 @@ def hex_lattice(positions: Float[ArrayLike, "a b c 3"], stiffness=None, damping=
         fixed = jnp.reshape(jnp.asarray(fixed), (-1,))
     x = p.reshape(-1, 3)
     if material is not None:
-        return from_material(x, edges, material, hex_volume(p), fixed=fixed, node_damping=node_damping,
-                             grid_shape=shape)
+        return from_material(
+            x, edges, material, hex_volume(p), fixed=fixed, node_damping=node_damping, grid_shape=shape
+        )
     if stiffness is None or damping is None or mass is None:
         _checks.fail("stiffness, damping, mass", "all three, or a material", "some missing")
     return Lattice(x, edges, stiffness, damping, mass, fixed, node_damping=node_damping, grid_shape=shape)
 
 
-def from_material(rest_positions, edges, material: Material, volume, fixed=None, *, node_damping=0.0,
-                  grid_shape=None) -> Lattice:
+def from_material(
+    rest_positions, edges, material: Material, volume, fixed=None, *, node_damping=0.0, grid_shape=None
+) -> Lattice:
     """A lattice with the parameters of `material` for a body of `volume` m³.
 
     Node masses share the body's mass equally, `m = ρ V / N`. Each spring gets the same
@@ -222,12 +264,26 @@ def from_material(rest_positions, edges, material: Material, volume, fixed=None,
     k = spring_stiffness(material, rest, area)
     d = spring_damping(material, k, mass)
     dt = x.dtype
-    return Lattice(x, e, k.astype(dt), d.astype(dt), jnp.asarray(mass, dtype=dt), fixed,
-                   node_damping=node_damping, rest_length=rest, grid_shape=grid_shape)
+    return Lattice(
+        x,
+        e,
+        k.astype(dt),
+        d.astype(dt),
+        jnp.asarray(mass, dtype=dt),
+        fixed,
+        node_damping=node_damping,
+        rest_length=rest,
+        grid_shape=grid_shape,
+    )
 
 
-def grid_edges(node_map: np.ndarray, periodic_u: bool = False, periodic_v: bool = False,
-               shear: bool = True, bending: bool = True) -> np.ndarray:
+def grid_edges(
+    node_map: np.ndarray,
+    periodic_u: bool = False,
+    periodic_v: bool = False,
+    shear: bool = True,
+    bending: bool = True,
+) -> np.ndarray:
     """Springs of an `m × n` sample grid: structural (±1), shear (diagonals), bending (±2).
 
     `node_map (m, n)` gives the node of each sample (coincident samples — a closed seam, a pole —

@@ -29,8 +29,11 @@ class Material(eqx.Module):
     damping_ratio: Float[Array, "..."]
 
     def __init__(self, youngs_modulus: ArrayLike, density: ArrayLike, damping_ratio: ArrayLike = 0.1):
-        for name, value, strict in (("youngs_modulus", youngs_modulus, True), ("density", density, True),
-                                    ("damping_ratio", damping_ratio, False)):
+        for name, value, strict in (
+            ("youngs_modulus", youngs_modulus, True),
+            ("density", density, True),
+            ("damping_ratio", damping_ratio, False),
+        ):
             _checks.check_positive(value, name, strict=strict)
         self.youngs_modulus = jnp.asarray(youngs_modulus)
         self.density = jnp.asarray(density)

@@ -46,15 +46,31 @@ def _per_step_force(external_force, n_steps, n_nodes):
     _checks.fail("external_force", f"shape ({n_nodes}, 3) or ({n_steps}, {n_nodes}, 3)", shape)
 
 
-def _run(lattice, state, dt, n_steps, external_force, gravity, tools, tool_path, contact, method,
-         cg_iterations, checkpoint_every, save_every, plasticity, check_stability):
+def _run(
+    lattice,
+    state,
+    dt,
+    n_steps,
+    external_force,
+    gravity,
+    tools,
+    tool_path,
+    contact,
+    method,
+    cg_iterations,
+    checkpoint_every,
+    save_every,
+    plasticity,
+    check_stability,
+):
     _check_method(method)
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 0:
         _checks.fail("n_steps", "an int >= 0", n_steps)
     n = lattice.n_nodes
     if state.position.shape != (n, 3) or state.velocity.shape != (n, 3):
-        _checks.fail("state", f"position and velocity of shape ({n}, 3)",
-                     (state.position.shape, state.velocity.shape))
+        _checks.fail(
+            "state", f"position and velocity of shape ({n}, 3)", (state.position.shape, state.velocity.shape)
+        )
     _checks.check_finite(state.position, "state.position")
     _checks.check_finite(state.velocity, "state.velocity")
     tools = tuple(tools)
@@ -92,7 +108,7 @@ def _scan(body, carry, xs, n_steps, checkpoint_every):
     c = int(checkpoint_every)
     n_outer, rem = divmod(n_steps, c)
     head = jax.tree.map(lambda a: a[: n_outer * c].reshape((n_outer, c) + a.shape[1:]), xs)
-    tail = jax.tree.map(lambda a: a[n_outer * c:], xs)
+    tail = jax.tree.map(lambda a: a[n_outer * c :], xs)
 
     @jax.checkpoint
     def chunk(carry, xs_chunk):
@@ -115,9 +131,22 @@ def _scan_saving(body, carry, xs, n_steps, save_every):
     return jax.lax.scan(outer, carry, chunked, length=k)
 
 
-def simulate(lattice: Lattice, state: State, dt, n_steps: int, external_force=None, gravity=None, *,
-             tools=(), tool_path=None, contact: Contact | None = None, method: str = "semi_implicit",
-             cg_iterations: int = 20, checkpoint_every: int | None = None, check_stability: bool = True) -> State:
+def simulate(
+    lattice: Lattice,
+    state: State,
+    dt,
+    n_steps: int,
+    external_force=None,
+    gravity=None,
+    *,
+    tools=(),
+    tool_path=None,
+    contact: Contact | None = None,
+    method: str = "semi_implicit",
+    cg_iterations: int = 20,
+    checkpoint_every: int | None = None,
+    check_stability: bool = True,
+) -> State:
     """Integrate the lattice for `n_steps` steps of `dt` seconds; returns the final `State`.
 
     **Arguments:**
@@ -134,33 +163,116 @@ def simulate(lattice: Lattice, state: State, dt, n_steps: int, external_force=No
     - `checkpoint_every`: rematerialise chunks of this many steps in reverse mode (`jax.checkpoint`),
       so `jax.grad` through 10 000 steps keeps only `n/c + c` states.
     """
-    (final, _), _ = _run(lattice, state, dt, n_steps, external_force, gravity, tools, tool_path, contact, method,
-                         cg_iterations, checkpoint_every, None, None, check_stability)
+    (final, _), _ = _run(
+        lattice,
+        state,
+        dt,
+        n_steps,
+        external_force,
+        gravity,
+        tools,
+        tool_path,
+        contact,
+        method,
+        cg_iterations,
+        checkpoint_every,
+        None,
+        None,
+        check_stability,
+    )
     return final
 
 
-def trajectory(lattice: Lattice, state: State, dt, n_steps: int, external_force=None, gravity=None, *,
-               save_every: int = 1, tools=(), tool_path=None, contact=None, method="semi_implicit",
-               cg_iterations=20, check_stability=True) -> tuple[State, State]:
+def trajectory(
+    lattice: Lattice,
+    state: State,
+    dt,
+    n_steps: int,
+    external_force=None,
+    gravity=None,
+    *,
+    save_every: int = 1,
+    tools=(),
+    tool_path=None,
+    contact=None,
+    method="semi_implicit",
+    cg_iterations=20,
+    check_stability=True,
+) -> tuple[State, State]:
     """Like `simulate`, and also the states after every `save_every` steps, stacked `(k, N, 3)`."""
-    (final, _), saved = _run(lattice, state, dt, n_steps, external_force, gravity, tools, tool_path, contact,
-                             method, cg_iterations, None, save_every, None, check_stability)
+    (final, _), saved = _run(
+        lattice,
+        state,
+        dt,
+        n_steps,
+        external_force,
+        gravity,
+        tools,
+        tool_path,
+        contact,
+        method,
+        cg_iterations,
+        None,
+        save_every,
+        None,
+        check_stability,
+    )
     return final, saved
 
 
-def simulate_plastic(lattice: Lattice, state: State, dt, n_steps: int, plasticity: Plasticity,
-                     external_force=None, gravity=None, *, tools=(), tool_path=None, contact=None,
-                     method="semi_implicit", cg_iterations=20, check_stability=True) -> tuple[Lattice, State]:
+def simulate_plastic(
+    lattice: Lattice,
+    state: State,
+    dt,
+    n_steps: int,
+    plasticity: Plasticity,
+    external_force=None,
+    gravity=None,
+    *,
+    tools=(),
+    tool_path=None,
+    contact=None,
+    method="semi_implicit",
+    cg_iterations=20,
+    check_stability=True,
+) -> tuple[Lattice, State]:
     """`simulate` with plastic yield after each step; returns the lattice with its new rest
     lengths (the permanently deformed shape) and the final state."""
-    final, rest = _run(lattice, state, dt, n_steps, external_force, gravity, tools, tool_path, contact, method,
-                       cg_iterations, None, None, plasticity, check_stability)[0]
+    final, rest = _run(
+        lattice,
+        state,
+        dt,
+        n_steps,
+        external_force,
+        gravity,
+        tools,
+        tool_path,
+        contact,
+        method,
+        cg_iterations,
+        None,
+        None,
+        plasticity,
+        check_stability,
+    )[0]
     return eqx.tree_at(lambda l: l.rest_length, lattice, rest), final
 
 
-def relax(lattice: Lattice, state: State, dt, external_force=None, gravity=None, *, tol=1e-9,
-          max_steps: int = 100_000, check_every: int = 50, tools=(), contact=None, method="semi_implicit",
-          cg_iterations=20) -> tuple[State, jax.Array, jax.Array]:
+def relax(
+    lattice: Lattice,
+    state: State,
+    dt,
+    external_force=None,
+    gravity=None,
+    *,
+    tol=1e-9,
+    max_steps: int = 100_000,
+    check_every: int = 50,
+    tools=(),
+    contact=None,
+    method="semi_implicit",
+    cg_iterations=20,
+) -> tuple[State, jax.Array, jax.Array]:
     """Global deformation: integrate until the kinetic energy falls below `tol` (J) or
     `max_steps`; returns `(state, steps_taken, converged)`. (A `while_loop`: not reverse-mode
     differentiable — use `simulate` with a fixed step count for gradients.)"""
@@ -174,7 +286,10 @@ def relax(lattice: Lattice, state: State, dt, external_force=None, gravity=None,
         def body(s, _):
             if method == "semi_implicit":
                 return step(lattice, s, dt, external_force, gravity, tools, contact), None
-            return implicit_step(lattice, s, dt, external_force, gravity, tools, contact, None, cg_iterations), None
+            return implicit_step(
+                lattice, s, dt, external_force, gravity, tools, contact, None, cg_iterations
+            ), None
+
         return jax.lax.scan(body, s, None, length=check_every)[0]
 
     def kinetic(s):
