@@ -1,29 +1,55 @@
 """Input validation shared by every public constructor and function.
 
-Structure errors (ndim, lengths, counts) are checked on shapes, which are always known, even
-under `jit`. Value checks (finite, monotone, positive) run only on concrete arrays: inside a
-trace the values are unknown, and callers use `eqx.error_if` where a value check must survive
-`jit`.
+Two kinds of checks (STYLE "Checks and numerics"):
+
+* **structure** (ndim, lengths, counts, degrees, types): known from shapes, also under `jit`;
+  raise `ValueError`/`TypeError` at once (`fail`, `check_ndim`, `check_degree`, `check_count`).
+* **values** (finite, positive, monotone, in a range): `finite`, `positive`, `in_range`,
+  `monotone`, `clamped_knots`, `check` — each returns its (checked) input, which the caller
+  must use in place of the original. On concrete values they raise `ValueError` at once; on
+  traced values (inside `jit`, `vmap`, `grad`, or the compiled public boundary) they attach an
+  `eqx.error_if` with the *same* message, so the check never switches itself off.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
 def is_concrete(x: Any) -> bool:
-    """True when `x` holds values (not a tracer), so value checks can run on it."""
-    return not isinstance(x, jax.core.Tracer)
+    """True when no leaf of `x` is a tracer (its values are known now)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def message(name: str, expected: str, got: Any) -> str:
+    """The project's standard message: argument name, what was expected, what came."""
+    return f"{name}: expected {expected}, got {got}"
 
 
 def fail(name: str, expected: str, got: Any) -> None:
-    """Raise the project's standard `ValueError`: argument name, what was expected, what came."""
-    raise ValueError(f"{name}: expected {expected}, got {got}")
+    """Raise the project's standard `ValueError`."""
+    raise ValueError(message(name, expected, got))
 
 
+def check(x, bad, name: str, expected: str, got: str, detail=None):
+    """`x`, after checking that `bad` (a boolean array) is all False.
+
+    Concrete `bad` → `ValueError` now (its "got" part from `detail(x)` when given: the offending
+    values); traced → `eqx.error_if` with the message "name: expected …, got <got>".
+    """
+    if is_concrete(bad):
+        if bool(np.any(np.asarray(bad))):
+            fail(name, expected, got if detail is None or not is_concrete(x) else detail(np.asarray(x)))
+        return x
+    return eqx.error_if(x, jnp.any(bad), message(name, expected, got))
+
+
+# --- structure --------------------------------------------------------------------------------
 def check_ndim(x: Any, name: str, ndim: int, last: int | None = None) -> None:
     """`x` must have `ndim` dimensions (and a trailing size `last` when given)."""
     shape = np.shape(x)
@@ -31,24 +57,6 @@ def check_ndim(x: Any, name: str, ndim: int, last: int | None = None) -> None:
         fail(name, f"an array with {ndim} dimension(s)", f"shape {shape}")
     if last is not None and shape[-1] != last:
         fail(name, f"trailing dimension {last}", f"shape {shape}")
-
-
-def check_finite(x: Any, name: str) -> None:
-    """All entries of a concrete `x` must be finite."""
-    if is_concrete(x) and not np.all(np.isfinite(np.asarray(x))):
-        fail(name, "finite values", "NaN or inf")
-
-
-def check_positive(x: Any, name: str, strict: bool = True) -> None:
-    """All entries of a concrete `x` must be > 0 (or ≥ 0 when `strict=False`)."""
-    if not is_concrete(x):
-        return
-    a = np.asarray(x)
-    sign = "> 0" if strict else ">= 0"
-    if not np.all(np.isfinite(a)):
-        fail(name, f"finite values {sign}", "NaN or inf")
-    if np.any(a <= 0) if strict else np.any(a < 0):
-        fail(name, f"finite values {sign}", f"min {np.min(a)}")
 
 
 def check_degree(degree: Any, name: str, n_ctrl: int | None = None, n_name: str = "") -> None:
@@ -61,37 +69,98 @@ def check_degree(degree: Any, name: str, n_ctrl: int | None = None, n_name: str 
         fail(name, f"a degree smaller than the {n_ctrl} control points along {n_name}", degree)
 
 
+def check_count(value: Any, name: str, minimum: int = 1) -> int:
+    """An int (not a bool) ≥ `minimum` — counts, sizes, steps, derivative orders."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name}: expected an int >= {minimum}, got {type(value).__name__} {value!r}")
+    if value < minimum:
+        fail(name, f"an int >= {minimum}", value)
+    return int(value)
+
+
+def check_real(x: Any, name: str) -> None:
+    """Refuse complex input (it would be truncated to its real part)."""
+    if np.iscomplexobj(x):
+        raise TypeError(f"{name}: expected real numbers, got complex dtype {np.asarray(x).dtype}")
+
+
+# --- values -----------------------------------------------------------------------------------
+def finite(x, name: str):
+    """`x` with every entry finite."""
+    return check(x, ~jnp.isfinite(x), name, "finite values", "NaN or inf")
+
+
+def positive(x, name: str, strict: bool = True):
+    """`x` with every entry finite and > 0 (≥ 0 when `strict=False`)."""
+    sign = "> 0" if strict else ">= 0"
+    bad = (x <= 0) if strict else (x < 0)
+    got = f"a value not {sign} (or NaN/inf)"
+    return check(x, bad | ~jnp.isfinite(x), name, f"finite values {sign}", got, _extreme)
+
+
+def in_range(x, name: str, lo: float, hi: float):
+    """`x` with every entry in `[lo, hi]` (NaN fails)."""
+    bad = ~((x >= lo) & (x <= hi))
+    return check(x, bad, name, f"values in [{lo}, {hi}]", "a value outside (or NaN)", _span)
+
+
+def monotone(x, name: str):
+    """A 1-D `x`, finite and non-decreasing."""
+    x = finite(x, name)
+    return check(x, jnp.diff(x) < 0, name, "a non-decreasing knot vector", "a decrease")
+
+
+def clamped_knots(knots, degree: int, n_ctrl: int, name: str):
+    """A clamped, non-decreasing knot vector of length `n_ctrl + degree + 1` on [0, 1] with
+    interior multiplicities ≤ degree."""
+    check_ndim(knots, name, 1)
+    if knots.shape[0] != n_ctrl + degree + 1:
+        fail(name, f"length n_ctrl + degree + 1 = {n_ctrl + degree + 1}", knots.shape[0])
+    knots = monotone(knots, name)
+    ends = (knots[: degree + 1] != 0) | (knots[-degree - 1 :] != 1)
+    expected = f"a clamped knot vector on [0, 1] ({degree + 1} knots 0 and 1)"
+    knots = check(knots, ends, name, expected, "other ends", lambda t: f"[{t[0]}, {t[-1]}]")
+    interior = knots[degree + 1 : n_ctrl]
+    if interior.shape[0] > degree:  # degree + 1 equal consecutive interior knots
+        windows = jnp.stack([interior[i : interior.shape[0] - degree + i] for i in range(degree + 1)])
+        too_many = jnp.all(windows == windows[0], axis=0)
+        knots = check(knots, too_many, name, f"interior knot multiplicity <= degree {degree}", "more")
+    return knots
+
+
+def _extreme(a):
+    bad = a[~np.isfinite(a) | (a <= 0)] if a.size else a
+    return f"{bad.min() if bad.size else a.min()}"
+
+
+def _span(a):
+    return f"[{np.nanmin(a)}, {np.nanmax(a)}]" if a.size else "[]"
+
+
+# --- deprecated shims (statement form; they do not survive tracing — use the forms above) ---
+def check_finite(x: Any, name: str) -> None:
+    if is_concrete(x):
+        finite(jnp.asarray(x), name)
+
+
+def check_positive(x: Any, name: str, strict: bool = True) -> None:
+    if is_concrete(x):
+        positive(jnp.asarray(x), name, strict)
+
+
 def check_monotone(x: Any, name: str) -> None:
-    """A concrete 1-D `x` must be finite and non-decreasing."""
-    if not is_concrete(x):
-        return
-    t = np.asarray(x, dtype=np.float64)
-    check_finite(t, name)
-    if np.any(np.diff(t) < 0):
-        fail(name, "a non-decreasing knot vector", f"a decrease at index {int(np.argmax(np.diff(t) < 0))}")
+    if is_concrete(x):
+        monotone(jnp.asarray(x, dtype=jnp.result_type(float)), name)
 
 
 def check_range(x: Any, name: str, lo: float, hi: float) -> None:
-    """All entries of a concrete `x` must lie in `[lo, hi]`."""
     if is_concrete(x):
-        a = np.asarray(x, dtype=np.float64)
-        if a.size and (a.min() < lo or a.max() > hi):
-            fail(name, f"values in [{lo}, {hi}]", f"[{a.min()}, {a.max()}]")
+        in_range(jnp.asarray(x), name, lo, hi)
 
 
 def check_knots(knots: Any, degree: int, n_ctrl: int, name: str) -> None:
-    """A clamped, non-decreasing knot vector of length `n_ctrl + degree + 1` on [0, 1]."""
     check_ndim(knots, name, 1)
-    if len(knots) != n_ctrl + degree + 1:
+    if is_concrete(knots):
+        clamped_knots(jnp.asarray(knots, dtype=jnp.result_type(float)), degree, n_ctrl, name)
+    elif len(knots) != n_ctrl + degree + 1:
         fail(name, f"length n_ctrl + degree + 1 = {n_ctrl + degree + 1}", len(knots))
-    if not is_concrete(knots):
-        return
-    check_monotone(knots, name)
-    t = np.asarray(knots, dtype=np.float64)
-    if np.any(t[: degree + 1] != t[0]) or np.any(t[-degree - 1 :] != t[-1]):
-        fail(name, f"a clamped knot vector ({degree + 1} equal knots at each end)", t.tolist())
-    if t[0] != 0.0 or t[-1] != 1.0:
-        fail(name, "a knot vector on [0, 1]", f"[{t[0]}, {t[-1]}]")
-    interior = np.unique(t[degree + 1 : -degree - 1], return_counts=True)[1]
-    if interior.size and interior.max() > degree:
-        fail(name, f"interior knot multiplicity <= degree {degree}", int(interior.max()))
