@@ -123,7 +123,7 @@ def clamped_knots(knots, degree: int, n_ctrl: int, name: str):
     interior = knots[degree + 1 : n_ctrl]
     if interior.shape[0] > degree:  # degree + 1 equal consecutive interior knots
         windows = jnp.stack([interior[i : interior.shape[0] - degree + i] for i in range(degree + 1)])
-        too_many = jnp.all(windows == windows[0], axis=0)
+        too_many = jnp.all(windows == windows[:1], axis=0)
         knots = check(knots, too_many, name, f"interior knot multiplicity <= degree {degree}", "more")
     return knots
 

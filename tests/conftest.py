@@ -1,11 +1,7 @@
-"""Tests run in float64 with strict dtype promotion (geometry needs the precision)."""
-
-import sys
-from pathlib import Path
+"""Tests run in float64 (geometry needs the precision) with strict dtype and rank promotion."""
 
 import jax
 
-sys.path.insert(0, str(Path(__file__).parent))  # tests import helpers.py
-
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+jax.config.update("jax_numpy_rank_promotion", "raise")

@@ -41,3 +41,20 @@ def check_grad(f, x, eps: float = 1e-6, rtol: float = 1e-5, atol: float = 1e-7, 
         an = jnp.vdot(g, d)
         assert abs(float(fd - an)) <= atol + rtol * abs(float(fd)), (float(fd), float(an))
     return g
+
+
+def raises_both(fn, *arrays, match: str, errors=(ValueError, TypeError)):
+    """`fn(*arrays)` raises a clear error eagerly and inside `jax.jit` with the same message.
+
+    Eagerly: one of `errors` whose message matches `match` (a regex). Under `jax.jit(fn)`: the
+    same (a structure error raised while tracing), or the runtime error of an `eqx.error_if`
+    value check, whose text carries the same message.
+    """
+    import pytest
+
+    with pytest.raises(errors, match=match):
+        out = fn(*arrays)
+        jax.block_until_ready(out)
+    with pytest.raises((*errors, jax.errors.JaxRuntimeError), match=match):
+        out = jax.jit(fn)(*arrays)
+        jax.block_until_ready(out)

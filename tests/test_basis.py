@@ -4,8 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import check_grad, random_knots
-from oracles import (
+from tests.helpers import check_grad, random_knots
+from tests.oracles import (
     cardinal_bspline,
     knots_with_repeats,
     periodic_reference,

@@ -5,8 +5,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import check_grad, random_knots
-from oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
+from tests.helpers import check_grad, random_knots
+from tests.oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
 
 from bsjax import shapes
 from bsjax.basis import Blending, BSplineSurface, clamped_knots, greville

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
-from helpers import check_grad, random_surface
+from tests.helpers import check_grad, random_surface
 from scipy.optimize import brentq
 
 from bsjax import shapes

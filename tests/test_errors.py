@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from helpers import random_surface
+from tests.helpers import random_surface
 
 from bsjax.basis import (
     BSplineSurface,

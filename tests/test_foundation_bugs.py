@@ -7,7 +7,7 @@ kept separate so the foundation owner can fix them and move the tests to their h
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import random_surface
+from tests.helpers import random_surface
 
 from bsjax.basis import BSplineSurface, basis_functions, blending_matrix, clamped_knots
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import rhino3dm
 import trimesh
-from helpers import random_surface
+from tests.helpers import random_surface
 
 from bsjax import io, shapes
 from bsjax.basis import BSplineSurface, clamped_knots

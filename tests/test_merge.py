@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import check_grad, random_knots, random_surface
+from tests.helpers import check_grad, random_knots, random_surface
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from oracles import ndbspline_surface
+from tests.oracles import ndbspline_surface
 from scipy import interpolate
 
 from bsjax import merge as mg

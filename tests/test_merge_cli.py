@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from oracles import ndbspline_surface
+from tests.oracles import ndbspline_surface
 
 from bsjax import io
 from bsjax.basis import BSplineSurface, clamped_knots, greville

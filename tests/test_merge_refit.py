@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
-from helpers import random_surface
-from oracles import ndbspline_surface
+from tests.helpers import random_surface
+from tests.oracles import ndbspline_surface
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville

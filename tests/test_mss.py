@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import check_grad
+from tests.helpers import check_grad
 
 from bsjax import mss, shapes
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
+from tests.oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
 
 from bsjax.basis import BSplineSurface, blending_matrix, periodic_blending_matrix
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from geomdl import helpers as ghelpers
 from geomdl import operations
-from helpers import random_knots
-from oracles import geomdl_surface, ndbspline_surface
+from tests.helpers import random_knots
+from tests.oracles import geomdl_surface, ndbspline_surface
 
 from bsjax.basis import BSplineSurface, clamped_knots, elevate_degree, insert_knots, reduce_degree
 

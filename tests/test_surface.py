@@ -5,8 +5,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import check_grad, random_knots, random_surface
-from oracles import geomdl_surface, knots_with_repeats, ndbspline_surface, tolerance
+from tests.helpers import check_grad, random_knots, random_surface
+from tests.oracles import geomdl_surface, knots_with_repeats, ndbspline_surface, tolerance
 
 from bsjax import shapes
 from bsjax.basis import BSplineSurface, clamped_knots
