@@ -36,7 +36,7 @@ from geomdl import fitting  # noqa: E402
 from bsjax import io  # noqa: E402
 from bsjax import merge as mg  # noqa: E402
 from bsjax.basis import BSplineSurface  # noqa: E402
-from bsjax.merge import cases  # noqa: E402
+from bsjax.examples import merge_cases as cases  # noqa: E402
 
 # Thesis Tables 6.3/6.4: (Rhino C2, proposed C2, proposed C0) mean and std; None = not given.
 THESIS = {

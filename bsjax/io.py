@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -249,18 +248,3 @@ def load(path) -> BSplineSurface:
             str(path), "exactly one surface (use bsjax.io.load_all for several)", f"{len(surfaces)} surfaces"
         )
     return surfaces[0]
-
-
-def main(argv: list[str]) -> int:
-    """`bsjax convert IN OUT`: convert between .json, .3dm and mesh formats."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="bsjax convert", description=main.__doc__)
-    parser.add_argument("source")
-    parser.add_argument("target")
-    parser.add_argument("--samples", type=int, default=82, help="grid size for mesh output")
-    args = parser.parse_args(argv)
-    surfaces = load_all(args.source)
-    save(surfaces, args.target, args.samples, args.samples)
-    print(f"{args.source} → {args.target}: {len(surfaces)} surface(s)", file=sys.stderr)
-    return 0

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from bsjax import io, shapes
-from bsjax.collide_cli import main
+from bsjax.cli.collide import main
 
 
 def test_cli_sphere_report(tmp_path, capsys):

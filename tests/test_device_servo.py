@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bsjax.cli import haptics as cli
 from bsjax.device import (
     DeviceError,
     Proxy,
@@ -17,7 +18,6 @@ from bsjax.device import (
     ServoLoop,
     SimulatedDevice,
     Workspace,
-    cli,
     plot_recording,
 )
 from bsjax.device._shaping import ForceShaper, Watchdog

@@ -16,7 +16,8 @@ from tests.oracles import ndbspline_surface
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
-from bsjax.merge import _nonlinear, cases
+from bsjax.examples import merge_cases as cases
+from bsjax.merge import _nonlinear
 
 
 def _plate(r=5, s=4):

@@ -1,4 +1,4 @@
-"""`bsjax demo`: the spoon case study of the thesis (§7.3), end to end.
+"""The spoon case study of the thesis (§7.3), end to end (run it with `bsjax demo`).
 
 1. The built-in shapes (teardrop, spoon bowl, spoon handle) through their blending matrices at
    82×82 (points, normals, refit).
@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -86,7 +85,8 @@ def shapes_step(out: Path, report: dict) -> dict:
 
 def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
     """Bend the handle (mass-spring, plane clamp, sphere push), attach and merge the bowl."""
-    from bsjax import merge, spoon
+    from bsjax import merge
+    from bsjax.examples import spoon
 
     t0 = time.perf_counter()
     bent, info = spoon.bend_handle(handle, steps=sizes["bend_steps"], relax_steps=sizes["relax_steps"])
@@ -117,7 +117,8 @@ def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
 
 def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(0.0, 10.0, 20.0)):
     """Throw a jelly (sphere surface + 12³ VSOFM lattice) into the tilted bowl; optimise the tilt."""
-    from bsjax import mss, shapes, spoon, vsofm
+    from bsjax import mss, shapes, vsofm
+    from bsjax.examples import spoon
 
     rot, origin = spoon.bowl_frame(bent, bowl)
     patch = merged.blending(
@@ -165,7 +166,8 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
             {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_risk": float(value), "d_risk_d_tilt": float(g)}
         )
         print(
-            f"    step {k}: tilt {history[-1]['tilt_deg']:6.2f}°  risk {float(value):.4f}  d/dθ {float(g):+.4f}"
+            f"    step {k}: tilt {history[-1]['tilt_deg']:6.2f}°  risk {float(value):.4f}"
+            f"  d/dθ {float(g):+.4f}"
         )
         tilt = tilt - jnp.clip(0.5 * g, -max_step, max_step)
     tilt = jnp.deg2rad(min(history, key=lambda h: h["spill_risk"])["tilt_deg"])  # best visited
@@ -173,7 +175,8 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     best = {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_fraction": float(sp), "spill_risk": float(risk)}
     finals[best["tilt_deg"]] = np.asarray(pos)
     print(
-        f"  best tilt {best['tilt_deg']:.2f}°: spilled {100 * best['spill_fraction']:.1f} %, risk {best['spill_risk']:.4f}"
+        f"  best tilt {best['tilt_deg']:.2f}°: spilled {100 * best['spill_fraction']:.1f} %,"
+        f" risk {best['spill_risk']:.4f}"
     )
     report["jelly"] = {
         "lattice": list(shape),
@@ -245,16 +248,3 @@ def run(out: Path, quick: bool = False) -> dict:
     report["total_seconds"] = time.perf_counter() - t0
     (out / "report.json").write_text(json.dumps(report, indent=2))
     return report
-
-
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="bsjax demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bsjax-out", help="output folder (default ./bsjax-out)")
-    parser.add_argument("--quick", action="store_true", help="small sizes (a 6³ jelly, short runs) for tests")
-    args = parser.parse_args(argv)
-    out = Path(args.out)
-    report = run(out, quick=args.quick)
-    files = sorted(p.name for p in out.iterdir())
-    print(f"\nwrote {len(files)} files to {out}/: {', '.join(files)}")
-    print(f"done in {report['total_seconds']:.1f} s")
-    return 0

@@ -11,12 +11,12 @@ import sys
 
 # name → (module with a `main(argv)`, one-line help)
 COMMANDS = {
-    "demo": ("bsjax.demo", "the spoon case study: shapes, collision, merging, physics, optimisation"),
-    "haptics": ("bsjax.device.cli", "haptic sculpting loop (--simulated, --serial PORT, --hid VID:PID)"),
-    "merge": ("bsjax.merge_cli", "merge patches from .json/.3dm files into one surface"),
-    "collide": ("bsjax.collide_cli", "collision query of a surface file against a tool"),
-    "simulate": ("bsjax.mss_cli", "mass-spring simulation of a surface file"),
-    "convert": ("bsjax.io", "convert a surface between .json, .3dm, .obj, .stl, .glb"),
+    "demo": ("bsjax.cli.demo", "the spoon case study: shapes, collision, merging, physics, optimisation"),
+    "haptics": ("bsjax.cli.haptics", "haptic sculpting loop (--simulated, --serial PORT, --hid VID:PID)"),
+    "merge": ("bsjax.cli.merge", "merge patches from .json/.3dm files into one surface"),
+    "collide": ("bsjax.cli.collide", "collision query of a surface file against a tool"),
+    "simulate": ("bsjax.cli.simulate", "mass-spring simulation of a surface file"),
+    "convert": ("bsjax.cli.convert", "convert a surface between .json, .3dm, .obj, .stl, .glb"),
 }
 
 
