@@ -43,7 +43,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from bsjax import _checks
+from bsjax import _checks, _linalg, _safe
+from bsjax._boundary import compiled
 
 
 class Settings(eqx.Module):
@@ -62,13 +63,31 @@ class Settings(eqx.Module):
     sweeps: int = eqx.field(static=True, default=2)
     boundary_smoothing: int = eqx.field(static=True, default=3)
 
+    def __check_init__(self):
+        for name in ("learning_rate_start", "learning_rate_end", "radius_start", "radius_end"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                _checks.fail(name, "a finite float > 0", value)
+        _checks.check_count(self.batch, "batch")
+        _checks.check_count(self.sweeps, "sweeps", minimum=0)
+        _checks.check_count(self.boundary_smoothing, "boundary_smoothing", minimum=0)
+
 
 def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
-    """`(a, b, c)` boolean mask of the lattice's outer layer."""
+    """`(a, b, c)` boolean mask of the lattice's outer layer (read-only; cached per shape)."""
+    shape = tuple(int(s) for s in shape)
+    if len(shape) != 3 or min(shape) < 1:
+        _checks.fail("shape", "three lattice sizes >= 1", shape)
+    return _boundary_mask(shape)
+
+
+@functools.lru_cache(maxsize=64)
+def _boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
     mask = np.zeros(shape, dtype=bool)
     mask[[0, -1]] = True
     mask[:, [0, -1]] = True
     mask[:, :, [0, -1]] = True
+    mask.flags.writeable = False
     return mask
 
 
@@ -91,26 +110,43 @@ def fit(
 
     **Returns:** node positions `shape + (3,)`; boundary nodes on the sampled surface (its local
     quadric fits), interior nodes inside. Check `report(points, nodes).inverted == 0`.
+
+    The training is compiled at the boundary (`bsjax._boundary.compiled`, once per sample count,
+    `shape`, `cycles` and `settings`); called with concrete samples, the host first drops repeated
+    samples and finds each sample's 16 nearest neighbours with a k-d tree (O(P log P)); inside the
+    caller's `jit` the samples are used as given and the neighbours found by brute force.
     """
+    pts, shape = _check_fit_input(points, shape)
+    cycles = _checks.check_count(cycles, "cycles")
+    if not isinstance(settings, Settings):
+        raise TypeError(f"settings: expected a vsofm.Settings, got {type(settings).__name__}")
+    key = jax.random.PRNGKey(0) if key is None else key
+    return _fit(pts, _neighbours(pts, _NEAR), key, shape, cycles, settings)
+
+
+def _check_fit_input(points, shape):
     _checks.check_ndim(points, "points", 2, last=3)
-    _checks.check_finite(points, "points")
+    _checks.check_real(points, "points")
     shape = tuple(int(s) for s in shape) if np.ndim(shape) == 1 else shape
     if len(shape) != 3 or min(shape) < 2:
         _checks.fail("shape", "three lattice sizes >= 2", shape)
-    if not isinstance(cycles, (int, np.integer)) or cycles < 1:
-        _checks.fail("cycles", "an int >= 1", cycles)
     pts = jnp.asarray(points)
     if not jnp.issubdtype(pts.dtype, jnp.floating):
         pts = pts.astype(jnp.asarray(1.0).dtype)
-    if _checks.is_concrete(pts):
-        pts = jnp.asarray(np.unique(np.asarray(pts), axis=0), dtype=pts.dtype)
+    pts = _distinct(_checks.finite(pts, "points"))
     if pts.shape[0] < 4:
         _checks.fail("points", "at least 4 distinct samples", pts.shape[0])
-    key = jax.random.PRNGKey(0) if key is None else key
-    return _fit(pts, _neighbours(pts, _NEAR), key, shape, int(cycles), settings)
+    return pts, shape
 
 
-@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _distinct(points):
+    """Concrete samples without repeats (poles, seams); traced samples as they are."""
+    if isinstance(points, jax.core.Tracer):
+        return points
+    return jnp.asarray(np.unique(np.asarray(points), axis=0), dtype=points.dtype)
+
+
+@compiled
 def _fit(points, nbr, key, shape, cycles, settings):
     dtype = points.dtype
     # draw probability of each sample ∝ the surface area it stands for (squared mean distance to
@@ -124,7 +160,7 @@ def _fit(points, nbr, key, shape, cycles, settings):
     bgrid = jnp.asarray(bmask)[..., None]
     lo, hi = jnp.min(points, axis=0), jnp.max(points, axis=0)
     axes = jnp.meshgrid(*[jnp.linspace(0.0, 1.0, s, dtype=dtype) for s in shape], indexing="ij")
-    nodes = lo + jnp.stack(axes, axis=-1) * (hi - lo)
+    nodes = lo[None, None, None] + jnp.stack(axes, axis=-1) * (hi - lo)[None, None, None]
     idx = [jnp.arange(s, dtype=dtype) for s in shape]
     r0 = settings.radius_start
     batch = settings.batch
@@ -207,24 +243,11 @@ def _laplacian(u, bgrid):
 
 
 def _harmonic_interior(nodes, bgrid, iterations):
-    """Interior nodes at the discrete harmonic extension of the boundary (CG on the 7-point
-    Laplacian with the boundary as Dirichlet data)."""
-    boundary = jnp.where(bgrid, nodes, 0.0)
-    b = jnp.where(bgrid, nodes, _neighbour_mean(boundary))  # rhs: boundary contributions
-    x0 = nodes
-    r = b - _laplacian(x0, bgrid)
-
-    def body(_, c):
-        x, r, p, rr = c
-        ap = _laplacian(p, bgrid)
-        pap = jnp.sum(p * ap)
-        a = jnp.where(pap > 0, rr / jnp.where(pap > 0, pap, 1.0), 0.0)
-        x, r = x + a * p, r - a * ap
-        rr2 = jnp.sum(r * r)
-        beta = jnp.where(rr > 0, rr2 / jnp.where(rr > 0, rr, 1.0), 0.0)
-        return x, r, r + beta * p, rr2
-
-    return jax.lax.fori_loop(0, iterations, body, (x0, r, r, jnp.sum(r * r)))[0]
+    """Interior nodes at the discrete harmonic extension of the boundary: `iterations` of
+    conjugate gradients (`bsjax._linalg.cg`) on the 7-point Laplacian with the boundary as
+    Dirichlet data, from the current nodes."""
+    b = jnp.where(bgrid, nodes, _neighbour_mean(jnp.where(bgrid, nodes, 0.0)))  # boundary contributions
+    return _linalg.cg(lambda u: _laplacian(u, bgrid), b, iterations, x0=nodes)
 
 
 _NEAR = 16  # samples per quadric patch (6 coefficients)
@@ -234,7 +257,7 @@ def _neighbours(points, k):
     """`(P, k)` indices of each sample's `k` nearest samples (itself first): a k-d tree when the
     samples are concrete, blocked brute force when traced."""
     k = min(k, points.shape[0])
-    if _checks.is_concrete(points):
+    if not isinstance(points, jax.core.Tracer):
         from scipy.spatial import cKDTree
 
         p = np.asarray(points, dtype=np.float64)
@@ -256,7 +279,9 @@ def _patches(points, nbr):
     s = jnp.sqrt(jnp.mean(local[..., 0] ** 2 + local[..., 1] ** 2, axis=1))[:, None]  # patch size
     u, v, w = local[..., 0] / s, local[..., 1] / s, local[..., 2]
     a = jnp.stack([jnp.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (P, k, 6), O(1) columns
-    ridge = 1e-6 * nbr.shape[1] * jnp.eye(6, dtype=points.dtype)  # few or coplanar samples stay solvable
+    ridge = (
+        1e-6 * nbr.shape[1] * jnp.eye(6, dtype=points.dtype)[None]
+    )  # few or coplanar samples stay solvable
     coef = jnp.linalg.solve(jnp.swapaxes(a, 1, 2) @ a + ridge, jnp.einsum("pki,pk->pi", a, w)[..., None])[
         ..., 0
     ]
@@ -290,10 +315,16 @@ def _snap(nodes, bidx, surface):
 _CORNERS = [(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)]
 
 
-def corner_jacobians(nodes: Float[Array, "a b c 3"], scaled: bool = True) -> Float[Array, "a-1 b-1 c-1 8"]:
-    """Jacobian determinants of every hexahedron at its 8 corners (scaled: by the three edge
-    lengths, so 1 for a cube, ≤ 0 for an inverted/degenerate corner)."""
-    p = nodes
+@compiled
+def corner_jacobians(
+    nodes: Float[ArrayLike, "a b c 3"], scaled: bool = True
+) -> Float[Array, "a-1 b-1 c-1 8"]:
+    """Jacobian determinants of every hexahedron of the node grid `(a, b, c, 3)` at its 8 corners,
+    `det(e1, e2, e3)` of the corner's three edges (scaled: divided by the three edge lengths, so
+    1 for a cube, ≤ 0 for an inverted/degenerate corner; Knupp, *Achieving finite element mesh
+    quality via optimization of the Jacobian matrix norm and associated quantities*, 2000)."""
+    _checks.check_ndim(nodes, "nodes", 4, last=3)
+    p = jnp.asarray(nodes)
     a, b, c = (s - 1 for s in p.shape[:3])
 
     def corner(i, j, k):
@@ -308,8 +339,7 @@ def corner_jacobians(nodes: Float[Array, "a b c 3"], scaled: bool = True) -> Flo
         e3 = (corner(i, j, 1 - k) - o) * sk
         det = jnp.sum(e1 * jnp.cross(e2, e3), axis=-1)
         if scaled:
-            norm = jnp.linalg.norm(e1, axis=-1) * jnp.linalg.norm(e2, axis=-1) * jnp.linalg.norm(e3, axis=-1)
-            det = jnp.where(norm > 0, det / jnp.where(norm > 0, norm, 1.0), 0.0)
+            det = _safe.ratio(det, _safe.norm(e1) * _safe.norm(e2) * _safe.norm(e3))
         out.append(det)
     return jnp.stack(out, axis=-1)
 
@@ -332,32 +362,53 @@ class Report(eqx.Module):
 
 
 def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) -> Report:
-    """Element quality and boundary distance of a VSOFM result (numpy, concrete values)."""
+    """Element quality and boundary distance of a VSOFM result.
+
+    **Arguments:** the samples `points (P, 3)` (repeats dropped) and the fitted `nodes (a, b, c, 3)`.
+
+    **Returns:** a `Report` of Python numbers. The measures are compiled at the boundary (once per
+    sample count and lattice shape); the host drops repeated samples and finds the samples'
+    neighbours and each boundary node's nearest sample with a k-d tree first (concrete values
+    only: the report is a host-side summary).
+    """
     from scipy.spatial import cKDTree
 
+    _checks.check_ndim(nodes, "nodes", 4, last=3)
     nodes = np.asarray(nodes, dtype=np.float64)
     pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0)
-    jac = np.asarray(corner_jacobians(jnp.asarray(nodes)))
-    bad = np.any(jac <= 0, axis=-1)
+    _checks.finite(pts, "points")
+    _checks.finite(nodes, "nodes")
     b = nodes[boundary_mask(nodes.shape[:3])]
     near = cKDTree(pts).query(b)[0]
     p = jnp.asarray(pts)
-    on = np.asarray(_project(jnp.asarray(b, dtype=p.dtype), p, *_patches(p, _neighbours(p, _NEAR))))
-    dist = np.linalg.norm(b - on, axis=-1)
+    measures = _quality(jnp.asarray(nodes), p, _neighbours(p, _NEAR))
+    inverted, n_elements, jmin, jmean, dmax, dmean = (np.asarray(m) for m in measures)
     return Report(
-        int(bad.sum()),
-        int(bad.size),
-        float(jac.min()),
-        float(jac.mean()),
-        float(dist.max()),
-        float(dist.mean()),
+        int(inverted),
+        int(n_elements),
+        float(jmin),
+        float(jmean),
+        float(dmax),
+        float(dmean),
         float(near.max()),
     )
 
 
+@compiled
+def _quality(nodes, points, nbr):
+    """`(inverted, n_elements, min and mean scaled Jacobian, max and mean boundary distance to the
+    quadric patches)` of `report`, as arrays."""
+    jac = corner_jacobians(nodes)
+    bad = jnp.any(jac <= 0, axis=-1)
+    b = nodes[boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
+    dist = _safe.norm(b - _project(b, points, *_patches(points, nbr)))
+    return jnp.sum(bad), jnp.asarray(bad.size), jnp.min(jac), jnp.mean(jac), jnp.max(dist), jnp.mean(dist)
+
+
+@compiled
 def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):
-    """The fitted nodes as a volumetric `mss.Lattice` (edge, face- and body-diagonal springs);
-    arguments as `mss.hex_lattice`."""
+    """The fitted nodes `(a, b, c, 3)` as a volumetric `mss.Lattice` (edge, face- and body-diagonal
+    springs, thesis §5.3.2); arguments as `mss.hex_lattice` (compiled at the boundary)."""
     from bsjax import mss
 
     return mss.hex_lattice(nodes, material=material, **kwargs)

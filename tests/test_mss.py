@@ -194,9 +194,9 @@ def test_stability_limit_is_tight_and_enforced():
     assert float(jnp.abs(ok.position).max()) < 2.0
     bad = simulate(lat, start, 1.03 * limit, n_steps=2000, check_stability=False)
     assert not float(jnp.abs(bad.position).max()) < 2.0
-    with pytest.raises(ValueError, match=r"dt: expected a time step <= 0\.0353"):
+    with pytest.raises(ValueError, match=r"dt: expected a time step <= mss\.stable_dt"):
         mss.simulate(lat, start, 1.03 * limit, 10)
-    with pytest.raises(Exception, match="stability limit"):
+    with pytest.raises(Exception, match="largest stable step"):
         jax.jit(lambda dt: mss.simulate(lat, start, dt, 10).position)(1.03 * limit).block_until_ready()
 
 
@@ -289,7 +289,7 @@ def test_vmap_over_materials():
     for b in range(3):
         one = single(jax.tree.map(lambda a: a[b], mats))
         np.testing.assert_allclose(batched[b], one, rtol=1e-10, atol=1e-14)
-    sag = -np.asarray(batched[:, ~fixed, 2] - g.reshape(-1, 3)[~fixed, 2]).mean(axis=1)
+    sag = -np.asarray(batched[:, ~fixed, 2] - g.reshape(-1, 3)[None, ~fixed, 2]).mean(axis=1)
     assert sag[0] > sag[1] > sag[2] > 0  # stiffer sags less
 
 

@@ -1,7 +1,10 @@
-"""Time integration: semi-implicit Euler (thesis eqs. 5.14–5.16), linearised backward Euler,
-`lax.scan` rollouts with optional `jax.checkpoint`, stability limit, relaxation to rest.
+"""Time integration: semi-implicit Euler (thesis eqs. 5.14–5.16), linearised backward Euler, the
+stability limit and the time-step checks.
 
-Pure functions over pytrees (jax-md / brax style): `step(model, state, dt, …) -> state`.
+Pure functions over pytrees (jax-md / brax style): `step(model, state, dt, …) -> state`. The
+public functions are compiled at the boundary (`bsjax._boundary.compiled`); the rollouts of
+`_rollout` run the private kernels `_explicit`/`_implicit` inside their own scan and check `dt`
+once, before the loop.
 """
 
 from __future__ import annotations
@@ -9,9 +12,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from bsjax import _checks, _tensor
+from bsjax import _checks, _linalg, _safe
+from bsjax._boundary import compiled
 from bsjax.mss._forces import _dot3, _inv_length, edge_sum, spring_forces, tool_forces
 from bsjax.mss._lattice import Lattice, State
 
@@ -19,151 +24,252 @@ METHODS = ("semi_implicit", "implicit")
 
 
 class Contact(eqx.Module):
-    """Penalty contact settings: `stiffness` in N/m per unit depth, `damping` in N·s/m."""
+    """Penalty contact settings: `stiffness` in N/m per unit depth, `damping` in N·s/m (both ≥ 0)."""
 
     stiffness: Float[Array, ""]
     damping: Float[Array, ""]
 
     def __init__(self, stiffness: ArrayLike = 1e3, damping: ArrayLike = 0.0):
-        _checks.check_positive(stiffness, "stiffness", strict=False)
-        _checks.check_positive(damping, "damping", strict=False)
-        self.stiffness = jnp.asarray(stiffness)
-        self.damping = jnp.asarray(damping)
+        self.stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness", strict=False)
+        self.damping = _checks.positive(jnp.asarray(damping), "damping", strict=False)
 
 
 class Plasticity(eqx.Module):
     """Rest-length update (thesis §5.4): a spring whose strain `e = (l − L)/L` (eq. 5.10)
-    exceeds `yield_strain` in magnitude takes a new rest length so that its strain is
-    `±yield_strain` — but only springs whose midpoint lies within `radius` of `center`
-    (the neighbourhood of the tool; `center=None` means everywhere)."""
+    exceeds `yield_strain` (> 0) in magnitude takes a new rest length so that its strain is
+    `±yield_strain` — but only springs whose midpoint lies within `radius` (≥ 0, may be inf) of
+    `center` (the neighbourhood of the tool; `center=None` means everywhere)."""
 
     yield_strain: Float[Array, ""]
     radius: Float[Array, ""]
     center: Float[Array, " 3"] | None
 
     def __init__(self, yield_strain: ArrayLike, radius: ArrayLike = jnp.inf, center: ArrayLike | None = None):
-        _checks.check_positive(yield_strain, "yield_strain")
-        self.yield_strain = jnp.asarray(yield_strain)
-        self.radius = jnp.asarray(radius)
-        self.center = None if center is None else jnp.asarray(center)
+        self.yield_strain = _checks.positive(jnp.asarray(yield_strain), "yield_strain")
+        radius = jnp.asarray(radius)
+        self.radius = _checks.check(
+            radius, ~(radius >= 0), "radius", "a radius >= 0 (inf allowed)", "< 0 or NaN"
+        )
+        if center is not None:
+            _checks.check_ndim(center, "center", 1, last=3)
+            center = _checks.finite(jnp.asarray(center), "center")
+        self.center = center
 
 
 # --- forces and energy -----------------------------------------------------------------------------
 
 
-def forces(
-    lattice: Lattice,
-    state: State,
-    external_force=None,
-    gravity=None,
-    tools=(),
-    contact=None,
-    rest_length=None,
-) -> Float[Array, "N 3"]:
-    """Net force on every node: `f − D_i ẋ − g` of eq. 5.12, plus `ρ_i g` and tool contact."""
+def _check_shapes(lattice: Lattice, state: State, external_force=None, gravity=None) -> None:
+    n = lattice.n_nodes
+    if np.shape(state.position) != (n, 3) or np.shape(state.velocity) != (n, 3):
+        _checks.fail(
+            "state",
+            f"position and velocity of shape ({n}, 3)",
+            (np.shape(state.position), np.shape(state.velocity)),
+        )
+    if external_force is not None and np.shape(external_force) != (n, 3):
+        _checks.fail("external_force", f"shape ({n}, 3)", np.shape(external_force))
+    if gravity is not None and np.shape(gravity) != (3,):
+        _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
+
+
+def _checked_state(state: State) -> State:
+    """`state` with finite positions and velocities (an `eqx.error_if` when traced)."""
+    return State(
+        _checks.finite(state.position, "state.position"), _checks.finite(state.velocity, "state.velocity")
+    )
+
+
+def _net_force(lattice, state, external_force=None, gravity=None, tools=(), contact=None, rest_length=None):
     x, v = state.position, state.velocity
     f = spring_forces(lattice, x, v, rest_length) - lattice.node_damping[:, None] * v
     if external_force is not None:
         f = f + external_force
     if gravity is not None:
-        f = f + lattice.mass[:, None] * jnp.asarray(gravity, dtype=x.dtype)
+        f = f + lattice.mass[:, None] * jnp.asarray(gravity, dtype=x.dtype)[None]
     if tools:
         c = Contact() if contact is None else contact
-        f = f + tool_forces(tools, x, v, c.stiffness, c.damping)
+        f = f + tool_forces(tools, x, v, c.stiffness.astype(x.dtype), c.damping.astype(x.dtype))
     return f
 
 
-def energy(lattice: Lattice, state: State, gravity=None) -> tuple[Float[Array, ""], Float[Array, ""]]:
-    """`(kinetic, potential)` in J: `½ Σ m v²` and `½ Σ K (l − L)² − Σ m g·x`."""
+@compiled
+def forces(
+    lattice: Lattice,
+    state: State,
+    external_force: Float[ArrayLike, "N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
+    tools=(),
+    contact: Contact | None = None,
+    rest_length: Float[ArrayLike, " E"] | None = None,
+) -> Float[Array, "N 3"]:
+    """Net force on every node in N, `(N, 3)`: `f − D_i ẋ − g` of thesis eq. 5.12 (springs,
+    Voigt dampers, ground damping), plus the weight `ρ_i g`, `external_force (N, 3)` and the
+    penalty contact of `tools` (`contact`: `Contact`, default `Contact()`)."""
+    _check_shapes(lattice, state, external_force, gravity)
+    tools = tuple(tools)
+    return _net_force(lattice, state, external_force, gravity, tools, contact, rest_length)
+
+
+@compiled
+def energy(
+    lattice: Lattice, state: State, gravity: Float[ArrayLike, " 3"] | None = None
+) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """`(kinetic, potential)` in J: `½ Σ m v²` and `½ Σ K (l − L)² − Σ m g·x` (thesis §5.3)."""
+    _check_shapes(lattice, state, None, gravity)
     x, v = state.position, state.velocity
     kinetic = 0.5 * jnp.sum(lattice.mass * jnp.sum(v * v, axis=-1))
     i, j = lattice.edges[:, 0], lattice.edges[:, 1]
-    stretch = _tensor.safe_norm(x[i] - x[j]) - lattice.rest_length
+    stretch = _safe.norm(x[i] - x[j]) - lattice.rest_length
     potential = 0.5 * jnp.sum(lattice.stiffness * stretch**2)
     if gravity is not None:
-        potential = potential - jnp.sum(lattice.mass[:, None] * x * jnp.asarray(gravity, dtype=x.dtype))
+        potential = potential - jnp.sum(lattice.mass[:, None] * x * jnp.asarray(gravity, dtype=x.dtype)[None])
     return kinetic, potential
 
 
 # --- stability ----------------------------------------------------------------------------------------
 
 
-def stable_dt(lattice: Lattice, contact_stiffness: ArrayLike = 0.0) -> Float[Array, ""]:
-    """Largest time step for which semi-implicit Euler is stable on this lattice.
+def _bounds(lattice: Lattice, contact_stiffness) -> tuple[Array, Array]:
+    """Block-Gershgorin bounds `(ω², c)` of the largest eigenvalues of `M⁻¹K` and `M⁻¹C` over the
+    free nodes: `max_i Σ_j K_ij (1/m_i + 1/√(m_i m_j)) + k_c/m_i`, the same with the damping.
+
+    Terms with a zero coefficient contribute 0 (never `0·inf`), and `1/√(m_i m_j)` is formed as
+    `(1/√m_i)(1/√m_j)`, so extreme but finite masses give `inf`, never NaN.
+    """
+    m = lattice.mass
+    i, j = lattice.edges[:, 0], lattice.edges[:, 1]
+    inv_m, inv_sqrt = 1.0 / m, jax.lax.rsqrt(m)
+    cross = inv_sqrt[i] * inv_sqrt[j]
+    n = m.shape[0]
+
+    def term(coef, weight):
+        return jnp.where(coef > 0, coef * weight, 0.0)
+
+    def bound(per_edge, per_node):
+        b = (
+            jax.ops.segment_sum(term(per_edge, inv_m[i] + cross), i, n)
+            + jax.ops.segment_sum(term(per_edge, inv_m[j] + cross), j, n)
+            + term(per_node, inv_m)
+        )
+        return jnp.max(jnp.where(lattice.fixed, 0.0, b), initial=0.0)
+
+    k_c = jnp.broadcast_to(jnp.asarray(contact_stiffness, dtype=m.dtype), m.shape)
+    return bound(lattice.stiffness, k_c), bound(lattice.damping, lattice.node_damping)
+
+
+def _stable_dt(lattice: Lattice, contact_stiffness) -> Array:
+    w2, c = _bounds(lattice, contact_stiffness)
+    # h = (√(c² + 4ω²) − c)/ω² written as 4/(√(c² + 4ω²) + c): no 0/0 at ω² = 0 (→ 2/c, or inf
+    # when also c = 0), no inf/inf at ω² = inf (→ 0); the root is a scaled norm (no overflow of c²)
+    ok = jnp.isfinite(w2) & jnp.isfinite(c)
+    pair = jnp.where(ok, jnp.stack([c, 2.0 * jnp.sqrt(jnp.where(ok, w2, 0.0))]), 0.0)
+    root = jnp.where(ok, _safe.norm(pair), jnp.inf)
+    return 4.0 / (root + c)
+
+
+@compiled
+def stable_dt(lattice: Lattice, contact_stiffness: Float[ArrayLike, ""] = 0.0) -> Float[Array, ""]:
+    """Largest time step in s for which semi-implicit Euler is stable on this lattice.
+
+    **Arguments:**
+    - `lattice`: the model.
+    - `contact_stiffness`: penalty stiffness `k_c` (N/m, ≥ 0) of the tools in contact.
+
+    **Returns:** `h > 0` (inf for a lattice without springs or dampers); never NaN for finite
+    positive masses and finite non-negative stiffnesses (0 when the bound overflows).
 
     Bounds the largest eigenvalue `ω²` of `M⁻¹K` and `c` of `M⁻¹C` by block Gershgorin discs
     (`ω² ≤ max_i Σ_j K_ij (1/m_i + 1/√(m_i m_j))`, exact for one free spring), adds the contact
     stiffness `k_c/m_i`, and returns the largest `h` with `h²ω² + 2hc ≤ 4`, the stability
     condition of symplectic Euler on `ẍ = −ω²x − cẋ`: `h = (√(c² + 4ω²) − c) / ω²`.
     """
-    m = lattice.mass
-    i, j = lattice.edges[:, 0], lattice.edges[:, 1]
-    cross = 1.0 / jnp.sqrt(m[i] * m[j])
-    n = m.shape[0]
-
-    def bound(per_edge, per_node):
-        b = (
-            jax.ops.segment_sum(per_edge * (1.0 / m[i] + cross), i, n)
-            + jax.ops.segment_sum(per_edge * (1.0 / m[j] + cross), j, n)
-            + per_node / m
-        )
-        return jnp.max(jnp.where(lattice.fixed, 0.0, b))
-
-    w2 = bound(lattice.stiffness, jnp.asarray(contact_stiffness, dtype=m.dtype))
-    c = bound(lattice.damping, lattice.node_damping)
-    ok = w2 > 0
-    w2s = jnp.where(ok, w2, 1.0)
-    h = (jnp.sqrt(c * c + 4.0 * w2s) - c) / w2s
-    return jnp.where(ok, h, jnp.where(c > 0, 2.0 / jnp.where(c > 0, c, 1.0), jnp.inf))
+    contact_stiffness = _checks.positive(jnp.asarray(contact_stiffness), "contact_stiffness", strict=False)
+    return _stable_dt(lattice, contact_stiffness)
 
 
-def check_dt(lattice: Lattice, dt, contact_stiffness=0.0):
-    """Raise `ValueError` (concrete values) or an `eqx.error_if` runtime error (traced) when `dt`
-    exceeds `stable_dt`; returns `dt` (threaded through the error check when traced)."""
-    limit = stable_dt(lattice, contact_stiffness)
-    if _checks.is_concrete(limit) and _checks.is_concrete(dt):
-        if not float(dt) > 0:
-            _checks.fail("dt", "a time step > 0", dt)
-        if float(dt) > float(limit):
-            _checks.fail(
-                "dt",
-                f"a time step <= {float(limit):.6g} s, the largest stable step of the "
-                "semi-implicit Euler scheme for this lattice (stiffest spring, lightest node); "
-                "use a smaller dt or method='implicit'",
-                f"{float(dt):.6g} s",
-            )
-        return dt
-    dt = jnp.asarray(dt, dtype=lattice.mass.dtype)
-    return eqx.error_if(
-        dt,
-        (dt > limit) | (dt <= 0),
-        "dt: expected a time step <= the semi-implicit Euler stability limit (mss.stable_dt)",
-    )
+_UNSTABLE = (
+    "a time step <= mss.stable_dt(lattice, contact_stiffness), the largest stable step of the "
+    "semi-implicit Euler scheme for this lattice (stiffest spring, lightest node); use a smaller dt "
+    "or method='implicit'"
+)
+
+
+def _checked_dt(lattice: Lattice, dt, contact_stiffness=0.0, stability: bool = True) -> Array:
+    """`dt` as an array of the lattice's dtype, checked finite and > 0, and (`stability`) not above
+    the semi-implicit Euler limit `_stable_dt` — raised at once when concrete, `eqx.error_if`
+    when traced."""
+    dt = _checks.positive(jnp.asarray(dt, dtype=lattice.mass.dtype), "dt")
+    if np.ndim(dt) != 0:
+        _checks.fail("dt", "a scalar time step", f"shape {np.shape(dt)}")
+    if stability:
+        dt = _checks.check(dt, dt > _stable_dt(lattice, contact_stiffness), "dt", _UNSTABLE, "a larger one")
+    return dt
+
+
+def _checked_implicit_dt(lattice: Lattice, dt, contact_stiffness=0.0) -> Array:
+    """`dt` finite, > 0 and small enough that the implicit system `M + hC + h²K` stays finite."""
+    dt = _checked_dt(lattice, dt, stability=False)
+    w2, c = _bounds(lattice, contact_stiffness)
+    scale = dt * dt * w2 + dt * c
+    expected = "a time step whose implicit system h²ω² + hc (mss.stable_dt's bounds) is finite"
+    return _checks.check(dt, ~jnp.isfinite(scale), "dt", expected, "one that overflows")
+
+
+@compiled
+def check_dt(lattice: Lattice, dt: Float[ArrayLike, ""], contact_stiffness: Float[ArrayLike, ""] = 0.0):
+    """`dt` (an array), after checking that it is finite, > 0 and at most `stable_dt(lattice,
+    contact_stiffness)`: a `ValueError` when called directly, an `eqx.error_if` runtime error with
+    the same message inside the caller's `jit`."""
+    contact_stiffness = _checks.positive(jnp.asarray(contact_stiffness), "contact_stiffness", strict=False)
+    return _checked_dt(lattice, dt, contact_stiffness)
+
+
+def _contact_stiffness(tools, contact) -> Array | float:
+    return (Contact() if contact is None else contact).stiffness if tools else 0.0
 
 
 # --- steps --------------------------------------------------------------------------------------------
 
 
-def step(
-    lattice: Lattice,
-    state: State,
-    dt,
-    external_force=None,
-    gravity=None,
-    tools=(),
-    contact=None,
-    rest_length=None,
-) -> State:
-    """One semi-implicit (symplectic) Euler step, thesis eqs. 5.14–5.16:
-    `a = (f − D ẋ − g)/ρ;  v ← v + Δt a;  x ← x + Δt v`. Fixed nodes keep their position and
-    have zero velocity. No stability check here (the haptic loop calls this at a fixed rate);
-    `simulate` and `check_dt` check."""
-    f = forces(lattice, state, external_force, gravity, tools, contact, rest_length)
+def _explicit(
+    lattice, state, dt, external_force=None, gravity=None, tools=(), contact=None, rest_length=None
+):
+    """The semi-implicit Euler kernel (no checks)."""
+    f = _net_force(lattice, state, external_force, gravity, tools, contact, rest_length)
     a = f / lattice.mass[:, None]
     free = ~lattice.fixed[:, None]
     v = jnp.where(free, state.velocity + dt * a, 0.0)
     x = jnp.where(free, state.position + dt * v, state.position)
     return State(x, v)
+
+
+@compiled
+def step(
+    lattice: Lattice,
+    state: State,
+    dt: Float[ArrayLike, ""],
+    external_force: Float[ArrayLike, "N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
+    tools=(),
+    contact: Contact | None = None,
+    rest_length: Float[ArrayLike, " E"] | None = None,
+    *,
+    check_stability: bool = True,
+) -> State:
+    """One semi-implicit (symplectic) Euler step, thesis eqs. 5.14–5.16:
+    `a = (f − D ẋ − g)/ρ;  v ← v + Δt a;  x ← x + Δt v`. Fixed nodes keep their position and
+    have zero velocity.
+
+    **Arguments:** as `forces`, and `dt` in s (finite, > 0 and — unless `check_stability=False`,
+    for a loop that checked it once already — at most `stable_dt(lattice, contact.stiffness)`).
+
+    **Returns:** the new `State`.
+    """
+    _check_shapes(lattice, state, external_force, gravity)
+    tools = tuple(tools)
+    dt = _checked_dt(lattice, dt, _contact_stiffness(tools, contact), check_stability)
+    return _explicit(lattice, state, dt, external_force, gravity, tools, contact, rest_length)
 
 
 def _tangent_pair(h, damped=True):
@@ -178,7 +284,7 @@ def _tangent_pair(h, damped=True):
         lam = _transverse(rest, inv)
         along = _dot3(dx, dw) * inv * inv  # (ê·dw)/l, so along·dx = (ê·dw) ê
         axial = (h * c + h * h * k) if damped else h * h * k
-        return (axial - h * h * k * lam) * along * dx + h * h * k * lam * dw
+        return ((axial - h * h * k * lam) * along)[None] * dx + (h * h * k * lam)[None] * dw
 
     return pair
 
@@ -188,38 +294,40 @@ def _transverse(rest, inv):
     return jnp.where(inv > 0, jnp.maximum(1.0 - rest * inv, 0.0), (rest == 0).astype(inv.dtype))
 
 
+def _inside_normal(tool, x):
+    """`(inside (N,), n (N, 3))`: nodes in the tool and the tool's outward normal there."""
+    if hasattr(tool, "push"):  # the collide tools' contact interface
+        depth, normal = tool.push(x)
+        return depth > 0, normal
+    if hasattr(tool, "radius"):
+        d = x - tool.center[None]
+        return _safe.norm(d) < tool.radius, _safe.unit(d)
+    n = jnp.broadcast_to(_safe.unit(jnp.asarray(tool.normal, dtype=x.dtype)), x.shape)
+    return jnp.sum((x - tool.point[None]) * n, axis=-1) < 0, n
+
+
 def _contact_diag(tools, x, contact):
-    """`k_c n nᵀ` of every node inside a tool (the penalty force's normal stiffness)."""
+    """`k_c n nᵀ` of every node inside a tool (the penalty force's normal stiffness), `(N, 3, 3)`."""
     out = jnp.zeros(x.shape + (3,), x.dtype)
+    k = contact.stiffness.astype(x.dtype)
     for tool in tools:
-        if hasattr(tool, "radius"):
-            d = x - tool.center
-            inside = _tensor.safe_norm(d) < tool.radius
-            n = _tensor.unit(d)
-        else:
-            n = jnp.broadcast_to(_tensor.unit(jnp.asarray(tool.normal, dtype=x.dtype)), x.shape)
-            inside = jnp.sum((x - tool.point) * n, axis=-1) < 0
-        out = out + jnp.where(inside[:, None, None], contact.stiffness * n[:, :, None] * n[:, None, :], 0.0)
+        inside, n = _inside_normal(tool, x)
+        out = out + jnp.where(inside[:, None, None], k * n[:, :, None] * n[:, None, :], 0.0)
     return out
 
 
-def implicit_step(
-    lattice: Lattice,
-    state: State,
+def _implicit(
+    lattice,
+    state,
     dt,
     external_force=None,
     gravity=None,
     tools=(),
     contact=None,
     rest_length=None,
-    cg_iterations: int = 20,
-) -> State:
-    """One linearised backward-Euler step (Baraff & Witkin 1998), stable for stiff springs.
-
-    Solves `(M + hC + h²K_t) Δv = h f(x, v) − h²K_t v` with `cg_iterations` of Jacobi-
-    preconditioned conjugate gradients (a fixed budget, so the cost per step is bounded — the
-    haptic case), then `v ← v + Δv`, `x ← x + h v`. Fixed nodes are held.
-    """
+    cg_iterations=20,
+):
+    """The linearised backward-Euler kernel (no checks)."""
     h = jnp.asarray(dt, dtype=state.position.dtype)
     x, v = state.position, state.velocity
     rest = lattice.rest_length if rest_length is None else rest_length
@@ -239,7 +347,7 @@ def implicit_step(
         w = jnp.where(free, w, 0.0)
         return jnp.where(free, mass * w + stiffness_only(w), w)
 
-    f = forces(lattice, state, external_force, gravity, tools, contact, rest)
+    f = _net_force(lattice, state, external_force, gravity, tools, contact, rest)
     # the damping part of K_t·v must not enter: h²K v only, so evaluate with c = 0 separately
     kv = edge_sum(lattice, _tangent_pair(h, damped=False), (x, v), (rest, lattice.stiffness, lattice.damping))
     if cdiag is not None:
@@ -250,9 +358,37 @@ def implicit_step(
         + _diag(lattice, x, rest, h)
         + (h * h * jnp.diagonal(cdiag, axis1=1, axis2=2) if cdiag is not None else 0.0)
     )
-    dv = _pcg(matvec, rhs, 1.0 / diag, cg_iterations)
+    dv = _linalg.cg(matvec, rhs, cg_iterations, inv_diag=1.0 / diag)
     v1 = jnp.where(free, v + dv, 0.0)
     return State(jnp.where(free, x + h * v1, x), v1)
+
+
+@compiled
+def implicit_step(
+    lattice: Lattice,
+    state: State,
+    dt: Float[ArrayLike, ""],
+    external_force: Float[ArrayLike, "N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
+    tools=(),
+    contact: Contact | None = None,
+    rest_length: Float[ArrayLike, " E"] | None = None,
+    cg_iterations: int = 20,
+) -> State:
+    """One linearised backward-Euler step (Baraff & Witkin, *Large steps in cloth simulation*,
+    1998, §4–5), stable for stiff springs.
+
+    Solves `(M + hC + h²K_t) Δv = h f(x, v) − h²K_t v` with `cg_iterations` (an int ≥ 1) of
+    Jacobi-preconditioned conjugate gradients (`bsjax._linalg.cg`; a fixed budget, so the cost
+    per step is bounded — the haptic case), then `v ← v + Δv`, `x ← x + h v`. Fixed nodes are
+    held. `dt` must be finite, > 0 and small enough that `h²K` does not overflow. Other
+    arguments as `step`; returns the new `State`.
+    """
+    _check_shapes(lattice, state, external_force, gravity)
+    cg_iterations = _checks.check_count(cg_iterations, "cg_iterations")
+    tools = tuple(tools)
+    dt = _checked_implicit_dt(lattice, dt, _contact_stiffness(tools, contact))
+    return _implicit(lattice, state, dt, external_force, gravity, tools, contact, rest_length, cg_iterations)
 
 
 def _diag(lattice, x, rest, h):
@@ -261,28 +397,8 @@ def _diag(lattice, x, rest, h):
     d = (x[i] - x[j]).T
     inv, _ = _inv_length(d)
     lam = _transverse(rest, inv)
-    e2 = d * d * inv * inv
+    e2 = d * d * (inv * inv)[None]
     k, c = lattice.stiffness, lattice.damping
-    diag = ((h * c + h * h * k) * e2 + h * h * k * lam * (1.0 - e2)).T
+    diag = ((h * c + h * h * k)[None] * e2 + (h * h * k * lam)[None] * (1.0 - e2)).T
     n = x.shape[0]
     return jax.ops.segment_sum(diag, i, n) + jax.ops.segment_sum(diag, j, n)
-
-
-def _pcg(matvec, b, inv_diag, iterations: int):
-    """Fixed-iteration preconditioned conjugate gradients from zero (safe divisions)."""
-
-    def body(_, carry):
-        xk, r, z, p, rz = carry
-        ap = matvec(p)
-        pap = jnp.sum(p * ap)
-        alpha = jnp.where(pap > 0, rz / jnp.where(pap > 0, pap, 1.0), 0.0)
-        xk = xk + alpha * p
-        r = r - alpha * ap
-        z = inv_diag * r
-        rz_new = jnp.sum(r * z)
-        beta = jnp.where(rz > 0, rz_new / jnp.where(rz > 0, rz, 1.0), 0.0)
-        return xk, r, z, z + beta * p, rz_new
-
-    z = inv_diag * b
-    init = (jnp.zeros_like(b), b, z, z, jnp.sum(b * z))
-    return jax.lax.fori_loop(0, iterations, body, init)[0]

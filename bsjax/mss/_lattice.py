@@ -7,6 +7,7 @@ diagonals) and the sample-grid lattice of a surface (structural, shear and bendi
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import equinox as eqx
@@ -14,8 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from bsjax import _checks, _tensor
-from bsjax.mss._materials import Material, spring_damping, spring_stiffness
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
+from bsjax.mss._materials import Material, _damping, _stiffness
 
 # The 13 half-directions of a 26-neighbour hexahedral lattice: 3 edges, 6 face diagonals,
 # 4 body diagonals (each spring counted once).
@@ -84,10 +86,11 @@ class Lattice(eqx.Module):
         grid_shape=None,
     ):
         _checks.check_ndim(rest_positions, "rest_positions", 2, last=3)
-        _checks.check_finite(rest_positions, "rest_positions")
+        _checks.check_real(rest_positions, "rest_positions")
         x = jnp.asarray(rest_positions)
         if not jnp.issubdtype(x.dtype, jnp.floating):
             x = x.astype(jnp.asarray(1.0).dtype)
+        x = _checks.finite(x, "rest_positions")
         n = x.shape[0]
         edges = _check_edges(edges, n)
         n_edges = edges.shape[0]
@@ -98,7 +101,7 @@ class Lattice(eqx.Module):
         self.mass = _per(mass, n, "mass", "N", x.dtype, strict=True)
         self.node_damping = _per(node_damping, n, "node_damping", "N", x.dtype, strict=False)
         if rest_length is None:
-            self.rest_length = _tensor.safe_norm(x[edges[:, 0]] - x[edges[:, 1]])
+            self.rest_length = _safe.norm(x[edges[:, 0]] - x[edges[:, 1]])
         else:
             self.rest_length = _per(rest_length, n_edges, "rest_length", "E", x.dtype, strict=False)
         if fixed is None:
@@ -126,8 +129,14 @@ class Lattice(eqx.Module):
         return self.edges.shape[0]
 
 
-def init(lattice: Lattice, position: ArrayLike | None = None, velocity: ArrayLike | None = None) -> State:
-    """A `State` at the rest shape (or at `position`) with zero (or the given) velocity."""
+@compiled
+def init(
+    lattice: Lattice,
+    position: Float[ArrayLike, "N 3"] | None = None,
+    velocity: Float[ArrayLike, "N 3"] | None = None,
+) -> State:
+    """A `State` at the rest shape (or at `position (N, 3)`, m) with zero (or the given
+    `velocity (N, 3)`, m/s) velocity; both checked finite."""
     x = (
         lattice.rest_positions
         if position is None
@@ -138,9 +147,7 @@ def init(lattice: Lattice, position: ArrayLike | None = None, velocity: ArrayLik
     v = jnp.zeros_like(x) if velocity is None else jnp.asarray(velocity, dtype=x.dtype)
     if v.shape != x.shape:
         _checks.fail("velocity", f"shape {x.shape}", v.shape)
-    _checks.check_finite(x, "position")
-    _checks.check_finite(v, "velocity")
-    return State(x, v)
+    return State(_checks.finite(x, "position"), _checks.finite(v, "velocity"))
 
 
 def _check_edges(edges, n: int) -> Int[Array, "E 2"]:
@@ -148,17 +155,20 @@ def _check_edges(edges, n: int) -> Int[Array, "E 2"]:
     e = jnp.asarray(edges)
     if not jnp.issubdtype(e.dtype, jnp.integer):
         _checks.fail("edges", "integer node indices", f"dtype {e.dtype}")
-    if _checks.is_concrete(edges):
-        a = np.asarray(edges)
-        if a.size and (a.min() < 0 or a.max() >= n):
-            _checks.fail("edges", f"node indices in [0, {n})", f"range [{a.min()}, {a.max()}]")
-        if np.any(a[:, 0] == a[:, 1]):
-            _checks.fail(
-                "edges",
-                "springs between two different nodes",
-                f"a self-loop at row {int(np.argmax(a[:, 0] == a[:, 1]))}",
-            )
+    e = _checks.check(
+        e, (e < 0) | (e >= n), "edges", f"node indices in [0, {n})", "an index outside", _index_range
+    )
+    loop = e[:, 0] == e[:, 1]
+    e = _checks.check(e, loop, "edges", "springs between two different nodes", "a self-loop", _first_loop)
     return e.astype(jnp.int32)
+
+
+def _index_range(a):
+    return f"range [{a.min()}, {a.max()}]"
+
+
+def _first_loop(a):
+    return f"a self-loop at row {int(np.argmax(a[:, 0] == a[:, 1]))}"
 
 
 def _per(value, count: int, name: str, count_name: str, dtype, strict: bool):
@@ -166,8 +176,9 @@ def _per(value, count: int, name: str, count_name: str, dtype, strict: bool):
     shape = np.shape(value)
     if shape not in ((), (count,)):
         _checks.fail(name, f"a scalar or shape ({count},) (one per {count_name})", shape)
-    _checks.check_positive(value, name, strict=strict)
-    return jnp.broadcast_to(jnp.asarray(value, dtype=dtype), (count,))
+    _checks.check_real(value, name)
+    value = _checks.positive(jnp.asarray(value, dtype=dtype), name, strict=strict)
+    return jnp.broadcast_to(value, (count,))
 
 
 # --- builders --------------------------------------------------------------------------------------
@@ -186,22 +197,33 @@ def hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
     """Springs of an `a × b × c` hexahedral grid (C order): edges, face and body diagonals.
 
     Grouped by direction in `HEX_DIRECTIONS` order, each group in C order of its first node; the
-    dense force kernel relies on this order. Returns `(E, 2)` int32.
+    dense force kernel relies on this order. Returns `(E, 2)` int32 (read-only: the topology is
+    built once per `shape` and cached; `_hex_edges.cache_clear()` forgets it).
     """
     shape = tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 1:
         _checks.fail("shape", "three sizes >= 1", shape)
+    return _hex_edges(shape)
+
+
+@functools.lru_cache(maxsize=64)
+def _hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
     ids = np.arange(int(np.prod(shape)), dtype=np.int32).reshape(shape)
     blocks = []
     for d in HEX_DIRECTIONS:
         s0, s1 = zip(*(_slices(o, n) for o, n in zip(d, shape)))
         blocks.append(np.stack([ids[s0].ravel(), ids[s1].ravel()], axis=-1))
-    return np.concatenate(blocks).astype(np.int32)
+    edges = np.concatenate(blocks).astype(np.int32)
+    edges.flags.writeable = False
+    return edges
 
 
-def hex_volume(positions: Float[Array, "a b c 3"]) -> Float[Array, ""]:
-    """Volume enclosed by a hexahedral grid: sum over cells of 6 tetrahedra (signed)."""
-    p = positions
+@compiled
+def hex_volume(positions: Float[ArrayLike, "a b c 3"]) -> Float[Array, ""]:
+    """Volume enclosed by a hexahedral grid `(a, b, c, 3)`: sum over cells of 6 tetrahedra
+    (signed; positive for a right-handed grid)."""
+    _checks.check_ndim(positions, "positions", 4, last=3)
+    p = jnp.asarray(positions)
     c = [
         p[i : p.shape[0] - 1 + i, j : p.shape[1] - 1 + j, k : p.shape[2] - 1 + k]
         for i, j, k in itertools.product((0, 1), repeat=3)
@@ -215,6 +237,7 @@ def hex_volume(positions: Float[Array, "a b c 3"]) -> Float[Array, ""]:
     return vol
 
 
+@compiled
 def hex_lattice(
     positions: Float[ArrayLike, "a b c 3"],
     stiffness=None,
@@ -229,6 +252,7 @@ def hex_lattice(
 
     Give either `stiffness`, `damping`, `mass` directly, or a `material` (then `from_material`
     rules apply, with the grid's enclosed volume). `fixed` may be `(a, b, c)` or `(N,)`.
+    Compiled at the boundary; the topology (`hex_edges`) is cached per grid shape.
     """
     _checks.check_ndim(positions, "positions", 4, last=3)
     p = jnp.asarray(positions)
@@ -246,6 +270,7 @@ def hex_lattice(
     return Lattice(x, edges, stiffness, damping, mass, fixed, node_damping=node_damping, grid_shape=shape)
 
 
+@compiled
 def from_material(
     rest_positions, edges, material: Material, volume, fixed=None, *, node_damping=0.0, grid_shape=None
 ) -> Lattice:
@@ -254,15 +279,20 @@ def from_material(
     Node masses share the body's mass equally, `m = ρ V / N`. Each spring gets the same
     cross-section `A = V / Σ L_e` (so the springs together fill the volume once) and
     `K_e = E A / L_e` (eq. 5.1); `D_e = 2 ζ √(K_e m)` (eq. 5.7).
+
+    **Arguments:** `rest_positions (N, 3)`, `edges (E, 2)`, `material`, `volume` (m³, > 0),
+    `fixed (N,)`, `node_damping`, `grid_shape` as `Lattice`.
     """
+    _checks.check_ndim(rest_positions, "rest_positions", 2, last=3)
+    volume = _checks.positive(jnp.asarray(volume), "volume")
     x = jnp.asarray(rest_positions)
     n = x.shape[0]
     e = _check_edges(edges, n)
-    rest = _tensor.safe_norm(x[e[:, 0]] - x[e[:, 1]])
+    rest = _safe.norm(x[e[:, 0]] - x[e[:, 1]])
     mass = material.density * volume / n
     area = volume / jnp.sum(rest)
-    k = spring_stiffness(material, rest, area)
-    d = spring_damping(material, k, mass)
+    k = _stiffness(material, rest, area)
+    d = _damping(material, k, mass)
     dt = x.dtype
     return Lattice(
         x,

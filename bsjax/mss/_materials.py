@@ -11,17 +11,19 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks
+from bsjax._boundary import compiled
 
 
 class Material(eqx.Module):
     """An isotropic material for the mass-spring lattice.
 
     **Fields:**
-    - `youngs_modulus`: E in N/m² (Pa).
-    - `density`: ρ in kg/m³.
-    - `damping_ratio`: ζ (dimensionless): 0 undamped, < 1 under-, 1 critically, > 1 over-damped.
+    - `youngs_modulus`: E in N/m² (Pa), > 0.
+    - `density`: ρ in kg/m³, > 0.
+    - `damping_ratio`: ζ ≥ 0 (dimensionless): 0 undamped, < 1 under-, 1 critically, > 1 over-damped.
 
     Fields are arrays, so a batch of materials is a `Material` with leading axes (`vmap` over it).
+    The values are checked (also when traced: `eqx.error_if`).
     """
 
     youngs_modulus: Float[Array, "..."]
@@ -29,15 +31,9 @@ class Material(eqx.Module):
     damping_ratio: Float[Array, "..."]
 
     def __init__(self, youngs_modulus: ArrayLike, density: ArrayLike, damping_ratio: ArrayLike = 0.1):
-        for name, value, strict in (
-            ("youngs_modulus", youngs_modulus, True),
-            ("density", density, True),
-            ("damping_ratio", damping_ratio, False),
-        ):
-            _checks.check_positive(value, name, strict=strict)
-        self.youngs_modulus = jnp.asarray(youngs_modulus)
-        self.density = jnp.asarray(density)
-        self.damping_ratio = jnp.asarray(damping_ratio)
+        self.youngs_modulus = _checks.positive(jnp.asarray(youngs_modulus), "youngs_modulus")
+        self.density = _checks.positive(jnp.asarray(density), "density")
+        self.damping_ratio = _checks.positive(jnp.asarray(damping_ratio), "damping_ratio", strict=False)
 
 
 #: Plasticine as in thesis Fig. 5.9: "spring stiffness 13 MN/m², density 2500 kg/m³"; heavily damped.
@@ -50,21 +46,44 @@ JELLY = Material(1e4, 1050.0, 0.1)
 PRESETS = {"plasticine": PLASTICINE, "steel": STEEL, "jelly": JELLY}
 
 
-def spring_stiffness(material: Material, rest_length, area) -> Float[Array, "..."]:
-    """`K = E A / L` in N/m (thesis eq. 5.1) for springs of cross-section `area` (m²)."""
+def _stiffness(material, rest_length, area):
     return material.youngs_modulus * area / rest_length
 
 
-def spring_damping(material: Material, stiffness, mass) -> Float[Array, "..."]:
-    """`D = 2 ζ √(K m)` in N·s/m, eq. 5.7 solved for D; `mass` is the spring's node mass (kg)."""
+def _damping(material, stiffness, mass):
     return 2.0 * material.damping_ratio * jnp.sqrt(stiffness * mass)
 
 
+@compiled
+def spring_stiffness(material: Material, rest_length, area) -> Float[Array, "..."]:
+    """`K = E A / L` in N/m (thesis eq. 5.1) for springs of rest length `L > 0` (m) and
+    cross-section `area ≥ 0` (m²)."""
+    rest_length = _checks.positive(jnp.asarray(rest_length), "rest_length")
+    area = _checks.positive(jnp.asarray(area), "area", strict=False)
+    return _stiffness(material, rest_length, area)
+
+
+@compiled
+def spring_damping(material: Material, stiffness, mass) -> Float[Array, "..."]:
+    """`D = 2 ζ √(K m)` in N·s/m, eq. 5.7 solved for D; `stiffness ≥ 0` (N/m) and the spring's
+    node `mass > 0` (kg)."""
+    stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness", strict=False)
+    mass = _checks.positive(jnp.asarray(mass), "mass")
+    return _damping(material, stiffness, mass)
+
+
+@compiled
 def natural_frequency(stiffness, mass) -> Float[Array, "..."]:
-    """`ω₀ = √(K/m)` in rad/s (thesis eq. 5.6)."""
+    """`ω₀ = √(K/m)` in rad/s (thesis eq. 5.6), `stiffness ≥ 0`, `mass > 0`."""
+    stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness", strict=False)
+    mass = _checks.positive(jnp.asarray(mass), "mass")
     return jnp.sqrt(stiffness / mass)
 
 
+@compiled
 def damping_ratio(damping, stiffness, mass) -> Float[Array, "..."]:
-    """`ζ = D / (2 √(K m))` (thesis eq. 5.7)."""
+    """`ζ = D / (2 √(K m))` (thesis eq. 5.7), `damping ≥ 0`, `stiffness > 0`, `mass > 0`."""
+    damping = _checks.positive(jnp.asarray(damping), "damping", strict=False)
+    stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness")
+    mass = _checks.positive(jnp.asarray(mass), "mass")
     return damping / (2.0 * jnp.sqrt(stiffness * mass))

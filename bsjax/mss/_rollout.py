@@ -1,5 +1,10 @@
-"""Rollouts: `simulate` (final state), `trajectory` (saved states), `simulate_plastic`
-(rest lengths evolve), `relax` (run to rest) — `lax.scan` with optional `jax.checkpoint`."""
+"""Rollouts: `simulate` (final state), `trajectory` (saved states), `simulate_plastic` (rest
+lengths evolve), `relax` (run to rest) — `lax.scan` with optional `jax.checkpoint`.
+
+Each is compiled at the public boundary (`bsjax._boundary.compiled`: `dt`, forces, lattices and
+states traced; counts, `method` and flags static), checks `dt` and the state once before the
+loop, and runs the unchecked kernels of `_integrators` inside it.
+"""
 
 from __future__ import annotations
 
@@ -7,26 +12,53 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from bsjax import _checks, _tensor
-from bsjax.mss._integrators import METHODS, Contact, Plasticity, check_dt, implicit_step, step
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
+from bsjax.mss._integrators import (
+    METHODS,
+    Contact,
+    Plasticity,
+    _check_shapes,
+    _checked_dt,
+    _checked_implicit_dt,
+    _checked_state,
+    _explicit,
+    _implicit,
+)
 from bsjax.mss._lattice import Lattice, State
 
 
-def yield_rest_lengths(lattice: Lattice, position, plasticity: Plasticity, rest_length=None):
-    """New rest lengths after plastic yield (thesis §5.4, strain eq. 5.10), `(E,)`."""
-    rest = lattice.rest_length if rest_length is None else rest_length
+def _yield(lattice: Lattice, position, plasticity: Plasticity, rest):
     i, j = lattice.edges[:, 0], lattice.edges[:, 1]
-    l = _tensor.safe_norm(position[i] - position[j])
-    safe_rest = jnp.where(rest > 0, rest, 1.0)
-    strain = jnp.where(rest > 0, (l - rest) / safe_rest, 0.0)
+    l = _safe.norm(position[i] - position[j])
+    strain = _safe.ratio(l - rest, jnp.where(rest > 0, rest, 0.0))
     ey = plasticity.yield_strain
     near = jnp.ones_like(l, dtype=bool)
     if plasticity.center is not None:
         mid = 0.5 * (position[i] + position[j])
-        near = _tensor.safe_norm(mid - plasticity.center) <= plasticity.radius
+        near = _safe.norm(mid - plasticity.center[None]) <= plasticity.radius
     yielded = near & (jnp.abs(strain) > ey)
     return jnp.where(yielded, l / (1.0 + jnp.sign(strain) * ey), rest)
+
+
+@compiled
+def yield_rest_lengths(
+    lattice: Lattice,
+    position: Float[ArrayLike, "N 3"],
+    plasticity: Plasticity,
+    rest_length: Float[ArrayLike, " E"] | None = None,
+) -> Float[Array, " E"]:
+    """New rest lengths `(E,)` after plastic yield (thesis §5.4, strain eq. 5.10): a spring of
+    strain `e = (l − L)/L` beyond `±ε_y` (near `plasticity.center`) takes `L' = l / (1 ± ε_y)`.
+
+    **Arguments:** `lattice`; `position (N, 3)` in m; `plasticity`; `rest_length (E,)` (default
+    the lattice's)."""
+    if np.shape(position) != (lattice.n_nodes, 3):
+        _checks.fail("position", f"shape ({lattice.n_nodes}, 3)", np.shape(position))
+    rest = lattice.rest_length if rest_length is None else rest_length
+    return _yield(lattice, _checks.finite(jnp.asarray(position), "position"), plasticity, rest)
 
 
 def _check_method(method):
@@ -46,6 +78,26 @@ def _per_step_force(external_force, n_steps, n_nodes):
     _checks.fail("external_force", f"shape ({n_nodes}, 3) or ({n_steps}, {n_nodes}, 3)", shape)
 
 
+def _prepare(lattice, state, dt, method, cg_iterations, tools, contact, check_stability):
+    """Structure and value checks shared by the rollouts: `(state, dt, contact)`."""
+    _check_method(method)
+    _checks.check_count(cg_iterations, "cg_iterations")
+    _check_shapes(lattice, state)
+    state = _checked_state(state)
+    contact = Contact() if (tools and contact is None) else contact
+    k_c = contact.stiffness if contact is not None else 0.0
+    if method == "implicit":
+        return state, _checked_implicit_dt(lattice, dt, k_c), contact
+    return state, _checked_dt(lattice, dt, k_c, check_stability), contact
+
+
+def _kernel(method, cg_iterations):
+    """The step kernel `(lattice, state, dt, force, gravity, tools, contact, rest) -> state`."""
+    if method == "semi_implicit":
+        return _explicit
+    return lambda *args: _implicit(*args, cg_iterations)
+
+
 def _run(
     lattice,
     state,
@@ -63,34 +115,30 @@ def _run(
     plasticity,
     check_stability,
 ):
-    _check_method(method)
-    if not isinstance(n_steps, (int, np.integer)) or n_steps < 0:
-        _checks.fail("n_steps", "an int >= 0", n_steps)
-    n = lattice.n_nodes
-    if state.position.shape != (n, 3) or state.velocity.shape != (n, 3):
-        _checks.fail(
-            "state", f"position and velocity of shape ({n}, 3)", (state.position.shape, state.velocity.shape)
-        )
-    _checks.check_finite(state.position, "state.position")
-    _checks.check_finite(state.velocity, "state.velocity")
+    n_steps = _checks.check_count(n_steps, "n_steps")
+    if checkpoint_every is not None:
+        _checks.check_count(checkpoint_every, "checkpoint_every")
+    if save_every is not None:
+        _checks.check_count(save_every, "save_every")
+        if n_steps % save_every:
+            _checks.fail("save_every", f"a divisor of n_steps = {n_steps}", save_every)
+    if gravity is not None and np.shape(gravity) != (3,):
+        _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
     tools = tuple(tools)
-    contact = Contact() if ((tools or tool_path is not None) and contact is None) else contact
-    if method == "semi_implicit" and check_stability:
-        dt = check_dt(lattice, dt, contact.stiffness if contact is not None else 0.0)
-    const_force, path_force = _per_step_force(external_force, n_steps, n)
     path_tools = () if tool_path is None else tuple(tool_path)
+    state, dt, contact = _prepare(
+        lattice, state, dt, method, cg_iterations, tools + path_tools, contact, check_stability
+    )
+    const_force, path_force = _per_step_force(external_force, n_steps, lattice.n_nodes)
+    advance = _kernel(method, cg_iterations)
 
     def body(carry, xs):
         s, rest = carry
         f_t, tools_t = xs
         f = const_force if f_t is None else (f_t if const_force is None else f_t + const_force)
-        all_tools = tools + tuple(tools_t)
-        if method == "semi_implicit":
-            s = step(lattice, s, dt, f, gravity, all_tools, contact, rest)
-        else:
-            s = implicit_step(lattice, s, dt, f, gravity, all_tools, contact, rest, cg_iterations)
+        s = advance(lattice, s, dt, f, gravity, tools + tuple(tools_t), contact, rest)
         if plasticity is not None:
-            rest = yield_rest_lengths(lattice, s.position, plasticity, rest)
+            rest = _yield(lattice, s.position, plasticity, rest)
         return (s, rest), None
 
     xs = (path_force, path_tools)
@@ -105,7 +153,7 @@ def _scan(body, carry, xs, n_steps, checkpoint_every):
     inner scans are rematerialised in the backward pass (memory O(n/c + c) states)."""
     if checkpoint_every is None or n_steps <= checkpoint_every:
         return jax.lax.scan(body, carry, xs, length=n_steps)[0]
-    c = int(checkpoint_every)
+    c = checkpoint_every
     n_outer, rem = divmod(n_steps, c)
     head = jax.tree.map(lambda a: a[: n_outer * c].reshape((n_outer, c) + a.shape[1:]), xs)
     tail = jax.tree.map(lambda a: a[n_outer * c :], xs)
@@ -119,8 +167,6 @@ def _scan(body, carry, xs, n_steps, checkpoint_every):
 
 
 def _scan_saving(body, carry, xs, n_steps, save_every):
-    if n_steps % save_every:
-        _checks.fail("save_every", f"a divisor of n_steps = {n_steps}", save_every)
     k = n_steps // save_every
     chunked = jax.tree.map(lambda a: a.reshape((k, save_every) + a.shape[1:]), xs)
 
@@ -131,13 +177,14 @@ def _scan_saving(body, carry, xs, n_steps, save_every):
     return jax.lax.scan(outer, carry, chunked, length=k)
 
 
+@compiled
 def simulate(
     lattice: Lattice,
     state: State,
-    dt,
+    dt: Float[ArrayLike, ""],
     n_steps: int,
-    external_force=None,
-    gravity=None,
+    external_force: Float[ArrayLike, "N 3"] | Float[ArrayLike, "n_steps N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
     *,
     tools=(),
     tool_path=None,
@@ -150,18 +197,22 @@ def simulate(
     """Integrate the lattice for `n_steps` steps of `dt` seconds; returns the final `State`.
 
     **Arguments:**
-    - `lattice`, `state`: the model and the initial state.
-    - `dt`: time step in s; `method="semi_implicit"` (eqs. 5.14–5.16, the default) refuses a
-      `dt` above `stable_dt(lattice)` (ValueError naming the largest stable step; an
-      `eqx.error_if` error when traced). `method="implicit"`: linearised backward Euler with
+    - `lattice`, `state`: the model and the initial state (finite).
+    - `dt`: time step in s, finite and > 0; `method="semi_implicit"` (eqs. 5.14–5.16, the default)
+      refuses a `dt` above `stable_dt(lattice, contact.stiffness)` (unless
+      `check_stability=False`). `method="implicit"`: linearised backward Euler with
       `cg_iterations` CG iterations per step, stable for stiff materials (steel at 1 kHz).
+    - `n_steps`: number of steps, an int ≥ 1.
     - `external_force`: `(N, 3)` constant, or `(n_steps, N, 3)` one per step (N).
     - `gravity`: `(3,)` acceleration (m/s²), e.g. `(0, 0, -9.81)`.
-    - `tools`: rigid tools (objects with `center`/`radius` or `point`/`normal`) in penalty contact;
-      `tool_path`: tools whose arrays have a leading `n_steps` axis (a moving tool);
+    - `tools`: rigid tools (the `bsjax.collide` solids, `mss.RigidSphere`/`RigidPlane`) in penalty
+      contact; `tool_path`: tools whose arrays have a leading `n_steps` axis (a moving tool);
       `contact`: `Contact(stiffness, damping)` of the penalty.
-    - `checkpoint_every`: rematerialise chunks of this many steps in reverse mode (`jax.checkpoint`),
-      so `jax.grad` through 10 000 steps keeps only `n/c + c` states.
+    - `checkpoint_every`: an int ≥ 1: rematerialise chunks of this many steps in reverse mode
+      (`jax.checkpoint`), so `jax.grad` through 10 000 steps keeps only `n/c + c` states.
+
+    Bad values (NaN state, `dt` ≤ 0, NaN or unstable) raise `ValueError` when called directly,
+    and an `eqx.error_if` runtime error with the same message inside the caller's `jit`.
     """
     (final, _), _ = _run(
         lattice,
@@ -183,23 +234,25 @@ def simulate(
     return final
 
 
+@compiled
 def trajectory(
     lattice: Lattice,
     state: State,
-    dt,
+    dt: Float[ArrayLike, ""],
     n_steps: int,
-    external_force=None,
-    gravity=None,
+    external_force: Float[ArrayLike, "N 3"] | Float[ArrayLike, "n_steps N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
     *,
     save_every: int = 1,
     tools=(),
     tool_path=None,
-    contact=None,
-    method="semi_implicit",
-    cg_iterations=20,
-    check_stability=True,
+    contact: Contact | None = None,
+    method: str = "semi_implicit",
+    cg_iterations: int = 20,
+    check_stability: bool = True,
 ) -> tuple[State, State]:
-    """Like `simulate`, and also the states after every `save_every` steps, stacked `(k, N, 3)`."""
+    """Like `simulate`, and also the states after every `save_every` steps (an int ≥ 1 dividing
+    `n_steps`), stacked: `(final, saved)` with `saved.position (n_steps // save_every, N, 3)`."""
     (final, _), saved = _run(
         lattice,
         state,
@@ -220,24 +273,25 @@ def trajectory(
     return final, saved
 
 
+@compiled
 def simulate_plastic(
     lattice: Lattice,
     state: State,
-    dt,
+    dt: Float[ArrayLike, ""],
     n_steps: int,
     plasticity: Plasticity,
-    external_force=None,
-    gravity=None,
+    external_force: Float[ArrayLike, "N 3"] | Float[ArrayLike, "n_steps N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
     *,
     tools=(),
     tool_path=None,
-    contact=None,
-    method="semi_implicit",
-    cg_iterations=20,
-    check_stability=True,
+    contact: Contact | None = None,
+    method: str = "semi_implicit",
+    cg_iterations: int = 20,
+    check_stability: bool = True,
 ) -> tuple[Lattice, State]:
-    """`simulate` with plastic yield after each step; returns the lattice with its new rest
-    lengths (the permanently deformed shape) and the final state."""
+    """`simulate` with plastic yield (`yield_rest_lengths`, thesis §5.4) after each step; returns
+    the lattice with its new rest lengths (the permanently deformed shape) and the final state."""
     final, rest = _run(
         lattice,
         state,
@@ -258,37 +312,37 @@ def simulate_plastic(
     return eqx.tree_at(lambda l: l.rest_length, lattice, rest), final
 
 
+@compiled
 def relax(
     lattice: Lattice,
     state: State,
-    dt,
-    external_force=None,
-    gravity=None,
+    dt: Float[ArrayLike, ""],
+    external_force: Float[ArrayLike, "N 3"] | None = None,
+    gravity: Float[ArrayLike, " 3"] | None = None,
     *,
-    tol=1e-9,
+    tol: Float[ArrayLike, ""] = 1e-9,
     max_steps: int = 100_000,
     check_every: int = 50,
     tools=(),
-    contact=None,
-    method="semi_implicit",
-    cg_iterations=20,
-) -> tuple[State, jax.Array, jax.Array]:
-    """Global deformation: integrate until the kinetic energy falls below `tol` (J) or
-    `max_steps`; returns `(state, steps_taken, converged)`. (A `while_loop`: not reverse-mode
-    differentiable — use `simulate` with a fixed step count for gradients.)"""
-    _check_method(method)
+    contact: Contact | None = None,
+    method: str = "semi_implicit",
+    cg_iterations: int = 20,
+) -> tuple[State, Int[Array, ""], Bool[Array, ""]]:
+    """Global deformation: integrate until the kinetic energy falls below `tol` (J, ≥ 0) or
+    `max_steps` (an int ≥ 1), testing every `check_every` steps (an int ≥ 1); returns
+    `(state, steps_taken, converged)`. (A `while_loop`: not reverse-mode differentiable — use
+    `simulate` with a fixed step count for gradients.) Other arguments as `simulate`."""
+    max_steps = _checks.check_count(max_steps, "max_steps")
+    check_every = _checks.check_count(check_every, "check_every")
+    _check_shapes(lattice, state, external_force, gravity)
+    tol = _checks.positive(jnp.asarray(tol, dtype=lattice.mass.dtype), "tol", strict=False)
     tools = tuple(tools)
-    contact = Contact() if (tools and contact is None) else contact
-    if method == "semi_implicit":
-        dt = check_dt(lattice, dt, contact.stiffness if contact is not None else 0.0)
+    state, dt, contact = _prepare(lattice, state, dt, method, cg_iterations, tools, contact, True)
+    advance = _kernel(method, cg_iterations)
 
-    def advance(s):
+    def chunk(s):
         def body(s, _):
-            if method == "semi_implicit":
-                return step(lattice, s, dt, external_force, gravity, tools, contact), None
-            return implicit_step(
-                lattice, s, dt, external_force, gravity, tools, contact, None, cg_iterations
-            ), None
+            return advance(lattice, s, dt, external_force, gravity, tools, contact, None), None
 
         return jax.lax.scan(body, s, None, length=check_every)[0]
 
@@ -301,7 +355,7 @@ def relax(
 
     def body(carry):
         s, k = carry
-        return advance(s), k + check_every
+        return chunk(s), k + check_every
 
-    s, k = jax.lax.while_loop(cond, body, (advance(state), jnp.asarray(check_every)))
+    s, k = jax.lax.while_loop(cond, body, (chunk(state), jnp.asarray(check_every)))
     return s, k, kinetic(s) <= tol

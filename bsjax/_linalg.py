@@ -1,0 +1,67 @@
+"""Linear solvers shared by the physics (`mss.implicit_step`) and the VSOFM (`vsofm.fit`).
+
+One conjugate-gradient loop: a fixed iteration budget (the cost per call is bounded and known in
+advance — the haptic loop's requirement — and reverse-mode differentiation goes through the
+unrolled iterations), an optional Jacobi (diagonal) preconditioner and divisions that stay finite
+when the residual vanishes (`bsjax._safe.ratio`).
+
+lineax's `CG` solves the same systems, but stops on a tolerance inside a `while_loop` (norms
+and a convergence test every iteration, no reverse mode through the loop) and differentiates by
+an adjoint solve; a fixed budget written out here is both cheaper per iteration and gives the
+gradient of exactly what was computed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from bsjax import _safe
+
+
+def cg(
+    matvec: Callable[[Array], Array],
+    b: Float[Array, "..."],
+    iterations: int,
+    x0: Float[Array, "..."] | None = None,
+    inv_diag: Float[Array, "..."] | None = None,
+) -> Float[Array, "..."]:
+    """`iterations` steps of (preconditioned) conjugate gradients for `A x = b`, `A` symmetric
+    positive (semi-)definite.
+
+    **Arguments:**
+    - `matvec`: `w ↦ A w` on arrays shaped like `b` (any shape; inner products run over all
+      entries).
+    - `b`: right-hand side.
+    - `iterations`: fixed number of iterations (a static int ≥ 0); no early exit.
+    - `x0`: initial guess (default 0).
+    - `inv_diag`: `1 / diag(A)` shaped like `b`, the Jacobi preconditioner `M⁻¹` (default none).
+
+    **Returns:** the iterate `x_k`, shaped like `b`.
+
+    Hestenes & Stiefel, *Methods of conjugate gradients for solving linear systems* (1952), in
+    the preconditioned form of Shewchuk, *An introduction to the conjugate gradient method
+    without the agonizing pain*, §B3: `α = rᵀz / pᵀAp`, `x += α p`, `r −= α Ap`, `z = M⁻¹ r`,
+    `β = r'ᵀz' / rᵀz`, `p = z + β p`. A step whose `pᵀAp ≤ 0` (the solution reached, or a
+    semi-definite direction) or whose `rᵀz = 0` moves by 0 instead of dividing by zero.
+    """
+    precondition = (lambda r: r) if inv_diag is None else (lambda r: inv_diag * r)
+    x = jnp.zeros_like(b) if x0 is None else x0
+    r = b if x0 is None else b - matvec(x0)
+    z = precondition(r)
+
+    def body(_, carry):
+        x, r, p, rz = carry
+        ap = matvec(p)
+        alpha = _safe.ratio(rz, jnp.maximum(jnp.sum(p * ap), 0.0))
+        x = x + alpha * p
+        r = r - alpha * ap
+        z = precondition(r)
+        rz_new = jnp.sum(r * z)
+        beta = _safe.ratio(rz_new, jnp.maximum(rz, 0.0))
+        return x, r, z + beta * p, rz_new
+
+    return jax.lax.fori_loop(0, iterations, body, (x, r, z, jnp.sum(r * z)))[0]
