@@ -12,9 +12,7 @@ def test_cli_sphere_report(tmp_path, capsys):
     path = tmp_path / "plate.json"
     io.save(shapes.plate(6, 6), path)
     out = tmp_path / "report.json"
-    code = main(
-        [str(path), "--sphere", "0.5", "0.5", "0.05", "0.3", "--samples", "15", "15", "--json", str(out)]
-    )
+    code = main([str(path), "--sphere", "0.5,0.5,0.05,0.3", "--samples", "15,15", "--json", str(out)])
     assert code == 0
     report = json.loads(out.read_text())
     assert report["hit"] and report["samples_in_contact"] > 0
@@ -24,7 +22,8 @@ def test_cli_sphere_report(tmp_path, capsys):
 
 
 def test_cli_errors(tmp_path, capsys):
-    assert main([str(tmp_path / "missing.json"), "--point", "0", "0", "0"]) == 1
+    assert main([str(tmp_path / "missing.json"), "--point", "0,0,0"]) == 2
     assert "missing.json" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main([str(tmp_path / "x.json")])  # no tool
+    io.save(shapes.plate(3, 3), tmp_path / "x.json")
+    assert main([str(tmp_path / "x.json")]) == 2  # no tool
+    assert "--sphere" in capsys.readouterr().err

@@ -22,8 +22,7 @@ def test_simulate_cli_clamped_plate_sags(tmp_path, capsys):
             "--steps",
             "300",
             "--samples",
-            "8",
-            "8",
+            "8,8",
         ]
     )
     assert rc == 0
@@ -33,6 +32,6 @@ def test_simulate_cli_clamped_plate_sags(tmp_path, capsys):
     z = np.asarray(sagged.ctrl)[..., 2]
     assert abs(z[0]).max() < 1e-3  # the clamped edge stays
     assert z[-1].mean() < -0.01  # the free edge drops
-    rc = main(["simulate", str(src), "-o", str(out), "--steps", "5", "--samples", "8", "8", "--dt", "1.0"])
+    rc = main(["simulate", str(src), "-o", str(out), "--steps", "5", "--samples", "8,8", "--dt", "1.0"])
     assert rc == 2
     assert "largest stable step" in capsys.readouterr().err

@@ -1,7 +1,9 @@
 """The `bsjax` command: `bsjax demo`, `bsjax haptics …`, and batch subcommands.
 
-Each subcommand lives in the module that owns the work and exposes `main(argv) -> int`;
-this file only dispatches, so importing it stays cheap.
+Each subcommand lives in its own module of this package and exposes `main(argv) -> int`; this
+file only dispatches, so importing it stays cheap. Every subcommand follows the convention of
+`bsjax.cli._common`: comma-separated vectors (`--sphere CX,CY,CZ,R`), one-line user errors with
+exit code 2 (`--debug` for the traceback), float64 unless `--float32`, valid JSON.
 """
 
 from __future__ import annotations
@@ -16,24 +18,25 @@ COMMANDS = {
     "merge": ("bsjax.cli.merge", "merge patches from .json/.3dm files into one surface"),
     "collide": ("bsjax.cli.collide", "collision query of a surface file against a tool"),
     "simulate": ("bsjax.cli.simulate", "mass-spring simulation of a surface file"),
-    "convert": ("bsjax.cli.convert", "convert a surface between .json, .3dm, .obj, .stl, .glb"),
+    "convert": ("bsjax.cli.convert", "convert a surface between .json, .3dm, .obj, .stl, .ply, .glb"),
 }
 
 
 def _usage() -> str:
-    lines = ["usage: bsjax COMMAND [options]", "", "commands:"]
+    lines = ["usage: bsjax COMMAND [options]   (bsjax COMMAND --help for its options)", "", "commands:"]
     lines += [f"  {name:<10} {text}" for name, (_, text) in COMMANDS.items()]
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run `bsjax COMMAND ARGS…`; returns the exit code (2 for a user error)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(_usage())
         return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
-        print(f"bsjax: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        print(f"bsjax: {name}: unknown command (one of {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
     try:
         module = importlib.import_module(COMMANDS[name][0])

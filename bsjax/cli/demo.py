@@ -1,21 +1,42 @@
-"""`bsjax demo`: the spoon case study of the thesis (§7.3), end to end (`bsjax.examples.demo`)."""
+"""`bsjax demo`: the spoon case study of the thesis (§7.3), end to end (`bsjax.examples.demo`).
+
+    bsjax demo [--out bsjax-out] [--quick]
+
+Runs in float64 (the geometry of the study is in metres, down to micrometre deviations).
+"""
 
 from __future__ import annotations
 
-import argparse
+import sys
 from pathlib import Path
 
+from bsjax.cli import _common as c
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="bsjax demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bsjax-out", help="output folder (default ./bsjax-out)")
-    parser.add_argument("--quick", action="store_true", help="small sizes (a 6³ jelly, short runs) for tests")
-    args = parser.parse_args(argv)
+
+def _parser():
+    p = c.Parser("bsjax demo", __doc__.splitlines()[0].strip("`"), precision=False)
+    p.add_argument(
+        "--out", type=c.output_folder, default="bsjax-out", help="output folder (default ./bsjax-out)"
+    )
+    p.add_argument("--quick", action="store_true", help="small sizes (a 6³ jelly, short runs) for tests")
+    return p
+
+
+def _body(args) -> int:
     from bsjax.examples import demo
 
     out = Path(args.out)
-    report = demo.run(out, quick=args.quick)
+    with c.precision(float32=False):
+        report = demo.run(out, quick=args.quick)
     files = sorted(p.name for p in out.iterdir())
     print(f"\nwrote {len(files)} files to {out}/: {', '.join(files)}")
     print(f"done in {report['total_seconds']:.1f} s")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return c.run(_parser(), _body, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -2,11 +2,13 @@
 
 ```
 bsjax haptics --simulated --duration 10          # the default: a scripted push/pull session
+bsjax haptics --ellipsoid 0.3,0.2,0.2 --plot session.png
 bsjax haptics --serial /dev/ttyACM0 --baud 921600
 bsjax haptics --hid 1234:5678 [--hid-layout layout.json]
 bsjax haptics --replay session.npz --plot session.png
 ```
-Prints the servo telemetry at the end (also on Ctrl-C; zero force is written first).
+Prints the servo telemetry at the end (also on Ctrl-C; zero force is written first). The
+sculpting physics runs in float64 unless `--float32`.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import argparse
 import json
 import sys
 
+from bsjax.cli import _common as c
 from bsjax.device.hid import HidDevice, HidLayout
 from bsjax.device.protocol import DeviceError, Workspace
 from bsjax.device.proxy import Proxy
@@ -24,30 +27,48 @@ from bsjax.device.simulated import DEFAULT_WORKSPACE, SimulatedDevice
 from bsjax.device.telemetry import plot_recording
 
 
+def _hid_ids(text: str) -> tuple[int, int]:
+    vid, _, pid = text.partition(":")
+    try:
+        return int(vid, 16), int(pid, 16)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected VID:PID in hex (e.g. 046d:c62b), got {text!r}") from None
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="bsjax haptics", description=__doc__.split("\n")[0])
+    p = c.Parser("bsjax haptics", __doc__.split("\n")[0])
     src = p.add_mutually_exclusive_group()
     src.add_argument("--simulated", action="store_true", help="scripted virtual stylus (default)")
     src.add_argument("--serial", metavar="PORT", help="serial device speaking the bsjax frame protocol")
-    src.add_argument("--hid", metavar="VID:PID", help="USB HID device (hex ids)")
-    src.add_argument("--replay", metavar="FILE", help="replay a recorded session (.npz)")
-    p.add_argument("--hid-layout", metavar="JSON", help="HID report layout (default: HidLayout.generic)")
-    p.add_argument("--baud", type=int, default=921600)
-    p.add_argument(
-        "--scale", type=float, default=DEFAULT_WORKSPACE.scale, help="model units per device metre"
+    src.add_argument("--hid", type=_hid_ids, metavar="VID:PID", help="USB HID device (hex ids)")
+    src.add_argument(
+        "--replay", type=c.input_file(".npz"), metavar="FILE", help="replay a recorded session (.npz)"
     )
-    p.add_argument("--duration", type=float, default=10.0, help="seconds (0: until Ctrl-C)")
-    p.add_argument("--rate", type=float, default=1000.0, help="servo rate, Hz")
-    p.add_argument("--physics-hz", type=float, default=100.0)
-    p.add_argument("--max-force", type=float, default=3.0, help="newtons")
-    p.add_argument("--tool-radius", type=float, default=0.25, help="sphere tool radius, model units")
     p.add_argument(
-        "--ellipsoid", type=float, nargs=3, metavar=("A", "B", "C"), help="ellipsoid tool semi-axes"
+        "--hid-layout",
+        type=c.input_file(".json"),
+        metavar="JSON",
+        help="HID report layout (default: HidLayout.generic)",
+    )
+    p.add_argument("--baud", type=c.count(), default=921600)
+    p.add_argument(
+        "--scale", type=c.positive, default=DEFAULT_WORKSPACE.scale, help="model units per device metre"
+    )
+    p.add_argument("--duration", type=c.positive, default=10.0, help="seconds (> 0; Ctrl-C stops earlier)")
+    p.add_argument("--rate", type=c.positive, default=1000.0, help="servo rate, Hz")
+    p.add_argument("--physics-hz", type=c.positive, default=100.0)
+    p.add_argument("--max-force", type=c.positive, default=3.0, help="newtons")
+    p.add_argument("--tool-radius", type=c.positive, default=0.25, help="sphere tool radius, model units")
+    p.add_argument(
+        "--ellipsoid",
+        type=c.vector("A,B,C", positive_at=(0, 1, 2)),
+        metavar="A,B,C",
+        help="ellipsoid tool semi-axes",
     )
     p.add_argument("--proxy-only", action="store_true", help="a fixed plane proxy, no physics (no JAX work)")
-    p.add_argument("--record", metavar="FILE", help="save the session (.npz)")
-    p.add_argument("--plot", metavar="PNG", help="plot the session")
-    p.add_argument("--cpu", type=int, help="pin the servo thread to this CPU")
+    p.add_argument("--record", type=c.output_file(".npz"), metavar="FILE", help="save the session (.npz)")
+    p.add_argument("--plot", type=c.output_file(".png"), metavar="PNG", help="plot the session")
+    p.add_argument("--cpu", type=c.count(0), help="pin the servo thread to this CPU")
     return p
 
 
@@ -56,16 +77,16 @@ def _device(args):
     if args.serial:
         return SerialDevice(args.serial, baudrate=args.baud, workspace=workspace)
     if args.hid:
-        vid, _, pid = args.hid.partition(":")
-        try:
-            vid_i, pid_i = int(vid, 16), int(pid, 16)
-        except ValueError:
-            raise SystemExit(f"--hid: expected VID:PID in hex (e.g. 046d:c62b), got {args.hid!r}") from None
+        vid, pid = args.hid
         if args.hid_layout:
             with open(args.hid_layout) as fh:
-                layout = HidLayout.from_dict({"vendor_id": vid_i, "product_id": pid_i, **json.load(fh)})
+                try:
+                    fields = json.load(fh)
+                except json.JSONDecodeError as err:
+                    raise c.UserError(args.hid_layout, f"not valid JSON ({err})") from None
+            layout = HidLayout.from_dict({"vendor_id": vid, "product_id": pid, **fields})
         else:
-            layout = HidLayout.generic(vid_i, pid_i)
+            layout = HidLayout.generic(vid, pid)
         return HidDevice(layout, workspace=workspace)
     if args.replay:
         return SimulatedDevice.replay(args.replay, realtime=True)
@@ -87,16 +108,14 @@ def _model(args):
     return SculptModel(physics_hz=args.physics_hz, tool_radius=args.tool_radius, tool_axes=args.ellipsoid)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+def _body(args) -> int:
     print("bsjax haptics: building the model and compiling the physics…", flush=True)
     model = _model(args)
     interrupted = False
     try:
         device = _device(args)
     except (OSError, ValueError, DeviceError) as err:
-        print(f"bsjax haptics: cannot open the device: {err}", file=sys.stderr)
-        return 2
+        raise c.UserError("device", f"cannot open the device: {err}") from err
     with device:
         loop = ServoLoop(
             device,
@@ -112,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
             # One long wait: a main thread waking every few ms would take the GIL each time and,
             # at normal priority, could be descheduled holding it (the servo would wait).
-            loop.finished.wait(args.duration if args.duration > 0 else None)
+            loop.finished.wait(args.duration)
         except KeyboardInterrupt:
             interrupted = True
         finally:
@@ -135,6 +154,10 @@ def main(argv: list[str] | None = None) -> int:
             f"sculpted surface: {model.ticks} physics ticks, largest control-point displacement {moved:.4f}"
         )
     return 130 if interrupted else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return c.run(_parser(), _body, argv, errors=(DeviceError,))
 
 
 if __name__ == "__main__":

@@ -224,11 +224,27 @@ def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
     plot.save(fig, out / "spoon.png")
 
 
+def _finite_or_none(value):
+    """The report with non-finite floats as None, so report.json stays valid JSON."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
 def run(out: Path, quick: bool = False) -> dict:
-    jax.config.update("jax_enable_x64", True)  # the demo works in float64 (geometry precision)
+    """Run the four steps, write the files into `out` and return the report (also `report.json`).
+
+    The study is meant for float64 (`jax_enable_x64`, which `bsjax demo` turns on; this function
+    leaves the configuration as it finds it). `quick` uses the small sizes of `QUICK`.
+    """
     out.mkdir(parents=True, exist_ok=True)
     sizes = QUICK if quick else FULL
-    report: dict = {"jax_backend": jax.default_backend(), "float64": True, "quick": quick, "sizes": sizes}
+    float64 = bool(jax.config.read("jax_enable_x64"))
+    report: dict = {"jax_backend": jax.default_backend(), "float64": float64, "quick": quick, "sizes": sizes}
     t0 = time.perf_counter()
     print(f"[1/4] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
     named = shapes_step(out, report)
@@ -246,5 +262,5 @@ def run(out: Path, quick: bool = False) -> dict:
     print("[4/4] pictures …")
     pictures_step(out, bent, placed, merged, dev, hm, finals)
     report["total_seconds"] = time.perf_counter() - t0
-    (out / "report.json").write_text(json.dumps(report, indent=2))
+    (out / "report.json").write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False))
     return report
