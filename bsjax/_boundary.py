@@ -53,6 +53,10 @@ class _Static:
         )
 
 
+def _unwrap(leaf):
+    return leaf.value if isinstance(leaf, _Static) else leaf
+
+
 def _is_dynamic(leaf) -> bool:
     if isinstance(leaf, (bool, np.bool_, _Static)):
         return False

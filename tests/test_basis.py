@@ -4,6 +4,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.interpolate import BSpline
+
+from bsjax.basis import (
+    SplineDirection,
+    basis_functions,
+    blending_matrix,
+    clamped_knots,
+    greville,
+    periodic_blending_matrix,
+    periodic_knots,
+)
 from tests.helpers import check_grad, random_knots
 from tests.oracles import (
     cardinal_bspline,
@@ -11,17 +22,6 @@ from tests.oracles import (
     periodic_reference,
     scipy_matrix,
     tolerance,
-)
-from scipy.interpolate import BSpline
-
-from bsjax.basis import (
-    basis_functions,
-    blending_matrix,
-    clamped_knots,
-    direction_matrix,
-    greville,
-    periodic_blending_matrix,
-    periodic_knots,
 )
 
 DEGREES = [1, 2, 3, 4, 5]
@@ -220,17 +220,49 @@ def test_periodic_matches_scipy_periodic_spline(degree):
         np.testing.assert_allclose(got, ref, rtol=0, atol=tolerance(ref))
 
 
-def test_periodic_knots_and_direction_matrix():
+def test_periodic_knots_and_spline_direction():
     n, k = N_PERIODIC, 3
     np.testing.assert_allclose(periodic_knots(n, k), (np.arange(n + 2 * k + 1) - k) / n, atol=1e-15)
-    x = np.linspace(0, 1, M_PARAMS)  # eager calls: the jitted wrappers must agree with them
+    x = np.linspace(0, 1, M_PARAMS)
     eager = periodic_blending_matrix(n, k, x)
-    np.testing.assert_array_equal(direction_matrix(None, k, True, n, x), eager)
+    closed = SplineDirection.closed(n, k)
+    assert (closed.periodic, closed.n_ctrl, closed.degree, closed.knots) == (True, n, k, None)
+    np.testing.assert_allclose(closed.matrix(jnp.asarray(x)), eager, rtol=0, atol=1e-15)
     np.testing.assert_allclose(periodic(n, k, x), eager, rtol=0, atol=1e-15)
     knots = clamped_knots(N_CTRL, k)
     eager = blending_matrix(knots, k, x, 1)
-    np.testing.assert_array_equal(direction_matrix(knots, k, False, N_CTRL, x, 1), eager)
+    clamped = SplineDirection(knots, k)
+    assert (clamped.periodic, clamped.n_ctrl) == (False, N_CTRL)
+    np.testing.assert_allclose(clamped.matrices(jnp.asarray(x), (0, 1))[1], eager, rtol=0, atol=1e-13)
     np.testing.assert_allclose(blending(knots, k, x, nu=1), eager, rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(SplineDirection.uniform(N_CTRL, k).knots, knots)
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: SplineDirection([0, 0, 0.5, 1, 1], 3), "degree"),
+        (lambda: SplineDirection([0, 0, 0.7, 0.5, 1, 1], 1), "knots: expected a non-decreasing"),
+        (lambda: SplineDirection([0, 0, 0.5, 1, 2], 1), "knots: expected a clamped"),
+        (lambda: SplineDirection([0, 0, 1], 1, periodic=True), "None for a periodic"),
+        (lambda: SplineDirection(None, 3, n_ctrl=3, periodic=True), "degree"),
+        (lambda: SplineDirection(None, 3), "knots: expected a knot vector"),
+        (lambda: SplineDirection.closed(2.5, 1), "n_ctrl"),
+    ],
+)
+def test_spline_direction_errors(make, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        make()
+
+
+def test_spline_direction_checks_hold_under_jit():
+    """A decreasing knot vector raises the same error eagerly and inside the caller's jit."""
+    from tests.helpers import raises_both
+
+    bad = jnp.asarray([0.0, 0.0, 0.7, 0.5, 1.0, 1.0])
+    raises_both(lambda t: SplineDirection(t, 1).knots, bad, match="knots: expected a non-decreasing")
+    outside = jnp.asarray([0.2, 1.5])
+    raises_both(lambda x: blending_matrix(clamped_knots(5, 2), 2, x), outside, match="params: expected")
 
 
 @pytest.mark.parametrize("degree", [1, 2, 3, 4])

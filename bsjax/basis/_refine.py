@@ -13,21 +13,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks
-from bsjax.basis import blending_matrix, greville
+from bsjax.basis import _tensor
+from bsjax.basis._direction import SplineDirection
+from bsjax.basis._knots import greville
+from bsjax.basis._surface import BSplineSurface
 
 
-def insert_knots(surface, direction: str, values) -> "BSplineSurface":
+def insert_knots(surface: BSplineSurface, direction: str, values) -> BSplineSurface:
     """Insert knot `values` in `direction` ('u' or 'v'); the surface is unchanged (NURBS Book §5.2)."""
-    knots, degree, n_ctrl = _direction(surface, direction, "insert_knots")
+    knots, degree, _ = _direction(surface, direction, "insert_knots")
     values = np.atleast_1d(np.asarray(values, dtype=np.float64))
     if np.any(~np.isfinite(values)) or np.any((values <= 0) | (values >= 1)):
         _checks.fail("values", "knot values strictly inside (0, 1)", values.tolist())
     new = np.sort(np.concatenate([knots, values]))
-    _checks.check_knots(new, degree, len(new) - degree - 1, "values (resulting knot vector)")
+    SplineDirection(new, degree, name="values (resulting knot vector)")
     return _rebase(surface, direction, new, degree)[0]
 
 
-def elevate_degree(surface, direction: str, times: int = 1) -> "BSplineSurface":
+def elevate_degree(surface: BSplineSurface, direction: str, times: int = 1) -> BSplineSurface:
     """Raise the degree in `direction` by `times`, geometry unchanged (NURBS Book §5.5).
 
     Every distinct knot gains `times` in multiplicity, so continuity is kept exactly.
@@ -39,7 +42,7 @@ def elevate_degree(surface, direction: str, times: int = 1) -> "BSplineSurface":
     return _rebase(surface, direction, new, degree + times)[0]
 
 
-def reduce_degree(surface, direction: str, times: int = 1):
+def reduce_degree(surface: BSplineSurface, direction: str, times: int = 1) -> tuple[BSplineSurface, float]:
     """Lower the degree in `direction` by `times` as a least-squares approximation.
 
     The end multiplicities drop by `times` (so the control count drops by `times`, thesis §4.3);
@@ -62,11 +65,10 @@ def reduce_degree(surface, direction: str, times: int = 1):
 def _direction(surface, direction, caller):
     if direction not in ("u", "v"):
         _checks.fail("direction", "'u' or 'v'", repr(direction))
-    if getattr(surface, f"periodic_{direction}"):
+    d = surface.direction(direction)
+    if d.periodic:
         _checks.fail(f"{caller}: direction", "a clamped direction (the periodic basis is uniform)", direction)
-    degree = getattr(surface, f"degree_{direction}")
-    knots = np.asarray(getattr(surface, f"knots_{direction}"), dtype=np.float64)
-    return knots, degree, len(knots) - degree - 1
+    return np.asarray(d.knots, dtype=np.float64), d.degree, d.n_ctrl
 
 
 def _check_times(times):
@@ -75,36 +77,26 @@ def _check_times(times):
 
 
 def _rebase(surface, direction, new_knots, new_degree):
-    """Re-express `surface` in the basis (new_knots, new_degree) along `direction`."""
-    from bsjax._surface import BSplineSurface
-
-    old_knots, old_degree, _ = _direction(surface, direction, "change of basis")
-    n_new = len(new_knots) - new_degree - 1
-    t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (n_new + 1)), greville(new_knots, new_degree)]))
-    a_old = np.asarray(blending_matrix(old_knots, old_degree, t))
-    a_new = np.asarray(blending_matrix(new_knots, new_degree, t))
+    """Re-express `surface` in the basis (new_knots, new_degree) along `direction`: the change of
+    basis `T` with `B_old ≈ B_new T` by least-squares collocation (exact when the new space
+    contains the old), applied to the (homogeneous) control net."""
+    old = surface.direction(direction)
+    new = SplineDirection(new_knots, new_degree)
+    t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (new.n_ctrl + 1)), greville(new_knots, new_degree)]))
+    a_old = np.asarray(old.matrix(jnp.asarray(t, old.knots.dtype)), dtype=np.float64)
+    a_new = np.asarray(new.matrix(jnp.asarray(t, new.knots.dtype)), dtype=np.float64)
     transform = np.linalg.lstsq(a_new, a_old, rcond=None)[0]  # (n_new, n_old)
     dtype = surface.ctrl.dtype
-    t_j = jnp.asarray(transform, dtype=dtype)
     w = surface.weights
-    net = surface.ctrl if w is None else jnp.concatenate([surface.ctrl * w[..., None], w[..., None]], -1)
+    net = _tensor.homogeneous(surface.ctrl, w)
     axis = 0 if direction == "u" else 1
-    net = jnp.moveaxis(jnp.tensordot(t_j, jnp.moveaxis(net, axis, 0), axes=1), 0, axis)
-    ctrl, weights = (net, None) if w is None else (net[..., :3] / net[..., 3:], net[..., 3])
-    knots = {"u": surface.knots_u, "v": surface.knots_v}
-    knots[direction] = jnp.asarray(new_knots, dtype=dtype)
-    degrees = {"u": surface.degree_u, "v": surface.degree_v}
-    degrees[direction] = new_degree
-    result = BSplineSurface(
-        ctrl,
-        knots["u"],
-        knots["v"],
-        degrees["u"],
-        degrees["v"],
-        surface.periodic_u,
-        surface.periodic_v,
-        weights,
+    net = jnp.moveaxis(
+        jnp.tensordot(jnp.asarray(transform, dtype), jnp.moveaxis(net, axis, 0), axes=1), 0, axis
     )
+    ctrl, weights = (net, None) if w is None else (net[..., :3] / net[..., 3:], net[..., 3])
+    directions = {"u": surface.direction_u, "v": surface.direction_v}
+    directions[direction] = new.astype(dtype)
+    result = BSplineSurface.from_directions(ctrl, directions["u"], directions["v"], weights)
     return result, _max_distance(surface, result)
 
 

@@ -1,40 +1,53 @@
-"""`BSplineSurface`: a tensor-product B-spline (or NURBS) surface (thesis eq. 3.1)."""
+"""`BSplineSurface` (thesis eq. 3.1) and `Blending`, its pre-computed sampled form (thesis §3.2).
+
+A surface is a control net and one `SplineDirection` per parameter direction (plus optional
+NURBS weights). Its `Blending` holds the blending matrices of an `m × n` sample grid and their
+least-squares inverses, built once; every later operation is a pair of small matrix products:
+points `M = A_u P A_v^T` (eq. 3.6), tangents with `A'_u`, `A'_v`, and the refit
+`P = A_u^+ M (A_v^+)^T` (eq. 3.7, `A^+ = (A^T A)^{-1} A^T`). The two classes live together
+because each builds the other (`surface.blending(m, n)`, `blending.surface(ctrl)`).
+"""
 
 from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
-from bsjax import _checks, _tensor
-from bsjax.basis import _check_nu, _float_dtype, direction_matrix
+from bsjax import _checks
+from bsjax._boundary import compiled
+from bsjax.basis import _tensor
+from bsjax.basis._direction import SplineDirection
+from bsjax.basis._functions import check_order
+from bsjax.basis._knots import float_dtype
+
+_ORDERS = 3  # basis, first and second derivative matrices are stored
 
 
-def _as_float(x, dtype=None):
-    return None if x is None else jnp.asarray(x, dtype=dtype or _float_dtype(x))
+def _direction_of(name, knots, degree, periodic, n_ctrl, dtype) -> SplineDirection:
+    return SplineDirection(knots, degree, n_ctrl=n_ctrl, periodic=periodic, name=f"knots_{name}", dtype=dtype)
 
 
 class BSplineSurface(eqx.Module):
     """`S(u, v) = Σ_i Σ_j B_{i,k}(u) B_{j,l}(v) P_ij` on [0, 1]² (thesis eq. 3.1).
 
-    **Fields:**
-    - `ctrl`: control net `(r, s, 3)`.
+    **Arguments / fields:**
+    - `ctrl`: control net `(r, s, 3)`, finite.
     - `knots_u`, `knots_v`: clamped knot vectors `(r + k + 1,)`, `(s + l + 1,)`; `None` for a
       periodic direction, which uses the uniform closed basis (thesis eq. 3.3).
-    - `degree_u`, `degree_v` (static): k, l ≥ 1.
-    - `periodic_u`, `periodic_v` (static): closed directions.
+    - `degree_u`, `degree_v`: k, l ≥ 1; `periodic_u`, `periodic_v`: closed directions.
     - `weights`: `(r, s)` positive NURBS weights, or `None` for a polynomial surface.
+
+    Stored as `direction_u`, `direction_v` (`SplineDirection`); `knots_u`, `degree_u`,
+    `periodic_u` (and `_v`) read them. `BSplineSurface.from_directions(ctrl, du, dv, weights)`
+    builds one from directions.
     """
 
     ctrl: Float[Array, "r s 3"]
-    knots_u: Float[Array, " ku"] | None
-    knots_v: Float[Array, " kv"] | None
-    degree_u: int = eqx.field(static=True)
-    degree_v: int = eqx.field(static=True)
-    periodic_u: bool = eqx.field(static=True, default=False)
-    periodic_v: bool = eqx.field(static=True, default=False)
-    weights: Float[Array, "r s"] | None = None
+    direction_u: SplineDirection
+    direction_v: SplineDirection
+    weights: Float[Array, "r s"] | None
 
     def __init__(
         self,
@@ -47,22 +60,44 @@ class BSplineSurface(eqx.Module):
         periodic_v: bool = False,
         weights: ArrayLike | None = None,
     ):
+        dtype = float_dtype(ctrl)
+        ctrl = jnp.asarray(ctrl, dtype=dtype)
         _checks.check_ndim(ctrl, "ctrl", 3, last=3)
-        r, s, _ = np.shape(ctrl)
-        _checks.check_finite(ctrl, "ctrl")
-        _check_direction("u", knots_u, degree_u, periodic_u, r)
-        _check_direction("v", knots_v, degree_v, periodic_v, s)
+        r, s, _ = ctrl.shape
+        self.ctrl = _checks.finite(ctrl, "ctrl")
+        self.direction_u = _direction_of("u", knots_u, degree_u, periodic_u, r, dtype)
+        self.direction_v = _direction_of("v", knots_v, degree_v, periodic_v, s, dtype)
         if weights is not None:
-            if np.shape(weights) != (r, s):
-                _checks.fail("weights", f"shape {(r, s)}", np.shape(weights))
-            _checks.check_positive(weights, "weights")
-        dtype = _float_dtype(ctrl)
-        self.ctrl = jnp.asarray(ctrl, dtype=dtype)
-        self.knots_u = None if periodic_u else _as_float(knots_u, dtype)
-        self.knots_v = None if periodic_v else _as_float(knots_v, dtype)
-        self.degree_u, self.degree_v = int(degree_u), int(degree_v)
-        self.periodic_u, self.periodic_v = bool(periodic_u), bool(periodic_v)
-        self.weights = _as_float(weights, dtype)
+            weights = jnp.asarray(weights, dtype=float_dtype(weights, ctrl))
+            if weights.shape != (r, s):
+                _checks.fail("weights", f"shape {(r, s)}", weights.shape)
+            weights = _checks.positive(weights, "weights")
+        self.weights = weights
+
+    @classmethod
+    def from_directions(
+        cls, ctrl, direction_u: SplineDirection, direction_v: SplineDirection, weights=None
+    ) -> BSplineSurface:
+        """A surface from its control net and two `SplineDirection`s (checked like `__init__`)."""
+        du, dv = direction_u, direction_v
+        return cls(ctrl, du.knots, dv.knots, du.degree, dv.degree, du.periodic, dv.periodic, weights)
+
+    # --- the directions ----------------------------------------------------------------------
+    def direction(self, name: str) -> SplineDirection:
+        """The `SplineDirection` of `"u"` or `"v"`."""
+        if name == "u":
+            return self.direction_u
+        if name == "v":
+            return self.direction_v
+        _checks.fail("direction", "'u' or 'v'", repr(name))
+        raise AssertionError
+
+    knots_u = property(lambda self: self.direction_u.knots, doc="Knots along u (None when periodic).")
+    knots_v = property(lambda self: self.direction_v.knots, doc="Knots along v (None when periodic).")
+    degree_u = property(lambda self: self.direction_u.degree, doc="Degree k along u.")
+    degree_v = property(lambda self: self.direction_v.degree, doc="Degree l along v.")
+    periodic_u = property(lambda self: self.direction_u.periodic, doc="Closed along u.")
+    periodic_v = property(lambda self: self.direction_v.periodic, doc="Closed along v.")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -71,70 +106,263 @@ class BSplineSurface(eqx.Module):
 
     def rows(self, direction: str, params, nu: int = 0):
         """Blending matrix of one direction (`"u"` or `"v"`) at `params`, derivative order `nu`."""
-        if direction == "u":
-            return direction_matrix(self.knots_u, self.degree_u, self.periodic_u, self.shape[0], params, nu)
-        if direction == "v":
-            return direction_matrix(self.knots_v, self.degree_v, self.periodic_v, self.shape[1], params, nu)
-        _checks.fail("direction", "'u' or 'v'", repr(direction))
+        return self.direction(direction).matrix(jnp.asarray(params, self.ctrl.dtype), nu)
 
+    # --- evaluation --------------------------------------------------------------------------
     def evaluate(self, u: ArrayLike, v: ArrayLike, nu: int = 0, nv: int = 0) -> Float[Array, "... 3"]:
         """Points (or the (nu, nv) partial derivative) at equal-shape parameter arrays `u`, `v`.
 
+        Parameters of a clamped direction must lie in [0, 1] (periodic ones are taken modulo 1).
         Differentiable in the control net, the weights and in `u`, `v`.
         **Returns:** `u.shape + (3,)`.
         """
-        _check_nu(nu, "nu")
-        _check_nu(nv, "nv")
-        u, v = jnp.asarray(u, self.ctrl.dtype), jnp.asarray(v, self.ctrl.dtype)
-        if u.shape != v.shape:
-            _checks.fail("v", f"the shape of u {u.shape}", v.shape)
-        flat_u, flat_v = u.reshape(-1), v.reshape(-1)
-        net = _tensor.homogeneous(self.ctrl, self.weights)
-        if self.weights is None:
-            out = _tensor.pointwise(self.rows("u", flat_u, nu), net, self.rows("v", flat_v, nv))
-        else:
-            h = {
-                (k, l): _tensor.pointwise(self.rows("u", flat_u, k), net, self.rows("v", flat_v, l))
-                for k in range(nu + 1)
-                for l in range(nv + 1)
-            }
-            out = _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
-        return out.reshape(u.shape + (3,))
+        check_order(nu, "nu")
+        check_order(nv, "nv")
+        return _evaluate(self, self._params(u, "u"), self._params(v, "v"), nu, nv)
 
     def normal(self, u: ArrayLike, v: ArrayLike) -> Float[Array, "... 3"]:
         """Unit normal `T_u × T_v / |T_u × T_v|` at `u`, `v` (limit normal at poles, never NaN)."""
-        u, v = jnp.asarray(u, self.ctrl.dtype), jnp.asarray(v, self.ctrl.dtype)
-        t_u, t_v, t_uv = (self.evaluate(u, v, a, b) for a, b in ((1, 0), (0, 1), (1, 1)))
-        return _tensor.unit_normal(t_u, t_v, t_uv, u, v)
+        return _normal(self, self._params(u, "u"), self._params(v, "v"))
 
-    def blending(self, m: int = 82, n: int = 82, params_u=None, params_v=None):
-        """Pre-computed blending matrices for an `m × n` sample grid (default `linspace(0, 1, ·)`)."""
-        from bsjax._blending import Blending
+    def _params(self, x, name):
+        _checks.check_real(x, name)
+        return jnp.asarray(x, self.ctrl.dtype)
 
-        return Blending.from_surface(self, m, n, params_u, params_v)
+    def blending(self, m: int = 82, n: int = 82, params_u=None, params_v=None) -> Blending:
+        """Pre-computed blending matrices for an `m × n` sample grid (default `linspace(0, 1, ·)`).
 
-    def with_ctrl(self, ctrl: ArrayLike) -> "BSplineSurface":
+        Compiled once per (net size, degrees, grid size): a rebuild is one XLA call.
+        """
+        pu = _grid_params(params_u, m, "params_u", "m", self.ctrl.dtype)
+        pv = _grid_params(params_v, n, "params_v", "n", self.ctrl.dtype)
+        return _build_blending(self.direction_u, self.direction_v, self.weights, pu, pv)
+
+    def with_ctrl(self, ctrl: ArrayLike) -> BSplineSurface:
         """The same basis with another control net (shape checked)."""
         if np.shape(ctrl) != self.ctrl.shape:
             _checks.fail("ctrl", f"shape {self.ctrl.shape}", np.shape(ctrl))
-        return BSplineSurface(
-            ctrl,
-            self.knots_u,
-            self.knots_v,
-            self.degree_u,
-            self.degree_v,
-            self.periodic_u,
-            self.periodic_v,
-            self.weights,
+        return BSplineSurface.from_directions(ctrl, self.direction_u, self.direction_v, self.weights)
+
+
+@compiled
+def _evaluate(surface: BSplineSurface, u, v, nu: int, nv: int):
+    if u.shape != v.shape:
+        _checks.fail("v", f"the shape of u {u.shape}", v.shape)
+    u = surface.direction_u.check_params(u, "u")
+    v = surface.direction_v.check_params(v, "v")
+    flat_u, flat_v = u.reshape(-1), v.reshape(-1)
+    du, dv = surface.direction_u, surface.direction_v
+    net = _tensor.homogeneous(surface.ctrl, surface.weights)
+    if surface.weights is None:
+        out = _tensor.pointwise(du.matrix(flat_u, nu), net, dv.matrix(flat_v, nv))
+    else:
+        a_u = du.matrices(flat_u, tuple(range(nu + 1)))
+        a_v = dv.matrices(flat_v, tuple(range(nv + 1)))
+        h = {(k, l): _tensor.pointwise(a_u[k], net, a_v[l]) for k in range(nu + 1) for l in range(nv + 1)}
+        out = _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
+    return out.reshape(u.shape + (3,))
+
+
+@compiled
+def _normal(surface: BSplineSurface, u, v):
+    t_u, t_v, t_uv = (_evaluate(surface, u, v, a, b) for a, b in ((1, 0), (0, 1), (1, 1)))
+    return _tensor.unit_normal(t_u, t_v, t_uv, u, v)
+
+
+class Blending(eqx.Module):
+    """Blending matrices of an `m × n` sample grid of a surface basis.
+
+    **Fields:**
+    - `params_u (m,)`, `params_v (n,)`: the sample parameters.
+    - `a_u (3, m, r)`, `a_v (3, n, s)`: basis, first- and second-derivative blending matrices.
+    - `refit_u (r, m)`, `refit_v (s, n)`: the pseudo-inverses `A^+`, or `None` when the grid has
+      fewer samples than control points in that direction (or for a window/LOD view);
+      `full_rank ()`: whether both matrices have full column rank (a closed direction sampled with
+      its seam twice and too few distinct samples has not; `refit` then raises).
+    - `weights (r, s)` or `None`; `direction_u`, `direction_v`: the `SplineDirection`s.
+    - `index_u (m,)`, `index_v (n,)`: rows of the full grid this view holds.
+    """
+
+    params_u: Float[Array, " m"]
+    params_v: Float[Array, " n"]
+    a_u: Float[Array, "3 m r"]
+    a_v: Float[Array, "3 n s"]
+    refit_u: Float[Array, "r m"] | None
+    refit_v: Float[Array, "s n"] | None
+    full_rank: Array
+    weights: Float[Array, "r s"] | None
+    direction_u: SplineDirection
+    direction_v: SplineDirection
+    index_u: Int[Array, " m"]
+    index_v: Int[Array, " n"]
+
+    @classmethod
+    def from_surface(cls, surface: BSplineSurface, m: int = 82, n: int = 82, params_u=None, params_v=None):
+        """Build (once) the matrices of `surface`'s basis at an `m × n` grid (`surface.blending`)."""
+        return surface.blending(m, n, params_u, params_v)
+
+    knots_u = property(lambda self: self.direction_u.knots, doc="Knots along u (None when periodic).")
+    knots_v = property(lambda self: self.direction_v.knots, doc="Knots along v (None when periodic).")
+    degree_u = property(lambda self: self.direction_u.degree, doc="Degree k along u.")
+    degree_v = property(lambda self: self.direction_v.degree, doc="Degree l along v.")
+    periodic_u = property(lambda self: self.direction_u.periodic, doc="Closed along u.")
+    periodic_v = property(lambda self: self.direction_v.periodic, doc="Closed along v.")
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        """Sample grid `(m, n)`."""
+        return self.a_u.shape[1], self.a_v.shape[1]
+
+    @property
+    def ctrl_shape(self) -> tuple[int, int]:
+        """Control net `(r, s)`."""
+        return self.a_u.shape[2], self.a_v.shape[2]
+
+    # --- evaluation --------------------------------------------------------------------------
+    @compiled
+    def points(self, ctrl: Float[Array, "r s 3"]) -> Float[Array, "m n 3"]:
+        """Sample grid `M = A_u P A_v^T` (thesis eq. 3.6)."""
+        return self.derivative(ctrl, 0, 0)
+
+    @compiled
+    def derivative(self, ctrl: Float[Array, "r s 3"], nu: int, nv: int) -> Float[Array, "m n 3"]:
+        """The (nu, nv) partial derivative on the grid, `A_u^{(nu)} P A_v^{(nv)T}`, nu, nv ≤ 2."""
+        self._check_ctrl(ctrl)
+        if not (0 <= nu < _ORDERS and 0 <= nv < _ORDERS):
+            _checks.fail("nu, nv", f"derivative orders in 0..{_ORDERS - 1}", (nu, nv))
+        ctrl = _checks.finite(ctrl, "ctrl")
+        if self.weights is None:
+            return _tensor.grid(self.a_u[nu], ctrl, self.a_v[nv])
+        net = _tensor.homogeneous(ctrl, self.weights)
+        h = {
+            (k, l): _tensor.grid(self.a_u[k], net, self.a_v[l]) for k in range(nu + 1) for l in range(nv + 1)
+        }
+        return _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
+
+    @compiled
+    def tangents(self, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:
+        """`(T_u, T_v) = (A'_u P A_v^T, A_u P A'_v^T)`."""
+        return self.derivative(ctrl, 1, 0), self.derivative(ctrl, 0, 1)
+
+    @compiled
+    def normals(self, ctrl: Float[Array, "r s 3"]) -> Float[Array, "m n 3"]:
+        """Unit normals `T_u × T_v / |·|` on the grid; the limit normal at poles; never NaN."""
+        t_u, t_v = self.tangents(ctrl)
+        t_uv = self.derivative(ctrl, 1, 1)
+        return _tensor.unit_normal(t_u, t_v, t_uv, self.params_u[:, None], self.params_v[None, :])
+
+    # --- refit -------------------------------------------------------------------------------
+    @compiled
+    def refit(self, points: Float[Array, "m n 3"]) -> Float[Array, "r s 3"]:
+        """Least-squares control net of a point grid (thesis eq. 3.7) with the stored inverses.
+
+        Exact round trip `refit(points(P)) == P` when m ≥ r and n ≥ s. For NURBS the fit is
+        linear in homogeneous coordinates with the stored weights.
+        """
+        m, n = self.grid_shape
+        _checks.check_ndim(points, "points", 3, last=3)
+        if points.shape[:2] != (m, n):
+            _checks.fail("points", f"shape {(m, n, 3)}", points.shape)
+        if self.refit_u is None or self.refit_v is None:
+            _checks.fail(
+                "Blending.refit", _REFIT_NEEDS, f"grid {self.grid_shape} for control net {self.ctrl_shape}"
+            )
+        points = _checks.finite(points, "points")
+        points = _checks.check(
+            points, ~self.full_rank, "Blending.refit", _REFIT_NEEDS, "rank-deficient matrices"
+        )
+        if self.weights is None:
+            return _tensor.grid(self.refit_u, points, self.refit_v)
+        denom = _tensor.grid(self.a_u[0], self.weights[..., None], self.a_v[0])
+        return _tensor.grid(self.refit_u, points * denom, self.refit_v) / self.weights[..., None]
+
+    # --- views -------------------------------------------------------------------------------
+    def window(self, u_min: float, u_max: float, v_min: float, v_max: float) -> Blending:
+        """The rows and columns whose parameters lie in `[u_min, u_max] × [v_min, v_max]`
+        (host-side: the view's size depends on the values)."""
+        pu, pv = np.asarray(self.params_u), np.asarray(self.params_v)
+        rows = np.nonzero((pu >= u_min) & (pu <= u_max))[0]
+        cols = np.nonzero((pv >= v_min) & (pv <= v_max))[0]
+        if rows.size == 0 or cols.size == 0:
+            _checks.fail(
+                "window",
+                "a window containing at least one sample row and column",
+                (u_min, u_max, v_min, v_max),
+            )
+        return self._take(rows, cols)
+
+    def lod(self, q_u: int, q_v: int | None = None) -> Blending:
+        """Every `q`-th row/column (intermittent rows, a coarse level of detail); the last is kept."""
+        q_v = q_u if q_v is None else q_v
+        _checks.check_count(q_u, "q_u")
+        _checks.check_count(q_v, "q_v")
+        m, n = self.grid_shape
+        return self._take(_every(m, q_u), _every(n, q_v))
+
+    def _take(self, rows, cols) -> Blending:
+        return eqx.tree_at(
+            lambda b: (b.params_u, b.params_v, b.a_u, b.a_v, b.refit_u, b.refit_v, b.index_u, b.index_v),
+            self,
+            (
+                self.params_u[rows],
+                self.params_v[cols],
+                self.a_u[:, rows],
+                self.a_v[:, cols],
+                None,
+                None,
+                self.index_u[rows],
+                self.index_v[cols],
+            ),
+            is_leaf=lambda x: x is None,
         )
 
+    def surface(self, ctrl: Float[Array, "r s 3"]) -> BSplineSurface:
+        """The `BSplineSurface` of this basis with control net `ctrl`."""
+        return BSplineSurface.from_directions(ctrl, self.direction_u, self.direction_v, self.weights)
 
-def _check_direction(name, knots, degree, periodic, n_ctrl):
-    _checks.check_degree(degree, f"degree_{name}", n_ctrl, f"{name} ({n_ctrl})")
-    if periodic:
-        if knots is not None:
-            _checks.fail(f"knots_{name}", "None for a periodic direction (uniform closed basis)", "an array")
-        return
-    if knots is None:
-        _checks.fail(f"knots_{name}", "a knot vector for a non-periodic direction", None)
-    _checks.check_knots(knots, degree, n_ctrl, f"knots_{name}")
+    def _check_ctrl(self, ctrl) -> None:
+        if np.shape(ctrl) != (*self.ctrl_shape, 3):
+            _checks.fail("ctrl", f"shape {(*self.ctrl_shape, 3)}", np.shape(ctrl))
+
+
+_REFIT_NEEDS = (
+    "a full grid with m >= r and n >= s samples whose blending matrices have full column rank "
+    "(a closed direction samples its seam twice)"
+)
+
+
+@compiled
+def _build_blending(du: SplineDirection, dv: SplineDirection, weights, pu, pv) -> Blending:
+    pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
+    a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
+    (refit_u, ok_u), (refit_v, ok_v) = _pinv(a_u[0]), _pinv(a_v[0])
+    return Blending(
+        params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
+        full_rank=ok_u & ok_v, weights=weights, direction_u=du, direction_v=dv,
+        index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
+    )  # fmt: skip
+
+
+def _grid_params(params, count, name, count_name, dtype):
+    if params is None:
+        _checks.check_count(count, count_name, 2)
+        return jnp.linspace(0.0, 1.0, count, dtype=dtype)
+    _checks.check_real(params, name)
+    params = jnp.asarray(params, dtype=dtype)
+    _checks.check_ndim(params, name, 1)
+    return params
+
+
+def _pinv(a):
+    """`((A^T A)^{-1} A^T, full column rank)` via SVD, computed once; `(None, True)` when `A` has
+    fewer rows than columns (structural: then no refit)."""
+    if a.shape[0] < a.shape[1]:
+        return None, jnp.ones((), bool)
+    s = jnp.linalg.svd(a, compute_uv=False)
+    tol = s[0] * max(a.shape) * jnp.finfo(a.dtype).eps
+    return jnp.linalg.pinv(a), s[-1] > tol
+
+
+def _every(count: int, q: int) -> np.ndarray:
+    idx = np.arange(0, count, q)
+    return idx if idx[-1] == count - 1 else np.append(idx, count - 1)

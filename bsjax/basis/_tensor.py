@@ -1,4 +1,4 @@
-"""Tensor-product contraction, rational (NURBS) derivatives and safe unit normals.
+"""Tensor-product contraction, rational (NURBS) derivatives and the surface unit normal.
 
 Shared by `BSplineSurface` (arbitrary (u, v)) and `Blending` (grids), so the two agree exactly.
 """
@@ -8,6 +8,8 @@ from __future__ import annotations
 from math import comb
 
 import jax.numpy as jnp
+
+from bsjax._safe import norm, unit
 
 
 def homogeneous(ctrl, weights):
@@ -47,20 +49,6 @@ def rational_derivatives(h, nu: int, nv: int):
     return s
 
 
-def safe_norm(x, axis=-1, keepdims=False):
-    """Euclidean norm with a finite gradient at 0 (double where)."""
-    sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
-    ok = sq > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1)), 0)
-
-
-def unit(x, axis=-1):
-    """`x / |x|`, and 0 where `|x| = 0`; finite gradients everywhere."""
-    n = safe_norm(x, axis=axis, keepdims=True)
-    ok = n > 0
-    return jnp.where(ok, x / jnp.where(ok, n, 1), 0)
-
-
 def unit_normal(t_u, t_v, t_uv, u, v):
     """Unit normal `T_u × T_v / |T_u × T_v|`, with the limit normal at degenerate points.
 
@@ -73,7 +61,7 @@ def unit_normal(t_u, t_v, t_uv, u, v):
     n = jnp.cross(t_u, t_v)
     scale = jnp.sum(t_u * t_u, -1) + jnp.sum(t_v * t_v, -1)
     tol = jnp.sqrt(jnp.finfo(n.dtype).eps) * scale
-    degenerate = safe_norm(n) <= tol
+    degenerate = norm(n) <= tol
     pole_in_v = jnp.sum(t_v * t_v, -1) <= jnp.sum(t_u * t_u, -1)
     sign_u = jnp.where(u < 0.5, 1.0, -1.0)[..., None]
     sign_v = jnp.where(v < 0.5, 1.0, -1.0)[..., None]

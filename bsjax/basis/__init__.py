@@ -1,0 +1,37 @@
+"""Knots, spline directions, basis functions, blending matrices, surfaces and their refits
+(thesis ch. 3, SPEC §2).
+
+A blending matrix holds every basis function (or its derivative) of one direction at a list of
+parameters, `A[a, i] = B_{i,k}(u_a)` (thesis eq. 3.6); a surface sampled on a grid is then
+`M = A_u P A_v^T`, and the least-squares control net of a grid `P = A_u^+ M A_v^{+T}` (eq. 3.7).
+"""
+
+from bsjax.basis._direction import SplineDirection as SplineDirection
+from bsjax.basis._functions import basis_functions as basis_functions
+from bsjax.basis._functions import blending_matrix as blending_matrix
+from bsjax.basis._functions import fold_periodic as fold_periodic
+from bsjax.basis._functions import periodic_blending_matrix as periodic_blending_matrix
+from bsjax.basis._knots import clamped_knots as clamped_knots
+from bsjax.basis._knots import greville as greville
+from bsjax.basis._knots import periodic_knots as periodic_knots
+from bsjax.basis._refine import elevate_degree as elevate_degree
+from bsjax.basis._refine import insert_knots as insert_knots
+from bsjax.basis._refine import reduce_degree as reduce_degree
+from bsjax.basis._surface import Blending as Blending
+from bsjax.basis._surface import BSplineSurface as BSplineSurface
+
+__all__ = [
+    "BSplineSurface",
+    "Blending",
+    "SplineDirection",
+    "basis_functions",
+    "blending_matrix",
+    "clamped_knots",
+    "elevate_degree",
+    "fold_periodic",
+    "greville",
+    "insert_knots",
+    "periodic_blending_matrix",
+    "periodic_knots",
+    "reduce_degree",
+]

@@ -1,0 +1,68 @@
+"""Knot vectors on [0, 1]: clamped uniform, the unclamped uniform vector behind the periodic
+basis (thesis eq. 3.3), and Greville abscissae (The NURBS Book eq. 9.8)."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from bsjax import _checks
+
+
+def float_dtype(*xs):
+    """The floating dtype to work in: that of the inputs, else JAX's default float.
+
+    Complex inputs are refused (they would be truncated to their real part)."""
+    for i, x in enumerate(xs):
+        if x is not None and np.iscomplexobj(x):
+            raise TypeError(f"argument {i}: expected real numbers, got complex dtype {np.asarray(x).dtype}")
+    given = [np.asarray(x) if isinstance(x, (list, tuple)) else x for x in xs if x is not None]
+    dtype = jnp.result_type(*given) if given else None
+    if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
+        dtype = jnp.result_type(float)
+    return dtype
+
+
+def _check_dtype(dtype, name: str = "dtype"):
+    if dtype is not None and not jnp.issubdtype(dtype, jnp.floating):
+        _checks.fail(name, "a floating dtype (float32 or float64)", jnp.dtype(dtype).name)
+
+
+def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " n_ctrl+degree+1"]:
+    """Clamped (open) uniform knot vector on [0, 1].
+
+    **Arguments:**
+    - `n_ctrl`: number of control points, > `degree`.
+    - `degree`: polynomial degree k ≥ 1.
+    - `dtype`: a floating dtype (default: JAX's default float).
+
+    **Returns:** `[0]*(k+1) + uniform interior + [1]*(k+1)`, length `n_ctrl + degree + 1`.
+    """
+    _checks.check_count(n_ctrl, "n_ctrl", 2)
+    _checks.check_degree(degree, "degree", n_ctrl, "this direction")
+    _check_dtype(dtype)
+    interior = np.linspace(0.0, 1.0, n_ctrl - degree + 1)[1:-1]
+    knots = np.concatenate([np.zeros(degree + 1), interior, np.ones(degree + 1)])
+    return jnp.asarray(knots, dtype=dtype or float_dtype())
+
+
+def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " n_ctrl+2*degree+1"]:
+    """The unclamped uniform knot vector behind the periodic basis: `(j − k) / n`, j = 0…n+2k.
+
+    Its `n_ctrl + degree` basis functions cover the domain `[t_k, t_{n+k}] = [0, 1]`; the last
+    `degree` of them are the first `degree` again (wrapped), which is thesis eq. 3.3.
+    """
+    _checks.check_count(n_ctrl, "n_ctrl", 2)
+    _checks.check_degree(degree, "degree", n_ctrl, "the periodic direction")
+    _check_dtype(dtype)
+    j = np.arange(n_ctrl + 2 * degree + 1)
+    return jnp.asarray((j - degree) / n_ctrl, dtype=dtype or float_dtype())
+
+
+def greville(knots: ArrayLike, degree: int) -> np.ndarray:
+    """Greville abscissae `(t_{i+1} + … + t_{i+k}) / k` (The NURBS Book eq. 9.8), one per control
+    point; host-side (numpy), for planning fits."""
+    t = np.asarray(knots, dtype=np.float64)
+    n_ctrl = len(t) - degree - 1
+    return np.array([t[i + 1 : i + degree + 1].mean() for i in range(n_ctrl)])
