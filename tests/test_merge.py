@@ -221,7 +221,7 @@ def test_merge_auto_orientation(surface):
 
 
 def test_oriented_edges_match_evaluation(surface):
-    edges = _orient._edges(surface, count=S, samples=(S, S))
+    edges = _orient._edges(surface, count=S)
     t = np.linspace(0.0, 1.0, S)
     for op in _orient.ALL:
         s = _orient.orient_surface(surface, op)
@@ -315,7 +315,7 @@ def test_reduction_error(surface):
     assert float(exact.reduction_error[0, 0]) == 0.0 and float(exact.reduction_error[1, 0]) < 1e-9
     rng = np.random.default_rng(4)
     quartic = random_surface(rng, 7, 6, 4, 3)
-    quartic = quartic.with_ctrl(quartic.ctrl + jnp.array([1.0, 0.0, 0.0]))
+    quartic = quartic.with_ctrl(quartic.ctrl + jnp.array([1.0, 0.0, 0.0])[None, None])
     layout = mg.plan([a, quartic], "u", 2, samples=S, degrees="reduce", orient="as_given")
     err = float(layout.reduction_error[1, 0])
     reduced, _ = reduce_degree(quartic, "u", 1)
@@ -375,7 +375,7 @@ def test_thesis_case6_degrees():
     rng = np.random.default_rng(3)
     a = random_surface(rng, 6, 6, 3, 3)
     b = random_surface(rng, 8, 12, 4, 5)
-    b = b.with_ctrl(b.ctrl + jnp.array([0.0, 1.0, 0.0]))
+    b = b.with_ctrl(b.ctrl + jnp.array([0.0, 1.0, 0.0])[None, None])
     # the merged basis (no matrices needed): elevation raises every knot's multiplicity,
     # 6 ctrl over 3 spans → 6 + 3·d
     k, l, ku, kv = mg.merged_knots([[a, b]], (0, 2), degrees="elevate")
@@ -436,7 +436,7 @@ def test_deviation_closed_form_and_brute_force():
     brute-force nearest point over a dense scipy sampling of the merged surface."""
     a, b = _plate(0.0, 1.0, 5, 5), _plate(1.0, 2.0, 7, 6)
     flat = mg.merge([a, b], "u", 2, samples=S)
-    lifted = a.with_ctrl(a.ctrl + jnp.array([0.0, 0.0, 0.3]))
+    lifted = a.with_ctrl(a.ctrl + jnp.array([0.0, 0.0, 0.3])[None, None])
     report = mg.deviation([lifted], flat, samples=12, tolerance=0.25)
     np.testing.assert_allclose(report.distances[0], 0.3, atol=1e-12)
     assert (report.n_points, report.n_within, report.std) == (144, 0, pytest.approx(0.0, abs=1e-12))

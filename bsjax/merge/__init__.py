@@ -21,20 +21,47 @@ seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made unif
 * `refit(layout, ctrls, RefitSolver())` → `RefitSolution` (net, corrected parameters, RMS
   history, status): nonlinear refit with parameter correction (beyond the thesis);
   `refine(layout, ctrls)` / `merge(..., refine=True)` give its net.
+
+Every function that computes is compiled at the boundary (`bsjax._boundary.compiled`). The
+host-side plan (knot vectors, layout, blending matrices and their pseudo-inverses) is cached by
+its static key — the patches' bases (degrees, periodicity, knot and weight values), orientations,
+sample counts, trims and options — so a repeated `merge(...)` with the same bases only runs the
+compiled apply. `clear_cache()` empties it (so does `bsjax._boundary.clear_caches()`);
+`cache_info()` counts builds and reuses.
 """
 
-from __future__ import annotations
-
-from collections.abc import Sequence
-
-from bsjax.basis import BSplineSurface
-from bsjax.merge._deviation import Deviation, closest_parameters, deviation, plot_deviation
-from bsjax.merge._knots import average_knots, combine_knots, cross_knots, merge_knots
-from bsjax.merge._layout import MergeLayout, common_degree, grid_orientations, merged_knots, plan, plan_grid
-from bsjax.merge._nonlinear import RefitSolution, RefitSolver, refine, refit
-from bsjax.merge._orient import orient_grid, orient_row, orient_surface
-from bsjax.merge._overlap import contact_masks, grid_overlap_windows, overlap_trims
-from bsjax.merge._project import Projection, ProjectionSolver, closest_points, project
+from bsjax.merge._deviation import Deviation as Deviation
+from bsjax.merge._deviation import closest_parameters as closest_parameters
+from bsjax.merge._deviation import deviation as deviation
+from bsjax.merge._deviation import plot_deviation as plot_deviation
+from bsjax.merge._knots import average_knots as average_knots
+from bsjax.merge._knots import combine_knots as combine_knots
+from bsjax.merge._knots import cross_knots as cross_knots
+from bsjax.merge._knots import merge_knots as merge_knots
+from bsjax.merge._layout import MergeLayout as MergeLayout
+from bsjax.merge._layout import cache_info as cache_info
+from bsjax.merge._layout import clear_cache as clear_cache
+from bsjax.merge._layout import common_degree as common_degree
+from bsjax.merge._layout import grid_orientations as grid_orientations
+from bsjax.merge._layout import merge as merge
+from bsjax.merge._layout import merge_grid as merge_grid
+from bsjax.merge._layout import merged_knots as merged_knots
+from bsjax.merge._layout import plan as plan
+from bsjax.merge._layout import plan_grid as plan_grid
+from bsjax.merge._nonlinear import RefitSolution as RefitSolution
+from bsjax.merge._nonlinear import RefitSolver as RefitSolver
+from bsjax.merge._nonlinear import refine as refine
+from bsjax.merge._nonlinear import refit as refit
+from bsjax.merge._orient import orient_grid as orient_grid
+from bsjax.merge._orient import orient_row as orient_row
+from bsjax.merge._orient import orient_surface as orient_surface
+from bsjax.merge._overlap import contact_masks as contact_masks
+from bsjax.merge._overlap import grid_overlap_windows as grid_overlap_windows
+from bsjax.merge._overlap import overlap_trims as overlap_trims
+from bsjax.merge._project import Projection as Projection
+from bsjax.merge._project import ProjectionSolver as ProjectionSolver
+from bsjax.merge._project import closest_points as closest_points
+from bsjax.merge._project import project as project
 
 __all__ = [
     "Deviation",
@@ -44,6 +71,8 @@ __all__ = [
     "RefitSolution",
     "RefitSolver",
     "average_knots",
+    "cache_info",
+    "clear_cache",
     "closest_parameters",
     "closest_points",
     "combine_knots",
@@ -68,80 +97,3 @@ __all__ = [
     "refine",
     "refit",
 ]
-
-
-def _finish(layout: MergeLayout, ctrls, refine_fit: bool) -> BSplineSurface:
-    ctrl = refine(layout, ctrls) if refine_fit else layout.apply(ctrls)
-    return layout.surface(ctrl)
-
-
-def merge(
-    surfaces: Sequence[BSplineSurface],
-    direction: str = "u",
-    continuity: int = 2,
-    *,
-    samples=82,
-    cross_knots: str = "average",
-    degrees=None,
-    orient="auto",
-    trim=None,
-    overlap: str = "keep",
-    overlap_method: str = "collide",
-    refine: bool = False,
-) -> BSplineSurface:
-    """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
-
-    **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
-    `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`, `overlap`
-    = "keep"/"drop", `overlap_method`), plus `refine`: also run the nonlinear refit with
-    parameter correction (`refit`).
-
-    **Returns:** the merged surface: degree `(k, l)`, `r = Σ r_i − (N − 1)` control points along
-    the merge direction (more or fewer after a degree change), the largest count across.
-    """
-    surfaces = list(surfaces)
-    layout = plan(
-        surfaces,
-        direction,
-        continuity,
-        samples=samples,
-        cross_knots=cross_knots,
-        degrees=degrees,
-        orient=orient,
-        trim=trim,
-        overlap=overlap,
-        overlap_method=overlap_method,
-    )
-    return _finish(layout, [s.ctrl for s in surfaces], refine)
-
-
-def merge_grid(
-    rows: Sequence[Sequence[BSplineSurface]],
-    continuity=2,
-    *,
-    samples=82,
-    degrees=None,
-    orient="auto",
-    trim=None,
-    overlap: str = "keep",
-    overlap_method: str = "collide",
-    refine: bool = False,
-) -> BSplineSurface:
-    """Merge a grid of patches (`rows[i][j]`, rows stacked along u) into one surface (§4.4.3).
-
-    **Arguments:** as `plan_grid` (`continuity` one int or `(c_u, c_v)`, `samples`, `degrees`,
-    `orient` = "auto"/"as_given"/explicit rows, `trim` = rows of `(u0, u1, v0, v1)`, `overlap`,
-    `overlap_method`), plus `refine` as for `merge`.
-    """
-    rows = [list(r) for r in rows]
-    layout = plan_grid(
-        rows,
-        continuity,
-        samples=samples,
-        degrees=degrees,
-        orient=orient,
-        trim=trim,
-        overlap=overlap,
-        overlap_method=overlap_method,
-    )
-    return _finish(layout, [[s.ctrl for s in row] for row in rows], refine)

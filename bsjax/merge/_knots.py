@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import jax
 import numpy as np
 
 from bsjax import _checks
@@ -16,10 +17,21 @@ from bsjax.basis import clamped_knots
 CROSS_MODES = ("average", "uniform")
 
 
+def _host(knots, name: str) -> np.ndarray:
+    """A concrete knot vector as float64 NumPy (knot vectors fix array sizes: planned on the host)."""
+    if isinstance(knots, jax.core.Tracer):
+        raise TypeError(
+            f"{name}: expected a concrete knot vector (knot rules are planned on the host, outside "
+            "jit), got a traced array"
+        )
+    _checks.check_real(knots, name)
+    return np.asarray(knots, dtype=np.float64)
+
+
 def _as_knots(knots, degree: int, name: str) -> np.ndarray:
-    t = np.asarray(knots, dtype=np.float64)
+    t = _host(knots, name)
     _checks.check_ndim(t, name, 1)
-    _checks.check_knots(t, degree, len(t) - degree - 1, name)
+    _checks.clamped_knots(t, degree, len(t) - degree - 1, name)
     return t
 
 
@@ -108,17 +120,12 @@ def average_knots(knots_a, knots_b) -> np.ndarray:
 
     `U = (U1 + U2) / 2`, used across the merge direction so neither patch's knots dominate.
     """
-    a = np.asarray(knots_a, dtype=np.float64)
-    b = np.asarray(knots_b, dtype=np.float64)
+    a, b = _host(knots_a, "knots_a"), _host(knots_b, "knots_b")
     _checks.check_ndim(a, "knots_a", 1)
     _checks.check_ndim(b, "knots_b", 1)
     if a.shape != b.shape:
         _checks.fail("knots_b", f"the length of knots_a ({len(a)})", len(b))
-    _checks.check_finite(a, "knots_a")
-    _checks.check_finite(b, "knots_b")
-    for name, t in (("knots_a", a), ("knots_b", b)):
-        if np.any(np.diff(t) < 0):
-            _checks.fail(name, "a non-decreasing knot vector", t.tolist())
+    a, b = _checks.monotone(a, "knots_a"), _checks.monotone(b, "knots_b")
     return 0.5 * (a + b)
 
 
@@ -134,7 +141,7 @@ def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "aver
         _checks.fail("cross_knots", f"one of {CROSS_MODES}", repr(mode))
     if mode == "uniform":
         return np.asarray(clamped_knots(n_ctrl, degree, np.float64))
-    ts = [np.asarray(t, dtype=np.float64) for t in knot_list]
+    ts = [_host(t, f"knot_list[{i}]") for i, t in enumerate(knot_list)]
     full = [t for t in ts if len(t) == n_ctrl + degree + 1]
     if len(full) == len(ts):
         return np.mean(np.stack(full), axis=0)
@@ -148,7 +155,7 @@ def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "aver
 
 def window_knots(knots, degree: int, lo: float, hi: float) -> np.ndarray:
     """Knots of the part `[lo, hi]` of a patch, rescaled to [0, 1] (kept region of a trimmed patch)."""
-    t = np.asarray(knots, dtype=np.float64)
+    t = _host(knots, "knots")
     inner = _interior(t, degree)
     inner = inner[(inner > lo) & (inner < hi)]
     return np.concatenate([np.zeros(degree + 1), (inner - lo) / (hi - lo), np.ones(degree + 1)])

@@ -4,22 +4,34 @@ point grids, and refit one control net with the revised blending matrices (eq. 3
 Everything that depends only on the layout — orientations, common degrees, knot vectors, sample
 parameters, the per-patch blending matrices and the merged surface's pseudo-inverses — is decided
 once by `plan`/`plan_grid` into a `MergeLayout`. `MergeLayout.apply` is then two small matrix
-products per patch plus one refit: jittable, and differentiable in the input control nets.
+products per patch plus one refit: compiled, jittable, and differentiable in the input nets.
+
+The plan is host-side work (knot vectors decide array sizes), so it is **cached** by its static
+key (`_cache.py`): the bases of the patches (degrees, periodicity, the knot vectors' and weights'
+values), the resolved orientations, sample counts, trims and options. A repeated `plan` or
+`merge` with the same bases reuses the layout — its blending matrices and pseudo-inverses — and
+only the compiled `apply` runs. What depends on control-point values is never cached under a key
+of bases alone: `orient="auto"` is decided from the nets' edges at every call (one compiled
+evaluation of the edges) and becomes part of the key; `overlap="drop"` keys its trims by the
+nets' values too; `degrees="reduce"` recomputes `reduction_error` at every call.
+`bsjax.merge.clear_cache()` (and `bsjax._boundary.clear_caches()`) empties the cache.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import _checks
-from bsjax._blending import Blending
-from bsjax.basis import BSplineSurface, reduce_degree
-from bsjax.merge import _knots, _orient, _overlap
+from bsjax import _boundary, _checks
+from bsjax._boundary import compiled
+from bsjax.basis import Blending, BSplineSurface, SplineDirection, reduce_degree
+from bsjax.merge import _knots, _nonlinear, _orient, _overlap
 
 DEGREE_POLICIES = (None, "elevate", "reduce")
 
@@ -64,25 +76,38 @@ class MergeLayout(eqx.Module):
             )
         return rows
 
+    @compiled
     def points(self, ctrls) -> Float[Array, "m n 3"]:
         """Combined sample grid `M = [M_11 M_12 …; M_21 …]`, `M_ij = A_u^ij P^ij A_v^ijT` (§4.3.1).
 
-        `ctrls`: the input control nets as given to `plan` (a list) or `plan_grid` (rows).
+        `ctrls`: the input control nets as given to `plan` (a list) or `plan_grid` (rows), each
+        `(r_ij, s_ij, 3)` and finite. Compiled once per layout shape.
         """
         rows = self._rows(ctrls)
-        blocks = [
-            jnp.concatenate(
-                [b.points(_orient.orient_ctrl(jnp.asarray(c), op)) for b, c, op in zip(brow, crow, orow)],
-                axis=1,
-            )
-            for brow, crow, orow in zip(self.patches, rows, self.orientations)
-        ]
+        blocks = []
+        for i, (brow, crow, orow) in enumerate(zip(self.patches, rows, self.orientations)):
+            grids = []
+            for j, (b, c, op) in enumerate(zip(brow, crow, orow)):
+                name = f"ctrls[{i * len(brow) + j}]" if self.flat else f"ctrls[{i}][{j}]"
+                c = jnp.asarray(c)
+                _checks.check_real(c, name)
+                expected = b.ctrl_shape[::-1] if op[0] else b.ctrl_shape
+                if c.shape != (*expected, 3):
+                    _checks.fail(name, f"shape {(*expected, 3)}", c.shape)
+                c = _checks.finite(c, name)
+                grids.append(b.points(_orient.orient_ctrl(c, op)))
+            blocks.append(jnp.concatenate(grids, axis=1))
         return jnp.concatenate(blocks, axis=0)
 
+    @compiled
     def apply(self, ctrls) -> Float[Array, "r s 3"]:
-        """Merged control net `P = A_u^+ M (A_v^+)^T` (thesis eq. 3.7) with the stored factors."""
+        """Merged control net `P = A_u^+ M (A_v^+)^T` (thesis eq. 3.7) with the stored factors.
+
+        `ctrls` as for `points`. Compiled once per layout shape (a direct call is one XLA call).
+        """
         return self.merged.refit(self.points(ctrls))
 
+    @compiled
     def surface(self, ctrl: Float[Array, "r s 3"]) -> BSplineSurface:
         """The merged `BSplineSurface` with control net `ctrl` (e.g. from `apply`)."""
         return self.merged.surface(ctrl)
@@ -258,6 +283,12 @@ def merged_knots(oriented, continuity=2, *, cross="average", degrees=None, windo
     return k, l, knots_u, knots_v
 
 
+def _merged_blending(du: SplineDirection, dv: SplineDirection, pu, pv) -> Blending:
+    """The merged basis's `Blending` at the stacked sample parameters (with its refit factors)."""
+    zeros = jnp.zeros((du.n_ctrl, dv.n_ctrl, 3), pu.dtype)
+    return BSplineSurface.from_directions(zeros, du, dv).blending(params_u=pu, params_v=pv)
+
+
 def build_layout(
     grid,
     continuity=2,
@@ -270,7 +301,8 @@ def build_layout(
     direction="u",
     flat=False,
 ) -> MergeLayout:
-    """Plan the merge of an `R × C` grid of (already oriented) patches; see `plan`."""
+    """Plan the merge of an `R × C` grid of patches (not cached; see `plan`). The layout's
+    `reduction_error` is zero here: it depends on the control nets (`plan` fills it in)."""
     R, C = len(grid), len(grid[0])
     ops = orientations or [[_orient.IDENTITY] * C for _ in range(R)]
     oriented = [[_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(grid, ops)]
@@ -302,30 +334,169 @@ def build_layout(
         for c in range(C):
             if blends[r][c].grid_shape != (blends[r][0].grid_shape[0], blends[0][c].grid_shape[1]):
                 _checks.fail("trim", "the same kept rows for patches side by side", f"patch ({r}, {c})")
-    r_ctrl, s_ctrl = len(knots_u) - k - 1, len(knots_v) - l - 1
-    if len(pu) < r_ctrl or len(pv) < s_ctrl:
+    du = SplineDirection(knots_u, k, name="knots_u", dtype=dtype)
+    dv = SplineDirection(knots_v, l, name="knots_v", dtype=dtype)
+    if len(pu) < du.n_ctrl or len(pv) < dv.n_ctrl:
         _checks.fail(
             "samples",
-            f"at least {r_ctrl} × {s_ctrl} samples in all for the merged net",
+            f"at least {du.n_ctrl} × {dv.n_ctrl} samples in all for the merged net",
             f"{len(pu)} × {len(pv)}",
         )
-    dummy = BSplineSurface(
-        jnp.zeros((r_ctrl, s_ctrl, 3), dtype), knots_u.astype(dtype), knots_v.astype(dtype), k, l
-    )
-    merged = dummy.blending(params_u=pu.astype(dtype), params_v=pv.astype(dtype))
-    errors = jnp.asarray(
-        [[reduction_error(s, b, k, l) for s, b in zip(srow, brow)] for srow, brow in zip(oriented, blends)],
-        dtype,
-    )
+    merged = _merged_blending(du, dv, jnp.asarray(pu, dtype), jnp.asarray(pv, dtype))
     return MergeLayout(
         patches=tuple(tuple(row) for row in blends),
         merged=merged,
-        reduction_error=errors,
+        reduction_error=jnp.zeros((R, C), dtype),
         orientations=tuple(tuple(row) for row in ops),
         flat=flat,
     )
 
 
+# --- the plan cache ---------------------------------------------------------------------------
+class _PlanCache:
+    """Layouts (and overlap trims) by their static key, least recently used dropped first."""
+
+    size = 128
+
+    def __init__(self):
+        self.layouts: OrderedDict = OrderedDict()
+        self.trims: OrderedDict = OrderedDict()
+        self.builds = self.hits = 0
+
+    def get(self, store: OrderedDict, key, build):
+        if key in store:
+            store.move_to_end(key)
+            self.hits += store is self.layouts
+            return store[key]
+        # host planning: evaluate now even when called while a caller's jit is tracing, so the
+        # cache never holds a tracer
+        with jax.core.eval_context():
+            value = build()
+        self.builds += store is self.layouts
+        store[key] = value
+        if len(store) > self.size:
+            store.popitem(last=False)
+        return value
+
+    def clear_cache(self) -> None:
+        self.layouts.clear()
+        self.trims.clear()
+        self.builds = self.hits = 0
+
+
+_CACHE = _PlanCache()
+_boundary._registry.add(_CACHE)  # bsjax._boundary.clear_caches() clears it with the compiled calls
+
+
+def clear_cache() -> None:
+    """Forget every cached merge layout and overlap trim (`plan`'s cache; the compiled entry
+    points are cleared by `bsjax._boundary.clear_caches()`, which also calls this)."""
+    _CACHE.clear_cache()
+
+
+def cache_info() -> dict:
+    """`{"layouts": cached layouts, "trims": cached overlap trims, "builds": layouts built,
+    "hits": layouts reused}` since the last `clear_cache()`."""
+    return {
+        "layouts": len(_CACHE.layouts),
+        "trims": len(_CACHE.trims),
+        "builds": _CACHE.builds,
+        "hits": _CACHE.hits,
+    }
+
+
+def _concrete(x, name: str, why: str):
+    if isinstance(x, jax.core.Tracer):
+        raise TypeError(f"{name}: expected concrete values ({why}), got a traced array")
+    return x
+
+
+_AUTO = "orient='auto' reads the edges of the nets; inside jit pass 'as_given' or explicit orientations"
+_HOST = "a merge is planned on the host: call plan/merge outside jit, layout.apply inside"
+
+
+def _bytes(x, name):
+    if x is None:
+        return None
+    return str(x.dtype), np.asarray(_concrete(x, name, _HOST)).tobytes()
+
+
+def basis_key(s: BSplineSurface, name: str) -> tuple:
+    """The static key of a patch's basis: net size, dtype, degrees, periodicity, and the values
+    of its knot vectors and weights (as bytes: equal values, equal key)."""
+    return (
+        s.shape,
+        str(s.ctrl.dtype),
+        s.degree_u,
+        s.degree_v,
+        s.periodic_u,
+        s.periodic_v,
+        _bytes(s.knots_u, f"{name}.knots_u"),
+        _bytes(s.knots_v, f"{name}.knots_v"),
+        _bytes(s.weights, f"{name}.weights"),
+    )
+
+
+def _require_concrete(surfaces, names, why):
+    for s, n in zip(surfaces, names):
+        _concrete(s.ctrl, f"{n}.ctrl", why)
+
+
+def _values_key(surfaces, names, why):
+    return tuple(np.asarray(_concrete(s.ctrl, f"{n}.ctrl", why)).tobytes() for s, n in zip(surfaces, names))
+
+
+def _freeze(x):
+    """Lists → tuples, floats kept: a hashable key part."""
+    if isinstance(x, (list, tuple)):
+        return tuple(_freeze(v) for v in x)
+    return float(x) if isinstance(x, (float, np.floating)) else x
+
+
+def _with_reduction_error(layout: MergeLayout, grid, ops) -> MergeLayout:
+    """`layout` with each patch's loss from lowering its degrees (depends on the nets: per call)."""
+    k, l = layout.merged.degree_u, layout.merged.degree_v
+    with jax.core.eval_context():
+        errors = jnp.asarray(
+            [
+                [
+                    reduction_error(_orient.orient_surface(s, op), b, k, l)
+                    for s, op, b in zip(srow, orow, brow)
+                ]
+                for srow, orow, brow in zip(grid, ops, layout.patches)
+            ],
+            layout.reduction_error.dtype,
+        )
+    return eqx.tree_at(lambda lay: lay.reduction_error, layout, errors)
+
+
+def _seam_degrees(surfaces, ops, direction: str, degrees):
+    """Common degree of the oriented patches along `direction` (structure only)."""
+    along = [
+        (s.degree_v if op[0] else s.degree_u) if direction == "u" else (s.degree_u if op[0] else s.degree_v)
+        for s, op in zip(surfaces, ops)
+    ]
+    if degrees is None:
+        return along[0] if len(set(along)) == 1 else None
+    return min(along) if degrees == "reduce" else max(along)
+
+
+def _check_seams(continuity, surfaces, ops, direction, degrees, seams: int):
+    """Continuity at each seam `0 ≤ c < degree` (structure: checked before any planning)."""
+    if degrees not in DEGREE_POLICIES:
+        _checks.fail("degrees", f"one of {DEGREE_POLICIES}", repr(degrees))
+    k = _seam_degrees(surfaces, ops, direction, degrees)
+    cs = list(continuity) if isinstance(continuity, (tuple, list)) else [continuity] * seams
+    if len(cs) != seams:
+        _checks.fail("continuity", f"one int or {seams} ints (one per seam)", len(cs))
+    for c in cs:
+        if k is None:
+            _knots._check_continuity(c, 10**9)  # the type; degrees are refused later
+        else:
+            _knots._check_continuity(c, k)
+
+
+# --- plan ---------------------------------------------------------------------------------------
 def plan(
     surfaces: Sequence[BSplineSurface],
     direction: str = "u",
@@ -349,9 +520,9 @@ def plan(
     - `cross_knots`: `"average"` (§6.3.1.3; the merged knot set when counts differ) or
       `"uniform"` (§4.3.3) for the other direction.
     - `degrees`: `None` (degrees must agree), `"elevate"` or `"reduce"` (§4.4.2).
-    - `orient`: `"auto"` finds which edges meet and flips/transposes patches to match;
-      `"as_given"` trusts that patch i's `direction = 1` edge meets patch i+1's `= 0` edge; or
-      one `(transpose, flip_u, flip_v)` per patch.
+    - `orient`: `"auto"` finds which edges meet and flips/transposes patches to match (read from
+      the nets' edges at every call); `"as_given"` trusts that patch i's `direction = 1` edge
+      meets patch i+1's `= 0` edge; or one `(transpose, flip_u, flip_v)` per patch.
     - `trim`: per patch `None` or `(lo, hi)`: keep only the sample rows with parameter in
       `[lo, hi]` along `direction` (trimmed or intersecting patches, §4.4.1), in the parameters
       of the patch as oriented.
@@ -361,51 +532,77 @@ def plan(
       test between the sample grids).
 
     **Returns:** a `MergeLayout`; `layout.apply([P1, P2, …])` gives the merged control net.
+
+    **Cache:** the layout is cached by the patches' bases (degrees, periodicity, knot and weight
+    values), the resolved orientations, `samples`, `trim` and the options, so a second call with
+    the same bases returns the same layout without building anything. With `overlap="drop"` the
+    trims depend on the nets: they are cached by the nets' exact values (a changed net finds its
+    overlap again). `clear_cache()` empties the cache; `cache_info()` counts builds and hits.
     """
     if direction not in ("u", "v"):
         _checks.fail("direction", "'u' or 'v'", repr(direction))
     surfaces = list(surfaces)
     if len(surfaces) < 2:
         _checks.fail("surfaces", "a list of 2 or more patches", len(surfaces))
-    for i, s in enumerate(surfaces):
-        _check_patch(s, f"surfaces[{i}]")
+    names = [f"surfaces[{i}]" for i in range(len(surfaces))]
+    for s, name in zip(surfaces, names):
+        _check_patch(s, name)
+    m, n = _samples(samples)
+    drop = _drop_overlap(overlap, trim, overlap_method)
     if isinstance(orient, str):
         _check_orient_mode(orient)
-        ops = (
-            _orient.orient_row(surfaces, direction, _samples(samples))
-            if orient == "auto"
-            else [_orient.IDENTITY] * len(surfaces)
-        )
+        if orient == "auto":
+            _require_concrete(surfaces, names, _AUTO)
+            ops = _orient.orient_row(surfaces, direction)
+        else:
+            ops = [_orient.IDENTITY] * len(surfaces)
     else:
         ops = _explicit_orientations([orient], 1, len(surfaces))[0]
-    if _drop_overlap(overlap, trim):
-        m, n = _samples(samples)
-        oriented = [_orient.orient_surface(s, op) for s, op in zip(surfaces, ops)]
-        trim = _overlap.overlap_trims(
-            oriented, direction, m if direction == "u" else n, method=overlap_method
+    _check_seams(continuity, surfaces, ops, direction, degrees, len(surfaces) - 1)
+    bases = tuple(basis_key(s, name) for s, name in zip(surfaces, names))
+    if drop:
+        values = _values_key(surfaces, names, "overlap='drop' finds the overlap from the nets")
+        count = m if direction == "u" else n
+        trim = _CACHE.get(
+            _CACHE.trims,
+            ("row", bases, values, tuple(ops), direction, count, overlap_method),
+            lambda: _overlap.overlap_trims(
+                [_orient.orient_surface(s, op) for s, op in zip(surfaces, ops)],
+                direction,
+                count,
+                method=overlap_method,
+            ),
         )
     grid = [[s] for s in surfaces] if direction == "u" else [surfaces]
     ogrid = [[op] for op in ops] if direction == "u" else [ops]
     cont = list(continuity) if isinstance(continuity, (tuple, list)) else continuity
     cont = (cont, 0) if direction == "u" else (0, cont)
-    return build_layout(
-        grid,
-        cont,
-        samples=samples,
-        cross=cross_knots,
-        degrees=degrees,
-        orientations=ogrid,
-        trim=trim,
-        direction=direction,
-        flat=True,
+    key = ("row", bases, direction, _freeze(cont), (m, n), cross_knots, degrees, tuple(ops), _freeze(trim))
+    layout = _CACHE.get(
+        _CACHE.layouts,
+        key,
+        lambda: build_layout(
+            grid,
+            cont,
+            samples=(m, n),
+            cross=cross_knots,
+            degrees=degrees,
+            orientations=ogrid,
+            trim=trim,
+            direction=direction,
+            flat=True,
+        ),
     )
+    return _with_reduction_error(layout, grid, ogrid) if degrees == "reduce" else layout
 
 
-def _drop_overlap(overlap, trim) -> bool:
+def _drop_overlap(overlap, trim, method) -> bool:
     if overlap not in ("keep", "drop"):
         _checks.fail("overlap", "'keep' or 'drop'", repr(overlap))
     if overlap == "drop" and trim is not None:
         _checks.fail("trim", "None when overlap='drop' (the trims are computed)", trim)
+    if method not in ("collide", "dense"):
+        _checks.fail("overlap_method", "'collide' or 'dense'", repr(method))
     return overlap == "drop"
 
 
@@ -435,14 +632,19 @@ def _explicit_orientations(orient, R: int, C: int):
 
 
 def grid_orientations(rows, orient="auto", samples=82):
-    """Orientations of a grid of patches: `"auto"` (`_orient.orient_grid`), `"as_given"`, or
-    explicit rows of `(transpose, flip_u, flip_v)` (validated)."""
+    """Orientations of a grid of patches: `"auto"` (`_orient.orient_grid`, from the nets'
+    edges), `"as_given"`, or explicit rows of `(transpose, flip_u, flip_v)` (validated).
+    `samples` is accepted for compatibility (the edges are evaluated exactly)."""
+    del samples
     R, C = len(rows), len(rows[0])
     if isinstance(orient, str):
         _check_orient_mode(orient)
         if orient == "as_given":
             return [[_orient.IDENTITY] * C for _ in range(R)]
-        return _orient.orient_grid(rows, _samples(samples))
+        names = [f"rows[{i}][{j}]" for i in range(R) for j in range(C)]
+        flat = [s for row in rows for s in row]
+        _require_concrete(flat, names, _AUTO)
+        return _orient.orient_grid(rows)
     return _explicit_orientations(orient, R, C)
 
 
@@ -468,7 +670,7 @@ def plan_grid(
     one v-window per column. `overlap="drop"`: leave out the rows/columns where neighbours
     intersect (`grid_overlap_windows`; not with `trim`), found by `overlap_method`.
     **Returns:** a `MergeLayout`; `layout.apply(rows_of_ctrl)` takes the control nets as given
-    (the orientations are applied inside).
+    (the orientations are applied inside). Cached like `plan`'s layouts.
     """
     rows = [list(r) for r in rows]
     if not rows or not rows[0]:
@@ -477,24 +679,132 @@ def plan_grid(
         _checks.fail(
             "rows", f"rows of equal length {len(rows[0])} (a rectangular grid)", [len(r) for r in rows]
         )
-    if len(rows) * len(rows[0]) < 2:
+    R, C = len(rows), len(rows[0])
+    if R * C < 2:
         _checks.fail("rows", "at least 2 patches", 1)
-    for i, row in enumerate(rows):
-        for j, s in enumerate(row):
-            _check_patch(s, f"rows[{i}][{j}]")
-    ops = grid_orientations(rows, orient, samples)
-    if _drop_overlap(overlap, trim):
-        oriented = [
-            [_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(rows, ops)
-        ]
-        trim = _overlap.grid_overlap_windows(oriented, _samples(samples), method=overlap_method)
-    return build_layout(
+    names = [[f"rows[{i}][{j}]" for j in range(C)] for i in range(R)]
+    for row, nrow in zip(rows, names):
+        for s, name in zip(row, nrow):
+            _check_patch(s, name)
+    m, n = _samples(samples)
+    drop = _drop_overlap(overlap, trim, overlap_method)
+    ops = grid_orientations(rows, orient)
+    cu, cv = _continuity_pair(continuity)
+    flat = [s for row in rows for s in row]
+    flat_ops = [op for orow in ops for op in orow]
+    if R > 1:
+        _check_seams(cu, flat, flat_ops, "u", degrees, 1)
+    if C > 1:
+        _check_seams(cv, flat, flat_ops, "v", degrees, 1)
+    bases = tuple(tuple(basis_key(s, name) for s, name in zip(row, nrow)) for row, nrow in zip(rows, names))
+    frozen_ops = tuple(tuple(orow) for orow in ops)
+    if drop:
+        why = "overlap='drop' finds the overlap from the nets"
+        values = _values_key(flat, [nm for nrow in names for nm in nrow], why)
+        trim = _CACHE.get(
+            _CACHE.trims,
+            ("grid", bases, values, frozen_ops, (m, n), overlap_method),
+            lambda: _overlap.grid_overlap_windows(
+                [[_orient.orient_surface(s, op) for s, op in zip(row, orow)] for row, orow in zip(rows, ops)],
+                (m, n),
+                method=overlap_method,
+            ),
+        )
+    key = ("grid", bases, _freeze(continuity), (m, n), degrees, frozen_ops, _freeze(trim))
+    layout = _CACHE.get(
+        _CACHE.layouts,
+        key,
+        lambda: build_layout(
+            rows,
+            continuity,
+            samples=(m, n),
+            cross="average",
+            degrees=degrees,
+            orientations=ops,
+            trim=trim,
+            direction=None,
+        ),
+    )
+    return _with_reduction_error(layout, rows, ops) if degrees == "reduce" else layout
+
+
+# --- one call -----------------------------------------------------------------------------------
+@compiled
+def _merged_surface(layout: MergeLayout, ctrls, refine: bool) -> BSplineSurface:
+    ctrl = _nonlinear.refine(layout, ctrls) if refine else layout.apply(ctrls)
+    return layout.surface(ctrl)
+
+
+def merge(
+    surfaces: Sequence[BSplineSurface],
+    direction: str = "u",
+    continuity: int = 2,
+    *,
+    samples=82,
+    cross_knots: str = "average",
+    degrees=None,
+    orient="auto",
+    trim=None,
+    overlap: str = "keep",
+    overlap_method: str = "collide",
+    refine: bool = False,
+) -> BSplineSurface:
+    """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
+
+    **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
+    `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`, `overlap`
+    = "keep"/"drop", `overlap_method`), plus `refine`: also run the nonlinear refit with
+    parameter correction (`refit`).
+
+    **Returns:** the merged surface: degree `(k, l)`, `r = Σ r_i − (N − 1)` control points along
+    the merge direction (more or fewer after a degree change), the largest count across.
+
+    The layout comes from `plan`'s cache (built once per bases and options); the merge itself
+    is one compiled call. Inside a caller's `jit`, plan outside and call `layout.apply`.
+    """
+    surfaces = list(surfaces)
+    layout = plan(
+        surfaces,
+        direction,
+        continuity,
+        samples=samples,
+        cross_knots=cross_knots,
+        degrees=degrees,
+        orient=orient,
+        trim=trim,
+        overlap=overlap,
+        overlap_method=overlap_method,
+    )
+    return _merged_surface(layout, [s.ctrl for s in surfaces], bool(refine))
+
+
+def merge_grid(
+    rows: Sequence[Sequence[BSplineSurface]],
+    continuity=2,
+    *,
+    samples=82,
+    degrees=None,
+    orient="auto",
+    trim=None,
+    overlap: str = "keep",
+    overlap_method: str = "collide",
+    refine: bool = False,
+) -> BSplineSurface:
+    """Merge a grid of patches (`rows[i][j]`, rows stacked along u) into one surface (§4.4.3).
+
+    **Arguments:** as `plan_grid` (`continuity` one int or `(c_u, c_v)`, `samples`, `degrees`,
+    `orient` = "auto"/"as_given"/explicit rows, `trim` = rows of `(u0, u1, v0, v1)`, `overlap`,
+    `overlap_method`), plus `refine` as for `merge`. Cached and compiled like `merge`.
+    """
+    rows = [list(r) for r in rows]
+    layout = plan_grid(
         rows,
         continuity,
         samples=samples,
-        cross="average",
         degrees=degrees,
-        orientations=ops,
+        orient=orient,
         trim=trim,
-        direction=None,
+        overlap=overlap,
+        overlap_method=overlap_method,
     )
+    return _merged_surface(layout, [[s.ctrl for s in row] for row in rows], bool(refine))

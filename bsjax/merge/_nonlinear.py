@@ -20,8 +20,9 @@ descent):
 
 Neither half step can raise the objective, so the RMS distance falls monotonically; the loop
 stops when a round lowers it by less than `rtol` (relative) or after `rounds` rounds. Seam knots
-are kept, so the continuity asked for is kept. Everything runs in one jitted call, compiled once
-per (merged basis shape, sample count): the linear layout's fit is the start.
+are kept, so the continuity asked for is kept. `refit` and `refine` are compiled at the public
+boundary: one XLA call, compiled once per (layout shape, rounds, projection settings); `rtol` is
+traced, so a new tolerance does not compile again. The linear layout's fit is the start.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from bsjax import _checks
+from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
 from bsjax.merge._project import ProjectionSolver, closest_points
 
@@ -49,7 +51,7 @@ class RefitSolver(eqx.Module):
     """
 
     rounds: int = eqx.field(static=True, default=8)
-    rtol: float = eqx.field(static=True, default=1e-2)  # traced inside: no recompilation
+    rtol: float = 1e-2  # a leaf: traced by the compiled boundary, a new value does not recompile
     projection: ProjectionSolver = eqx.field(static=True, default=ProjectionSolver(max_steps=3))
 
 
@@ -149,7 +151,6 @@ def _settled(hist, i, rtol):
     return (i > 0) & (prev - now <= rtol * prev)
 
 
-@eqx.filter_jit
 def _refit(
     surface: BSplineSurface,
     points: Float[Array, "N 3"],
@@ -182,37 +183,41 @@ def _refit(
     return RefitSolution(ctrl=ctrl, params=uv, rms=hist, rounds=i, result=result, projection_result=status)
 
 
+@compiled
 def refit(layout, ctrls, solver: RefitSolver = RefitSolver()) -> RefitSolution:
-    """Merged control net with parameter correction, starting from the linear merge (jitted).
+    """Merged control net with parameter correction, starting from the linear merge.
 
     **Arguments:**
     - `layout`: a `MergeLayout` from `plan`/`plan_grid`.
-    - `ctrls`: the input control nets, as for `layout.apply`.
-    - `solver`: a `RefitSolver` (rounds, tolerance, projection settings).
+    - `ctrls`: the input control nets, as for `layout.apply` (finite).
+    - `solver`: a `RefitSolver` (rounds ≥ 1, tolerance `rtol` ≥ 0, projection settings).
 
-    **Returns:** a `RefitSolution` (net, corrected parameters, RMS history, status).
+    **Returns:** a `RefitSolution` (net, corrected parameters, RMS history, status). Compiled at
+    the boundary (one XLA call per direct call).
     """
     if not isinstance(solver, RefitSolver):
         raise TypeError(f"solver: expected a RefitSolver, got {type(solver).__name__}")
-    if solver.rounds < 1:
-        _checks.fail("solver.rounds", "an int >= 1", solver.rounds)
+    _checks.check_count(solver.rounds, "solver.rounds")
     points = layout.points(ctrls)
     pu, pv = layout.merged.params_u, layout.merged.params_v
     uv = jnp.stack(jnp.meshgrid(pu, pv, indexing="ij"), -1).reshape(-1, 2)
     ctrl = layout.merged.refit(points)
     # the linear fit's RMS at the grid parameters, with the stored blending matrices
     rms0 = _rms(jnp.linalg.norm(layout.merged.points(ctrl) - points, axis=-1))
-    rtol = jnp.asarray(solver.rtol, points.dtype)
+    rtol = _checks.positive(jnp.asarray(solver.rtol, points.dtype), "solver.rtol", strict=False)
     return _refit(
         layout.surface(ctrl), points.reshape(-1, 3), uv, rms0, rtol, solver.rounds, solver.projection
     )
 
 
+@compiled
 def refine(layout, ctrls, iterations: int = 8, steps: int = 3) -> Float[Array, "r s 3"]:
     """Control net of `refit(layout, ctrls, RefitSolver(rounds=iterations,
     projection=ProjectionSolver(max_steps=steps)))` — the net alone (`merge(..., refine=True)`).
 
     **Returns:** `(r, s, 3)` control net on the layout's merged basis.
     """
+    iterations = _checks.check_count(iterations, "iterations")
+    steps = _checks.check_count(steps, "steps")
     solver = RefitSolver(rounds=iterations, projection=ProjectionSolver(max_steps=steps))
     return refit(layout, ctrls, solver).ctrl

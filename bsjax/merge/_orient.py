@@ -11,8 +11,10 @@ import itertools
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
-from bsjax.basis import BSplineSurface
+from bsjax._boundary import compiled
+from bsjax.basis import BSplineSurface, SplineDirection
 
 Orientation = tuple[bool, bool, bool]
 IDENTITY: Orientation = (False, False, False)
@@ -34,8 +36,12 @@ def orient_ctrl(x, op: Orientation):
     return x
 
 
-def _flip_knots(t):
-    return None if t is None else 1.0 - t[::-1]
+def _flip(direction: SplineDirection) -> SplineDirection:
+    """The direction reversed, `t → 1 − t` (a periodic basis is its own reverse up to a shift of
+    the control points; periodic patches are not merged)."""
+    if direction.periodic:
+        return direction
+    return SplineDirection(1.0 - direction.knots[::-1], direction.degree)
 
 
 def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
@@ -43,33 +49,41 @@ def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
     if op == IDENTITY:
         return surface
     transpose, flip_u, flip_v = op
-    ku, kv = surface.knots_u, surface.knots_v
-    du, dv, pu, pv = surface.degree_u, surface.degree_v, surface.periodic_u, surface.periodic_v
+    du, dv = surface.direction_u, surface.direction_v
     if transpose:
-        ku, kv, du, dv, pu, pv = kv, ku, dv, du, pv, pu
-    ku = _flip_knots(ku) if flip_u else ku
-    kv = _flip_knots(kv) if flip_v else kv
-    return BSplineSurface(
-        orient_ctrl(surface.ctrl, op), ku, kv, du, dv, pu, pv, orient_ctrl(surface.weights, op)
+        du, dv = dv, du
+    du = _flip(du) if flip_u else du
+    dv = _flip(dv) if flip_v else dv
+    return BSplineSurface.from_directions(
+        orient_ctrl(surface.ctrl, op), du, dv, orient_ctrl(surface.weights, op)
     )
 
 
-def _edges(surface: BSplineSurface, count: int = 17, samples: tuple[int, int] = (33, 33)) -> dict:
-    """The four boundary curves at `count` parameters, read off the patch's `samples` grid (the
-    same blending matrices the merge builds) and resampled linearly."""
-    grid = np.asarray(surface.blending(*samples).points(surface.ctrl))
-    t = np.linspace(0.0, 1.0, count)
+_EDGE_POINTS = 17
 
-    def resample(curve):
-        x = np.linspace(0.0, 1.0, len(curve))
-        return np.stack([np.interp(t, x, curve[:, i]) for i in range(3)], -1)
 
-    return {
-        ("u", 0): resample(grid[0]),
-        ("u", 1): resample(grid[-1]),
-        ("v", 0): resample(grid[:, 0]),
-        ("v", 1): resample(grid[:, -1]),
-    }
+@compiled
+def _edge_curves(surfaces: tuple[BSplineSurface, ...], count: int) -> tuple[Float[Array, "4 c 3"], ...]:
+    """The four boundary curves `u = 0`, `u = 1`, `v = 0`, `v = 1` of every patch, each at
+    `count` equally spaced parameters (one compiled call for all patches)."""
+    curves = []
+    for s in surfaces:
+        t = jnp.linspace(0.0, 1.0, count, dtype=s.ctrl.dtype)
+        zero, one = jnp.zeros_like(t), jnp.ones_like(t)
+        u = jnp.stack([zero, one, t, t])
+        v = jnp.stack([t, t, zero, one])
+        curves.append(s.evaluate(u, v))
+    return tuple(curves)
+
+
+def _edges(surface: BSplineSurface, count: int = _EDGE_POINTS) -> dict:
+    """The four boundary curves of `surface` at `count` parameters, keyed `(direction, end)`."""
+    return _edge_dicts([surface], count)[0]
+
+
+def _edge_dicts(surfaces, count: int = _EDGE_POINTS) -> list[dict]:
+    keys = (("u", 0), ("u", 1), ("v", 0), ("v", 1))
+    return [dict(zip(keys, np.asarray(c, np.float64))) for c in _edge_curves(tuple(surfaces), count)]
 
 
 def _oriented_edge(edges: dict, op: Orientation, direction: str, end: int) -> np.ndarray:
@@ -81,8 +95,14 @@ def _oriented_edge(edges: dict, op: Orientation, direction: str, end: int) -> np
     return curve[::-1] if flip_along else curve
 
 
-def _gap(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.mean(np.linalg.norm(a - b, axis=-1)))
+def _all_oriented(edges: dict, direction: str, end: int) -> np.ndarray:
+    """`(8, c, 3)`: the `direction = end` edge under each orientation of `ALL`."""
+    return np.stack([_oriented_edge(edges, op, direction, end) for op in ALL])
+
+
+def _gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mean distances between every edge of `a (p, c, 3)` and of `b (q, c, 3)`: `(p, q)`."""
+    return np.mean(np.linalg.norm(a[:, None] - b[None], axis=-1), axis=-1)
 
 
 def _pick(gaps: list[float]) -> int:
@@ -91,69 +111,62 @@ def _pick(gaps: list[float]) -> int:
     return int(np.argmax(g <= g.min() + 1e-9 * (1.0 + abs(g.min()))))
 
 
-def orient_row(
-    surfaces: list[BSplineSurface], direction: str, samples: tuple[int, int] = (33, 33)
-) -> list[Orientation]:
+def orient_row(surfaces: list[BSplineSurface], direction: str, samples=None) -> list[Orientation]:
     """Orientations that make the `direction = 1` edge of patch i meet the `direction = 0` edge of
     patch i + 1 (same sense along the shared edge), chosen by the smallest mean edge gap.
-    The edges are read off each patch's `samples` grid.
+    The edges are evaluated at 17 parameters (one compiled call for all patches; `samples` is
+    accepted for compatibility and unused).
     """
-    edges = [_edges(s, samples=samples) for s in surfaces]
-    pairs = list(itertools.product(ALL, repeat=2))
-    gaps = [
-        _gap(_oriented_edge(edges[0], a, direction, 1), _oriented_edge(edges[1], b, direction, 0))
-        for a, b in pairs
-    ]
-    ops = list(pairs[_pick(gaps)])
+    del samples
+    edges = _edge_dicts(surfaces)
+    gaps = _gaps(_all_oriented(edges[0], direction, 1), _all_oriented(edges[1], direction, 0))
+    pairs = list(itertools.product(ALL, repeat=2))  # row-major over (first, second): as gaps.ravel()
+    ops = list(pairs[_pick(list(gaps.ravel()))])
     for e in edges[2:]:
         prev_end = _oriented_edge(edges[len(ops) - 1], ops[-1], direction, 1)
-        ops.append(ALL[_pick([_gap(prev_end, _oriented_edge(e, op, direction, 0)) for op in ALL])])
+        ops.append(ALL[_pick(list(_gaps(prev_end[None], _all_oriented(e, direction, 0))[0]))])
     return ops
 
 
-def orient_grid(
-    rows: list[list[BSplineSurface]], samples: tuple[int, int] = (33, 33)
-) -> list[list[Orientation]]:
+def orient_grid(rows: list[list[BSplineSurface]], samples=None) -> list[list[Orientation]]:
     """Orientations of an `R × C` grid of patches (thesis §4.4.3) so that patch `(i, j)`'s `u = 1`
     edge meets `(i+1, j)`'s `u = 0` edge and its `v = 1` edge meets `(i, j+1)`'s `v = 0` edge.
 
     The corner patch and its two neighbours are chosen together (8³ combinations, the smallest
     sum of the two mean edge gaps); every further patch, in row-major order, takes the
     orientation whose `u = 0` / `v = 0` edges best meet the already placed patch above / to
-    the left. A single row or column is `orient_row`. Ties keep the patch as given.
+    the left. A single row or column is `orient_row`. Ties keep the patch as given. `samples` is
+    accepted for compatibility and unused (the edges are evaluated exactly).
     """
+    del samples
     R, C = len(rows), len(rows[0])
     if R == 1:
-        return [orient_row(rows[0], "v", samples)]
+        return [orient_row(rows[0], "v")]
     if C == 1:
-        return [[op] for op in orient_row([row[0] for row in rows], "u", samples)]
-    edges = [[_edges(s, samples=samples) for s in row] for row in rows]
+        return [[op] for op in orient_row([row[0] for row in rows], "u")]
+    flat = _edge_dicts([s for row in rows for s in row])
+    edges = [flat[i * C : (i + 1) * C] for i in range(R)]
 
-    def cost(i, j, op, ops):
-        total = 0.0
+    def cost(i, j, ops):
+        """Gaps of the 8 orientations of patch (i, j) to its placed neighbours above and left."""
+        total = np.zeros(len(ALL))
         if i > 0:
-            total += _gap(
-                _oriented_edge(edges[i - 1][j], ops[i - 1][j], "u", 1),
-                _oriented_edge(edges[i][j], op, "u", 0),
-            )
+            above = _oriented_edge(edges[i - 1][j], ops[i - 1][j], "u", 1)
+            total += _gaps(above[None], _all_oriented(edges[i][j], "u", 0))[0]
         if j > 0:
-            total += _gap(
-                _oriented_edge(edges[i][j - 1], ops[i][j - 1], "v", 1),
-                _oriented_edge(edges[i][j], op, "v", 0),
-            )
+            left = _oriented_edge(edges[i][j - 1], ops[i][j - 1], "v", 1)
+            total += _gaps(left[None], _all_oriented(edges[i][j], "v", 0))[0]
         return total
 
-    triples = list(itertools.product(ALL, repeat=3))
-    corner = [
-        _gap(_oriented_edge(edges[0][0], a, "v", 1), _oriented_edge(edges[0][1], b, "v", 0))
-        + _gap(_oriented_edge(edges[0][0], a, "u", 1), _oriented_edge(edges[1][0], c, "u", 0))
-        for a, b, c in triples
-    ]
-    a, b, c = triples[_pick(corner)]
+    # triples (a, b, c) of the corner and its neighbours in itertools.product order: a·64 + b·8 + c
+    right = _gaps(_all_oriented(edges[0][0], "v", 1), _all_oriented(edges[0][1], "v", 0))
+    below = _gaps(_all_oriented(edges[0][0], "u", 1), _all_oriented(edges[1][0], "u", 0))
+    corner = (right[:, :, None] + below[:, None, :]).ravel()
+    a, b, c = list(itertools.product(ALL, repeat=3))[_pick(list(corner))]
     ops: list[list] = [[None] * C for _ in range(R)]
     ops[0][0], ops[0][1], ops[1][0] = a, b, c
     for i in range(R):
         for j in range(C):
             if ops[i][j] is None:
-                ops[i][j] = ALL[_pick([cost(i, j, op, ops) for op in ALL])]
+                ops[i][j] = ALL[_pick(list(cost(i, j, ops)))]
     return ops
