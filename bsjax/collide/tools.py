@@ -1,15 +1,19 @@
 """Collision tools: point, sphere, ellipsoid, plane (half-space), implicit solid, triangle mesh.
 
-Every tool is an `eqx.Module` whose arrays (pose, size) are differentiable leaves. Each solid
-tool knows its implicit function (`value(x) < 0` inside), the penetration depth of a surface
-sample along the sample's normal (Gao & Gibson 2005/2006, paper 002 §3.2.2), the outward
-normal of the tool at the depth point (for the probe-normal force), a bounding sphere for the
-control-hull broad phase, and a conservative overlap test against boxes of control points
-(thesis §3.3.3.2, the parametric window).
+These are the only rigid tools of bsjax: collision (`collide.contacts`), the mass-spring
+penalty contact (`mss.simulate(..., tools=...)`), the haptic sculpting model and the examples
+all take them. Every tool is an `eqx.Module` whose arrays (pose, size) are differentiable
+leaves. Each solid tool knows its implicit function (`value(x) < 0` inside), the penetration
+depth of a surface sample along the sample's normal (Gao & Gibson, *Haptic sculpting of
+multi-resolution B-spline surfaces with shaped tools*, §3.2.2), the push-out of points inside
+it (`push`: closest-point depth and outward normal, the penalty contact of the mass-spring
+lattice), a bounding sphere for the control-hull broad phase, and a conservative overlap test
+against boxes of control points (thesis §3.3.3.2, the parametric window).
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -20,35 +24,51 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
-from bsjax import _checks
-from bsjax._tensor import safe_norm, unit
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
 from bsjax.collide.broad import hulls_apart
 
 
-def _vector(x, name: str, size: int = 3):
+def _float(x, name: str):
+    """`x` as a real floating array (ints promoted to the default float; complex refused)."""
+    _checks.check_real(x, name)
     arr = jnp.asarray(x)
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = arr.astype(jnp.result_type(float))
+    return arr
+
+
+def _vector(x, name: str, size: int = 3):
+    arr = _float(x, name)
     if arr.shape != (size,):
         _checks.fail(name, f"shape ({size},)", arr.shape)
-    _checks.check_finite(arr, name)
-    return arr
+    return _checks.finite(arr, name)
 
 
 def _scalar(x, name: str):
-    arr = jnp.asarray(x)
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(jnp.result_type(float))
+    arr = _float(x, name)
     if arr.shape != ():
         _checks.fail(name, "a scalar", arr.shape)
-    _checks.check_positive(arr, name)
-    return arr
+    return _checks.positive(arr, name)
 
 
-def _sqrt(x):
-    """`sqrt(max(x, 0))` with a finite gradient at and below 0 (double where)."""
-    ok = x > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
+def _points(x, dtype):
+    """Query points `(..., 3)`: real, integers promoted to the tool's `dtype` (structure checked
+    at trace time)."""
+    _checks.check_real(x, "x")
+    x = jnp.asarray(x)
+    if x.ndim < 1 or x.shape[-1] != 3:
+        _checks.fail("x", "points of shape (..., 3)", x.shape)
+    return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(dtype)
+
+
+_sqrt = _safe.sqrt
+
+
+def _bc(v, x):
+    """`v` with leading unit axes to the rank of `x` (explicit broadcasting: rank promotion off)."""
+    v = jnp.asarray(v)
+    return v.reshape((1,) * (jnp.ndim(x) - v.ndim) + v.shape)
 
 
 def _closer_root(a, b, c):
@@ -60,7 +80,18 @@ def _closer_root(a, b, c):
 
 
 class AbstractTool(eqx.Module):
-    """A rigid tool. Subclasses define the implicit value, depth and bounds (see module doc)."""
+    """A rigid tool. Subclasses define the implicit value, depth, push and bounds (module doc).
+
+    | method | meaning |
+    |---|---|
+    | `value(x)` | implicit function, `< 0` inside the solid |
+    | `penetration(x, n)` | Gao & Gibson depth of surface samples along their normals `n` |
+    | `push(x)` | `(depth, normal)`: closest-point penetration of points and the outward normal |
+
+    `push` is the one interface through which the mass-spring penalty contact (`mss`), the
+    haptic sculpting model and the examples use a tool: a point `x` inside the solid moves out
+    to the surface at `x + depth · normal`.
+    """
 
     def value(self, x: Float[Array, "... 3"]) -> Float[Array, "..."]:
         """Implicit function: negative inside the tool."""
@@ -69,6 +100,19 @@ class AbstractTool(eqx.Module):
     def penetration(self, x, n) -> tuple[Array, Array]:
         """`(depth (...), tool_normal (..., 3))` of samples `x` with unit surface normals `n`."""
         raise NotImplementedError
+
+    def push(self, x: Float[Array, "... 3"]) -> tuple[Float[Array, "..."], Float[Array, "... 3"]]:
+        """Penetration of points into the solid and the direction that pushes them out.
+
+        **Arguments:** `x (..., 3)` points.
+
+        **Returns:** `(depth (...), normal (..., 3))`: `depth ≥ 0` is the distance from `x` to
+        the tool's surface where `value(x) < 0` (inside) and exactly 0 elsewhere; `normal` is the
+        tool's outward unit normal at the surface point closest to `x`, so that
+        `x + depth · normal` lies on the surface. Differentiable in `x` and the tool's arrays.
+        A `Point` has no volume: its `push` raises `TypeError`.
+        """
+        raise TypeError(f"{type(self).__name__}: push needs a solid tool with a volume")
 
     def bound(self) -> tuple[Array, Array] | None:
         """Bounding sphere `(center, radius)` of the tool, or `None` if unbounded/unknown."""
@@ -99,8 +143,8 @@ class AbstractTool(eqx.Module):
 
 
 def _sphere_box(center, radius, lo, hi):
-    nearest = jnp.clip(center, lo, hi)
-    return jnp.sum((nearest - center) ** 2, -1) <= radius * radius
+    nearest = jnp.clip(_bc(center, lo), lo, hi)
+    return jnp.sum((nearest - _bc(center, lo)) ** 2, -1) <= radius * radius
 
 
 class Point(AbstractTool):
@@ -117,10 +161,17 @@ class Point(AbstractTool):
 
     def __init__(self, position, reach=float("inf")):
         self.position = _vector(position, "position")
-        reach = jnp.asarray(reach, self.position.dtype)
-        if reach.shape != () or (_checks.is_concrete(reach) and not bool(reach >= 0)):
-            _checks.fail("reach", "a scalar >= 0", reach)
-        self.reach = reach
+        reach = _float(reach, "reach").astype(self.position.dtype)
+        if reach.shape != ():
+            _checks.fail("reach", "a scalar >= 0", f"shape {reach.shape}")
+        self.reach = _checks.check(reach, ~(reach >= 0), "reach", "a scalar >= 0", "a negative value or NaN")
+
+    def push(self, x):
+        """A point tool has no volume: refused (use a `Sphere` of small radius for a stylus tip)."""
+        raise TypeError(
+            "Point: a point tool has no volume, so it cannot push points out of it; "
+            "use a solid tool (Sphere, Ellipsoid, Plane, Implicit, TriangleMesh)"
+        )
 
     def hull_apart(self, points):
         # a contact lies within `reach` of the surface, hence of its control hull
@@ -146,14 +197,26 @@ class Sphere(AbstractTool):
         self.center = _vector(center, "center")
         self.radius = _scalar(radius, "radius").astype(self.center.dtype)
 
+    @compiled
     def value(self, x):
-        return jnp.sum((x - self.center) ** 2, -1) - self.radius**2
+        return jnp.sum((x - _bc(self.center, x)) ** 2, -1) - self.radius**2
 
+    @compiled
     def penetration(self, x, n):
-        y = x - self.center
+        y = x - _bc(self.center, x)
         t = _closer_root(jnp.sum(n * n, -1), jnp.sum(y * n, -1), jnp.sum(y * y, -1) - self.radius**2)
         hit = x + t[..., None] * n
-        return jnp.abs(t), unit(hit - self.center)
+        return jnp.abs(t), _safe.unit(hit - _bc(self.center, hit))
+
+    @compiled
+    def push(self, x):
+        """`depth = max(r − |x − c|, 0)`, `normal = (x − c)/|x − c|` (+z at the centre)."""
+        x = _points(x, self.center.dtype)
+        d = x - _bc(self.center, x)
+        normal, ok = _safe.unit_or_zero(d)
+        up = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], normal.dtype), normal.shape)
+        normal = jnp.where(ok[..., None], normal, up)
+        return jnp.maximum(self.radius - _safe.norm(d), 0), normal
 
     def bound(self):
         return self.center, self.radius
@@ -173,35 +236,54 @@ class Ellipsoid(AbstractTool):
 
     def __init__(self, center, radii, rotation=None):
         self.center = _vector(center, "center")
-        self.radii = _vector(radii, "radii").astype(self.center.dtype)
-        _checks.check_positive(self.radii, "radii")
+        self.radii = _checks.positive(_vector(radii, "radii").astype(self.center.dtype), "radii")
         if rotation is None:
             rotation = jnp.eye(3, dtype=self.center.dtype)
-        rotation = jnp.asarray(rotation, self.center.dtype)
+        rotation = _float(rotation, "rotation").astype(self.center.dtype)
         if rotation.shape != (3, 3):
             _checks.fail("rotation", "shape (3, 3)", rotation.shape)
-        _checks.check_finite(rotation, "rotation")
-        if _checks.is_concrete(rotation):
-            err = float(np.max(np.abs(np.asarray(rotation).T @ np.asarray(rotation) - np.eye(3))))
-            if err > 1e-6 or np.linalg.det(np.asarray(rotation)) < 0:
-                _checks.fail(
-                    "rotation", "a proper rotation matrix (R^T R = I, det 1)", f"|R^T R - I| = {err:.2g}"
-                )
-        self.rotation = rotation
+        rotation = _checks.finite(rotation, "rotation")
+        # float32 rotations from quaternions are orthonormal to ~1e-7 only
+        tol = max(1e-6, 100 * float(jnp.finfo(rotation.dtype).eps))
+        err = jnp.max(jnp.abs(rotation.T @ rotation - jnp.eye(3, dtype=rotation.dtype)))
+        self.rotation = _checks.check(
+            rotation,
+            (err > tol) | (jnp.linalg.det(rotation) < 0),
+            "rotation",
+            "a proper rotation matrix (R^T R = I, det 1)",
+            "a matrix that is not",
+            lambda r: f"|R^T R - I| = {np.max(np.abs(r.T @ r - np.eye(3))):.2g}, det {np.linalg.det(r):.3g}",
+        )
 
     def _local(self, x):
-        return ((x - self.center) @ self.rotation) / self.radii
+        return ((x - _bc(self.center, x)) @ self.rotation) / _bc(self.radii, x)
 
+    @compiled
     def value(self, x):
         y = self._local(x)
         return jnp.sum(y * y, -1) - 1
 
+    @compiled
+    def push(self, x):
+        """Exact closest point of the ellipsoid surface (`_ellipsoid_closest`), in its frame."""
+        x = _points(x, self.center.dtype)
+        r = self.rotation
+        d = [x[..., j] - self.center[j] for j in range(3)]
+        y = [sum(d[j] * r[j, i] for j in range(3)) for i in range(3)]  # per component: fused on CPU
+        z, inside = _ellipsoid_closest(y, self.radii)
+        depth = jnp.where(inside, _safe.sqrt(sum((y[i] - z[i]) ** 2 for i in range(3))), 0)
+        g = [z[i] / self.radii[i] ** 2 for i in range(3)]
+        n = [sum(r[j, i] * g[i] for i in range(3)) for j in range(3)]
+        inv = jax.lax.rsqrt(jnp.maximum(sum(c * c for c in n), jnp.finfo(x.dtype).tiny))
+        return depth, jnp.stack([c * inv for c in n], -1)
+
+    @compiled
     def penetration(self, x, n):
-        y, m = self._local(x), (n @ self.rotation) / self.radii
+        y, m = self._local(x), (n @ self.rotation) / _bc(self.radii, n)
         t = _closer_root(jnp.sum(m * m, -1), jnp.sum(y * m, -1), jnp.sum(y * y, -1) - 1)
         hit_local = y + t[..., None] * m
-        grad = (hit_local / self.radii) @ self.rotation.T
-        return jnp.abs(t), unit(grad)
+        grad = (hit_local / _bc(self.radii, hit_local)) @ self.rotation.T
+        return jnp.abs(t), _safe.unit(grad)
 
     def bound(self):
         return self.center, jnp.max(self.radii)
@@ -223,6 +305,91 @@ class Ellipsoid(AbstractTool):
         return _sphere_box(jnp.zeros(3, lo.dtype), jnp.ones((), lo.dtype), local.min(-2), local.max(-2))
 
 
+def _ellipsoid_closest(y, a, iterations: int = 16):
+    """Closest point `z` of the ellipsoid `Σ (z_i / a_i)² = 1` to `y` (its own frame, semi-axes
+    `a (3,)`), and whether `y` is inside; points as three component arrays `[y_0, y_1, y_2]`.
+
+    Lagrange condition (Eberly, *Distance from a point to an ellipse, an ellipsoid, or a
+    hyperellipsoid*): `z_i = a_i² y_i / (a_i² + t)` with `t` the root in `(−a_min², ∞)` of
+    `Σ (a_i y_i / (a_i² + t))² = 1`. Written in `s = t + a_min² > 0` the root is bracketed by
+    `[max_i (a_i |y_i| − a_i² + a_min²), |a ∘ y|]` (one term alone; every shift dropped), and
+    `ψ(s) = q(s)^{−1/2}` with `q(s) = Σ (a_i y_i / (a_i² − a_min² + s))²` is increasing and
+    nearly linear (exactly linear for a sphere), so a safeguarded Newton iteration on `ψ(s) = 1`
+    (bisection whenever Newton leaves the bracket), started from the radial point's estimate,
+    reaches round-off in 8 steps for axis ratios up to 10 and in 16 for ratios up to 10⁶
+    (16 are run). A last Newton step from the stopped-gradient root carries the implicit-function
+    derivative. Where `y` lies on the medial plane of the smallest axis (`y_k = 0`, e.g. the
+    centre) and no root lies above `s = 0`, the closest point is completed on that axis.
+    The arithmetic is written per component (structure of arrays): XLA on CPU fuses it into one
+    loop over the points, where reductions over a trailing axis of 3 are several times slower.
+    """
+    dtype = y[0].dtype
+    a2 = a * a
+    k = jnp.argmin(a)
+    comps = list(y)
+    shift = [a2[i] - a2[k] for i in range(3)]  # a_i² − a_min² ≥ 0
+    ay2 = [(a[i] * comps[i]) ** 2 for i in range(3)]
+    frozen = jax.lax.stop_gradient((ay2, shift))
+    # bracket: each term alone bounds the root below, and `q(s) ≤ Σ a_i² y_i² / s²` above
+    lo = jnp.maximum(functools.reduce(jnp.maximum, [_safe.sqrt(c) - sh for c, sh in zip(*frozen)]), 0)
+    hi = jnp.maximum(_safe.sqrt(sum(frozen[0])), lo)
+
+    def body(carry):
+        s, lo, hi = carry
+        p, dp = _ellipsoid_psi(s, *frozen)
+        lo, hi = jnp.where(p < 1, s, lo), jnp.where(p < 1, hi, s)
+        newton = s - _safe.ratio(p - 1, dp)
+        ok = (newton >= lo) & (newton <= hi) & (dp > 0)
+        return jnp.where(ok, newton, 0.5 * (lo + hi)), lo, hi
+
+    carry = (jnp.clip(_ellipsoid_start(comps, a, a2[k]), lo, hi), lo, hi)
+    for _ in range(iterations):  # unrolled: XLA fuses the whole solve into one loop over points
+        carry = body(carry)
+    s = carry[0]
+    p, dp = _ellipsoid_psi(s, ay2, shift)
+    root = jnp.abs(p - 1) < jnp.sqrt(jnp.finfo(dtype).eps)
+    s = jnp.where(root, s - _safe.ratio(p - 1, dp), s)  # one Newton step: the implicit derivative
+    z = [_safe.ratio(a2[i] * comps[i], shift[i] + s) for i in range(3)]
+    # medial case (y_k = 0, no root above s = 0): complete z on the smallest axis onto the surface
+    yk = sum(jnp.where(k == i, comps[i], 0) for i in range(3))
+    rest = 1 - sum(jnp.where(k == i, 0, (z[i] / a[i]) ** 2) for i in range(3))
+    zk = jnp.where(yk < 0, -1, 1).astype(dtype) * a[k] * _safe.sqrt(rest)
+    medial = (yk == 0) & ~root
+    z = [jnp.where(medial & (k == i), zk, z[i]) for i in range(3)]
+    inside = sum((comps[i] / a[i]) ** 2 for i in range(3)) < 1
+    return z, inside
+
+
+def _ellipsoid_start(comps, a, a2_min):
+    """A start for `s` from the radial point `z_r = y / |y / a|`: the least-squares `t` of the
+    Lagrange condition `y − z_r = t z_r / a²` (exact for a sphere), as `s = t + a_min²` ≥ 0."""
+    comps, a = jax.lax.stop_gradient((comps, a))
+    rho = _safe.sqrt(sum((comps[i] / a[i]) ** 2 for i in range(3)))
+    zr = [_safe.ratio(comps[i], rho) for i in range(3)]
+    g = [zr[i] / a[i] ** 2 for i in range(3)]
+    t = _safe.ratio(sum((comps[i] - zr[i]) * g[i] for i in range(3)), sum(g[i] * g[i] for i in range(3)))
+    return jnp.maximum(t + jax.lax.stop_gradient(a2_min), 0)
+
+
+def _ellipsoid_psi(s, ay2, shift):
+    """`(ψ, dψ/ds)` of `_ellipsoid_closest`: `ψ = q^{−1/2}`, `q = Σ a_i² y_i² / (shift_i + s)²`
+    (per-component lists); `ψ = ∞` where `q = 0` (the centre), 0 where a term is singular."""
+    q, dq, singular = 0, 0, False
+    for c, sh in zip(ay2, shift):
+        den = sh + s
+        pos = den > 0
+        inv = 1 / jnp.where(pos, den, 1)
+        term = c * inv * inv
+        q = q + jnp.where(pos, term, 0)
+        dq = dq - 2 * jnp.where(pos, term * inv, 0)
+        singular = singular | (~pos & (c > 0))
+    ok = (q > 0) & ~singular
+    qs = jnp.where(ok, q, 1)
+    inv = jax.lax.rsqrt(qs)
+    psi = jnp.where(ok, inv, jnp.where(singular, 0, jnp.inf))
+    return psi, jnp.where(ok, -0.5 * dq * inv / qs, 0)
+
+
 class Plane(AbstractTool):
     """A half-space tool: the solid is the side the normal points away from, `n·(x − p) < 0`.
 
@@ -236,22 +403,31 @@ class Plane(AbstractTool):
     def __init__(self, point, normal):
         self.point = _vector(point, "point")
         normal = _vector(normal, "normal").astype(self.point.dtype)
-        if _checks.is_concrete(normal) and not float(np.linalg.norm(np.asarray(normal))) > 0:
-            _checks.fail("normal", "a non-zero vector", np.asarray(normal).tolist())
-        self.normal = unit(normal)
+        normal = _checks.check(
+            normal, jnp.all(normal == 0), "normal", "a non-zero vector", "a zero vector", lambda n: n.tolist()
+        )
+        self.normal = _safe.unit(normal)
 
+    @compiled
     def value(self, x):
-        return jnp.sum((x - self.point) * self.normal, -1)
+        return jnp.sum((x - _bc(self.point, x)) * _bc(self.normal, x), -1)
 
+    @compiled
     def penetration(self, x, n):
         depth = -self.value(x)
         return depth, jnp.broadcast_to(self.normal, x.shape)
+
+    @compiled
+    def push(self, x):
+        """`depth = max(−n·(x − p), 0)`, `normal = n` (exact: the signed distance)."""
+        x = _points(x, self.point.dtype)
+        return jnp.maximum(-self.value(x), 0), jnp.broadcast_to(self.normal, x.shape)
 
     def hull_apart(self, points):
         return jax.lax.stop_gradient(jnp.min(self.value(points)) >= 0)
 
     def box_overlap(self, lo, hi):
-        low_corner = jnp.where(self.normal > 0, lo, hi)  # the box corner deepest into the solid
+        low_corner = jnp.where(_bc(self.normal > 0, lo), lo, hi)  # the box corner deepest into the solid
         return self.value(low_corner) < 0
 
 
@@ -289,18 +465,32 @@ class Implicit(AbstractTool):
         self.fn, self.params, self.solver = fn, params, solver
         self.center = None if center is None else _vector(center, "center")
         self.radius = None if radius is None else _scalar(radius, "radius")
+        leaves = [leaf for leaf in jax.tree_util.tree_leaves(params) if hasattr(leaf, "dtype")]
+        for leaf in leaves:
+            _checks.check_real(leaf, "params")
 
     def _f(self, x):
         return self.fn(x) if self.params is None else self.fn(x, self.params)
 
+    @compiled
     def value(self, x):
         flat = x.reshape(-1, 3)
         return jax.vmap(self._f)(flat).reshape(x.shape[:-1])
 
+    @compiled
     def penetration(self, x, n):
         flat = x.reshape(-1, 3)
         depth, normal = jax.vmap(self._project_one)(flat)
         return depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
+
+    @compiled
+    def push(self, x):
+        """Closest point of `fn = 0` (the projection of `penetration`); depth where `fn(x) < 0`."""
+        x = _points(x, _dtype_of(self))
+        flat = x.reshape(-1, 3)
+        depth, normal = jax.vmap(self._project_one)(flat)
+        inside = jax.vmap(self._f)(flat) < 0
+        return jnp.where(inside, depth, 0).reshape(x.shape[:-1]), normal.reshape(x.shape)
 
     def _project_one(self, x):
         f, grad = jax.value_and_grad(self._f)(x)
@@ -326,10 +516,10 @@ class Implicit(AbstractTool):
         y = sol.value[:3]
         # accept the Newton point unless it failed or wandered off to a farther stationary point
         ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(sol.value))
-        ok = ok & (safe_norm(y - x) <= safe_norm(y0 - x) * (1 + 1e-6) + atol)
+        ok = ok & (_safe.norm(y - x) <= _safe.norm(y0 - x) * (1 + 1e-6) + atol)
         y = jnp.where(ok, y, y0)
-        depth = safe_norm(y - x)
-        normal = unit(jax.grad(self._f)(y))
+        depth = _safe.norm(y - x)
+        normal = _safe.unit(jax.grad(self._f)(y))
         return depth, normal
 
     def _march(self, x, f, grad, g2):
@@ -339,7 +529,7 @@ class Implicit(AbstractTool):
         overshoots the first crossing by at most 25 %, so thin far parts are not jumped to),
         then bisection of the last bracket.
         """
-        g = unit(grad)
+        g = _safe.unit(grad)
         sign = jnp.where(f < 0, 1.0, -1.0).astype(x.dtype)
         first = jnp.abs(f) / jnp.sqrt(jnp.where(g2 > 0, g2, 1))
         start = jnp.maximum(1e-4 * first, jnp.finfo(x.dtype).eps)
@@ -376,22 +566,23 @@ class TriangleMesh(AbstractTool):
     faces: Int[Array, "F 3"]
 
     def __init__(self, vertices, faces):
-        vertices = jnp.asarray(vertices)
-        if not jnp.issubdtype(vertices.dtype, jnp.floating):
-            vertices = vertices.astype(jnp.result_type(float))
+        vertices = _float(vertices, "vertices")
         _checks.check_ndim(vertices, "vertices", 2, last=3)
-        _checks.check_finite(vertices, "vertices")
-        faces_np = np.asarray(faces)
-        if faces_np.ndim != 2 or faces_np.shape[1] != 3 or faces_np.shape[0] == 0:
-            _checks.fail("faces", "an (F, 3) integer array with F >= 1", faces_np.shape)
-        if not np.issubdtype(faces_np.dtype, np.integer):
-            _checks.fail("faces", "integer vertex indices", faces_np.dtype)
-        if faces_np.min() < 0 or faces_np.max() >= vertices.shape[0]:
-            _checks.fail(
-                "faces", f"indices in [0, {vertices.shape[0]})", (int(faces_np.min()), int(faces_np.max()))
-            )
-        self.vertices = vertices
-        self.faces = jnp.asarray(faces_np.astype(np.int32))
+        self.vertices = _checks.finite(vertices, "vertices")
+        faces = jnp.asarray(faces)
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0:
+            _checks.fail("faces", "an (F, 3) integer array with F >= 1", faces.shape)
+        if not jnp.issubdtype(faces.dtype, jnp.integer):
+            _checks.fail("faces", "integer vertex indices", faces.dtype)
+        n = vertices.shape[0]
+        self.faces = _checks.check(
+            faces.astype(jnp.int32),
+            (faces < 0) | (faces >= n),
+            "faces",
+            f"indices in [0, {n})",
+            "an index outside",
+            lambda f: (int(f.min()), int(f.max())),
+        )
 
     @classmethod
     def from_trimesh(cls, mesh, dtype=None) -> "TriangleMesh":
@@ -413,9 +604,35 @@ class TriangleMesh(AbstractTool):
     def triangles(self) -> Float[Array, "F 3 3"]:
         return self.vertices[self.faces]
 
+    @compiled
     def value(self, x):
         return 0.5 - _winding_number(x.reshape(-1, 3), self.triangles).reshape(x.shape[:-1])
 
+    @compiled
+    def push(self, x):
+        """Inside by the winding number; depth the distance to the nearest face, pushed along
+        `closest − x` (the face normal where `x` lies on the mesh)."""
+        from bsjax.collide.triangles import closest_point_on_triangle
+
+        x = _points(x, self.vertices.dtype)
+        tris = self.triangles
+        flat = x.reshape(-1, 3)
+        inside = self.value(flat) < 0
+
+        def one(p):
+            closest, _ = closest_point_on_triangle(p[None], tris)
+            d2 = jnp.sum((closest - p[None]) ** 2, -1)
+            j = jnp.argmin(d2)
+            t = tris[j]
+            return closest[j], _safe.unit(jnp.cross(t[1] - t[0], t[2] - t[0]))
+
+        closest, face_normal = jax.lax.map(one, flat, batch_size=256)
+        toward, ok = _safe.unit_or_zero(closest - flat)
+        normal = jnp.where(ok[:, None], jnp.where(inside[:, None], toward, -toward), face_normal)
+        depth = jnp.where(inside, _safe.norm(closest - flat), 0)
+        return depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
+
+    @compiled
     def penetration(self, x, n):
         from bsjax.collide.triangles import closest_point_on_triangle
 
@@ -424,17 +641,17 @@ class TriangleMesh(AbstractTool):
 
         def one(p):
             closest, _ = closest_point_on_triangle(p[None], tris)
-            d2 = jnp.sum((closest - p) ** 2, -1)
+            d2 = jnp.sum((closest - p[None]) ** 2, -1)
             k = jnp.argmin(d2)
             t = tris[k]
-            return _sqrt(d2[k]), unit(jnp.cross(t[1] - t[0], t[2] - t[0]))
+            return _sqrt(d2[k]), _safe.unit(jnp.cross(t[1] - t[0], t[2] - t[0]))
 
         depth, normal = jax.lax.map(one, flat, batch_size=256)
         return depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
 
     def bound(self):
         center = 0.5 * (self.vertices.min(0) + self.vertices.max(0))
-        return center, jnp.max(safe_norm(self.vertices - center))
+        return center, jnp.max(_safe.norm(self.vertices - center[None]))
 
     def hull_apart(self, points):
         return hulls_apart(points, self.vertices, jnp.zeros((), points.dtype))
@@ -444,12 +661,20 @@ class TriangleMesh(AbstractTool):
         return jnp.all((lo <= vhi) & (vlo <= hi), -1)
 
 
+def _dtype_of(tool):
+    """The floating dtype of a tool's arrays (the default float when it has none)."""
+    for leaf in jax.tree_util.tree_leaves(tool):
+        if hasattr(leaf, "dtype") and jnp.issubdtype(leaf.dtype, jnp.floating):
+            return leaf.dtype
+    return jnp.result_type(float)
+
+
 def _winding_number(points, tris):
     """Generalised winding number (Jacobson et al. 2013): Σ solid angles / 4π, Van Oosterom–Strackee."""
 
     def one(p):
-        a, b, c = tris[:, 0] - p, tris[:, 1] - p, tris[:, 2] - p
-        la, lb, lc = safe_norm(a), safe_norm(b), safe_norm(c)
+        a, b, c = tris[:, 0] - p[None], tris[:, 1] - p[None], tris[:, 2] - p[None]
+        la, lb, lc = _safe.norm(a), _safe.norm(b), _safe.norm(c)
         num = jnp.sum(a * jnp.cross(b, c), -1)
         den = la * lb * lc + jnp.sum(a * b, -1) * lc + jnp.sum(b * c, -1) * la + jnp.sum(c * a, -1) * lb
         return jnp.sum(2 * jnp.arctan2(num, den)) / (4 * jnp.pi)

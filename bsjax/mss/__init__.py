@@ -1,18 +1,29 @@
-"""Mass-spring-damper physics (thesis ch. 5, paper 002 §4): lattices, materials, forces,
+"""Mass-spring-damper physics (thesis ch. 5; Gao & Gibson, *Haptic sculpting of
+multi-resolution B-spline surfaces with shaped tools*, §4): lattices, materials, forces,
 integrators, surface coupling.
 
 Pure functions over pytrees: `init(lattice) -> State`, `step(lattice, state, dt, …) -> State`,
-`simulate(lattice, state, dt, n_steps, …) -> State` (a `lax.scan`).
+`simulate(lattice, state, dt, n_steps, …) -> State` (a `lax.scan`). Rigid tools are the solid
+`bsjax.collide` tools (`RigidSphere`/`RigidPlane` are `collide.Sphere`/`collide.Plane`);
+`coupled_step` is the chain surface → contacts → forces → step → refit.
 """
 
+from bsjax.mss._coupling import (
+    SurfaceCoupling,
+    coupled_step,
+    simulate_coupled,
+    surface_lattice,
+)
 from bsjax.mss._forces import (
     RigidPlane,
     RigidSphere,
     behind_plane,
+    contact_tangent,
     edge_sum,
     plane_penalty,
     sphere_penalty,
     spring_forces,
+    tool_contacts,
     tool_forces,
 )
 from bsjax.mss._integrators import (
@@ -59,9 +70,16 @@ __all__ = [
     "Lattice",
     "Material",
     "Plasticity",
+    "RigidPlane",
+    "RigidSphere",
     "State",
+    "SurfaceCoupling",
+    "behind_plane",
     "check_dt",
+    "contact_tangent",
+    "coupled_step",
     "damping_ratio",
+    "edge_sum",
     "energy",
     "forces",
     "from_material",
@@ -75,6 +93,7 @@ __all__ = [
     "plane_penalty",
     "relax",
     "simulate",
+    "simulate_coupled",
     "simulate_plastic",
     "sphere_penalty",
     "spring_damping",
@@ -82,19 +101,9 @@ __all__ = [
     "spring_stiffness",
     "stable_dt",
     "step",
+    "surface_lattice",
+    "tool_contacts",
     "tool_forces",
     "trajectory",
     "yield_rest_lengths",
-]
-
-from bsjax.mss._coupling import SurfaceCoupling, simulate_coupled, surface_lattice
-
-__all__ += [
-    "RigidPlane",
-    "RigidSphere",
-    "SurfaceCoupling",
-    "behind_plane",
-    "edge_sum",
-    "simulate_coupled",
-    "surface_lattice",
 ]

@@ -1,16 +1,17 @@
-"""Forces on the lattice nodes: Voigt springs (eqs. 5.8–5.13), node damping, penalty contact.
+"""Forces on the lattice nodes: Voigt springs (eqs. 5.8–5.13), node damping, penalty contact
+with the `bsjax.collide` tools (through their `push`).
 
 Every kernel returns the net force *on* each node, `(N, 3)`, in newtons.
 """
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from bsjax import _checks, _tensor
+from bsjax import collide
+from bsjax._boundary import compiled
 from bsjax.mss._lattice import HEX_DIRECTIONS, Lattice, _slices
 
 
@@ -37,9 +38,10 @@ def _pair_force(d, dv, rest, k, c):
     """
     inv, _ = _inv_length(d)
     coef = k * (1.0 - rest * inv) + c * _dot3(dv, d) * inv * inv
-    return -coef * d
+    return -coef[None] * d
 
 
+@compiled
 def spring_forces(
     lattice: Lattice,
     x: Float[Array, "N 3"],
@@ -93,23 +95,70 @@ def _grid_sum(shape, pair, node_arrays, edge_arrays):
 # --- penalty contact with rigid tools --------------------------------------------------------------
 
 
-def sphere_penalty(x, v, center, radius, stiffness, damping=0.0):
-    """Penalty force pushing nodes out of a rigid sphere, `(N, 3)`.
+def _solid(tool):
+    """`tool` if it is a solid `bsjax.collide` tool, else a clear `TypeError`."""
+    if isinstance(tool, collide.Point):
+        raise TypeError(
+            "tools: a collide.Point has no volume, so it cannot push lattice nodes; "
+            "use a solid tool (Sphere, Ellipsoid, Plane, Implicit, TriangleMesh)"
+        )
+    if not isinstance(tool, collide.AbstractTool):
+        raise TypeError(
+            "tools: expected bsjax.collide tools (Sphere, Ellipsoid, Plane, Implicit, TriangleMesh), "
+            f"got {type(tool).__name__}"
+        )
+    return tool
 
-    `f = k δ n − c min(v·n, 0) n` with depth `δ = max(r − |x − c|, 0)` and outward normal `n`
-    (damping acts only while a node moves into the tool).
+
+@compiled
+def tool_contacts(tools, x: Float[Array, "N 3"]) -> list[tuple[Array, Array]]:
+    """`[(depth (N,), normal (N, 3)), …]`: each tool's `push` of the nodes `x` (in their dtype).
+
+    A node is in contact with a tool exactly where the tool's implicit value is negative; it is
+    pushed out by `depth` along the tool's outward normal at the closest surface point
+    (`bsjax.collide.AbstractTool.push`).
     """
-    d = x - center
-    n = _tensor.unit(d)
-    depth = jnp.maximum(radius - _tensor.safe_norm(d), 0.0)
-    return _penalty(depth, n, v, stiffness, damping)
+    return [_solid(tool).cast(x.dtype).push(x) for tool in tools]
 
 
+@compiled
+def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
+    """Sum of the penalty forces of rigid `bsjax.collide` tools on the nodes, `(N, 3)`.
+
+    Each tool's `push` gives the depth `δ_i` and outward normal `n_i` of every node inside it;
+    `f_i = k δ_i n_i − c min(v_i·n_i, 0) n_i` (damping only while a node moves into the tool),
+    the penalty contact of Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces
+    with shaped tools*, §4.2. Accepts `Sphere`, `Ellipsoid`, `Plane`, `Implicit`,
+    `TriangleMesh`; a `Point` (no volume) raises `TypeError`.
+    """
+    f = jnp.zeros_like(x)
+    for depth, normal in tool_contacts(tools, x):
+        f = f + _penalty(depth, normal, v, stiffness, damping)
+    return f
+
+
+@compiled
+def contact_tangent(tools, x, stiffness) -> Float[Array, "N 3 3"]:
+    """`Σ_tools k n nᵀ` at every node inside a tool: the penalty force's normal stiffness (the
+    contact part of the tangent stiffness for an implicit step), `(N, 3, 3)`."""
+    out = jnp.zeros(x.shape + (3,), x.dtype)
+    for depth, n in tool_contacts(tools, x):
+        out = out + jnp.where((depth > 0)[:, None, None], stiffness * n[:, :, None] * n[:, None, :], 0.0)
+    return out
+
+
+@compiled
+def sphere_penalty(x, v, center, radius, stiffness, damping=0.0):
+    """Penalty force pushing nodes out of a rigid sphere, `(N, 3)`: `tool_forces` with a
+    `collide.Sphere(center, radius)` (depth `max(r − |x − c|, 0)` along `(x − c)/|x − c|`)."""
+    return tool_forces((collide.Sphere(center, radius),), x, v, stiffness, damping)
+
+
+@compiled
 def plane_penalty(x, v, point, normal, stiffness, damping=0.0):
-    """Penalty force pushing nodes to the `normal` side of a rigid plane (a table), `(N, 3)`."""
-    n = _tensor.unit(normal)
-    depth = jnp.maximum(-jnp.sum((x - point) * n, axis=-1), 0.0)
-    return _penalty(depth, jnp.broadcast_to(n, x.shape), v, stiffness, damping)
+    """Penalty force pushing nodes to the `normal` side of a rigid plane (a table), `(N, 3)`:
+    `tool_forces` with a `collide.Plane(point, normal)`."""
+    return tool_forces((collide.Plane(point, normal),), x, v, stiffness, damping)
 
 
 def _penalty(depth, n, v, stiffness, damping):
@@ -119,51 +168,12 @@ def _penalty(depth, n, v, stiffness, damping):
     return mag[..., None] * n
 
 
-def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
-    """Sum of penalty forces of rigid tools: objects with `center`/`radius` (sphere) or
-    `point`/`normal` (plane), e.g. `bsjax.collide.Sphere` / `Plane` or `mss.Sphere` / `mss.Plane`."""
-    f = jnp.zeros_like(x)
-    for tool in tools:
-        if hasattr(tool, "radius"):
-            f = f + sphere_penalty(x, v, tool.center, tool.radius, stiffness, damping)
-        elif hasattr(tool, "normal"):
-            f = f + plane_penalty(x, v, tool.point, tool.normal, stiffness, damping)
-        else:
-            raise TypeError(
-                f"tools: expected objects with center/radius or point/normal, got {type(tool).__name__}"
-            )
-    return f
+# The rigid tools of the mass-spring system are the collide tools (same constructor arguments).
+RigidSphere = collide.Sphere
+RigidPlane = collide.Plane
 
 
-class RigidSphere(eqx.Module):
-    """A rigid spherical tool: `center (3,)` in m, `radius` in m (same fields as `collide.Sphere`)."""
-
-    center: Float[Array, " 3"]
-    radius: Float[Array, ""]
-
-    def __init__(self, center, radius):
-        _checks.check_ndim(center, "center", 1, last=3)
-        _checks.check_positive(radius, "radius")
-        self.center = jnp.asarray(center)
-        self.radius = jnp.asarray(radius)
-
-
-class RigidPlane(eqx.Module):
-    """A rigid half-space (a table, a clamp face): `point (3,)` on the plane, `normal (3,)`
-    pointing to the free side (same fields as `collide.Plane`)."""
-
-    point: Float[Array, " 3"]
-    normal: Float[Array, " 3"]
-
-    def __init__(self, point, normal):
-        _checks.check_ndim(point, "point", 1, last=3)
-        _checks.check_ndim(normal, "normal", 1, last=3)
-        if _checks.is_concrete(normal) and not float(jnp.linalg.norm(jnp.asarray(normal))) > 0:
-            _checks.fail("normal", "a non-zero vector", normal)
-        self.point = jnp.asarray(point)
-        self.normal = jnp.asarray(normal)
-
-
+@compiled
 def behind_plane(positions: Float[Array, "N 3"], point, normal) -> Array:
     """Boolean mask of nodes on the solid side of a plane (`(x − p)·n ≤ 0`) — e.g. the nodes a
     clamp holds, for `Lattice(fixed=...)`."""
