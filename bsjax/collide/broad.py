@@ -4,6 +4,9 @@ A B-spline (or NURBS with positive weights) surface lies in the convex hull of i
 points, and each sample lies in the hull of the `(k+1)(l+1)` control points whose basis
 functions are non-zero there (thesis §3.2.3, §3.3.3.1–2). Both facts give conservative tests:
 when they say "apart", the surface and the tool cannot meet.
+
+`hulls_apart`, `sample_window` and `parametric_window` are compiled at the public boundary
+(`bsjax._boundary.compiled`); the queries of `collide.contact` call the private kernels.
 """
 
 from __future__ import annotations
@@ -12,9 +15,25 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
+
 _FW_STEPS = 24
 
 
+def _points(x, name: str):
+    """`x` as a floating `(p, 3)` array with finite entries (structure now, values when run)."""
+    _checks.check_real(x, name)
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    _checks.check_ndim(x, name, 2, last=3)
+    if x.shape[0] < 1:
+        _checks.fail(name, "at least one point", f"shape {x.shape}")
+    return _checks.finite(x, name)
+
+
+@compiled
 def hulls_apart(
     a: Float[Array, "p 3"],
     b: Float[Array, "q 3"],
@@ -23,11 +42,28 @@ def hulls_apart(
 ) -> Bool[Array, ""]:
     """Certify that `dist(conv(a), conv(b)) > margin` (False means "maybe touching").
 
+    **Arguments:** point sets `a (p, 3)`, `b (q, 3)` (finite); `margin` ≥ 0 (`inf` allowed:
+    never apart); `steps` (static int ≥ 1) iterations.
+
+    **Returns:** `()` bool, without gradient (a decision).
+
     Gilbert-type iteration (Frank–Wolfe on the Minkowski difference `conv(a) − conv(b)`) with a
     fixed number of steps: `x` is the current point of the difference, `s` the support point in
     direction `−x`; the plane with normal `x̂` separates the hulls by `x̂·s` whenever that is
     positive, so `x̂·s > margin` is an exact certificate (thesis §3.3.3.1 separating plane).
     """
+    steps = _checks.check_count(steps, "steps")
+    a, b = _points(a, "a"), _points(b, "b")
+    dtype = jnp.result_type(a.dtype, b.dtype)
+    margin = jnp.asarray(margin, dtype)
+    if margin.shape != ():
+        _checks.fail("margin", "a scalar", f"shape {margin.shape}")
+    margin = _checks.check(margin, ~(margin >= 0), "margin", "a value >= 0 (inf allowed)", "< 0 or NaN")
+    return _hulls_apart(a.astype(dtype), b.astype(dtype), margin, steps)
+
+
+def _hulls_apart(a, b, margin, steps: int = _FW_STEPS):
+    """The kernel of `hulls_apart` (no checks; called inside the compiled queries)."""
     x0 = a[0] - b[0]
 
     def support(d):
@@ -36,15 +72,13 @@ def hulls_apart(
     def body(_, carry):
         x, certified = carry
         s = support(x)
-        nx = jnp.sqrt(jnp.sum(x * x))
-        gap = jnp.where(nx > 0, jnp.dot(s, x) / jnp.where(nx > 0, nx, 1), -jnp.inf)
+        gap = jnp.where(jnp.any(x != 0), _safe.ratio(jnp.dot(s, x), _safe.norm(x)), -jnp.inf)
         certified = certified | (gap > margin)
         d = x - s
-        dd = jnp.sum(d * d)
-        gamma = jnp.clip(jnp.where(dd > 0, jnp.dot(x, d) / jnp.where(dd > 0, dd, 1), 0), 0, 1)
+        gamma = jnp.clip(_safe.ratio(jnp.dot(x, d), jnp.sum(d * d)), 0, 1)
         return x - gamma * d, certified
 
-    x, certified = jax.lax.fori_loop(0, steps, body, (x0, jnp.zeros((), bool)))
+    _, certified = jax.lax.fori_loop(0, steps, body, (x0, jnp.zeros((), bool)))
     return jax.lax.stop_gradient(certified)
 
 
@@ -53,7 +87,8 @@ def support_start(a: Float[Array, "m r"], degree: int, periodic: bool) -> Array:
 
     The support of row `a` is a run of at most `degree + 1` consecutive (cyclically, if periodic)
     non-zero basis functions; a clamped start is capped at `r − degree − 1` so that the block of
-    `degree + 1` control points from the start always covers the support.
+    `degree + 1` control points from the start always covers the support. (A kernel of the
+    compiled queries.)
     """
     nz = a > 0
     r = a.shape[1]
@@ -82,22 +117,57 @@ def _blocks(ctrl, k, l, periodic_u, periodic_v):
     return lo, hi
 
 
-def sample_window(blending, ctrl, tool) -> tuple[Bool[Array, "m n"], Float[Array, "4"]]:
+@compiled
+def sample_window(
+    blending, ctrl: Float[Array, "r s 3"], tool
+) -> tuple[Bool[Array, "m n"], Float[Array, "4"]]:
     """Samples whose local control hull may meet `tool`, and the parametric window they span.
 
+    **Arguments:** the surface's `blending` (an `(m, n)` grid), its control net `ctrl (r, s, 3)`
+    (finite) and a `bsjax.collide` tool.
+
     **Returns:** `(mask (m, n), window [u_min, u_max, v_min, v_max])`; an empty window is
-    `[1, 0, 1, 0]` (min > max).
+    `[1, 0, 1, 0]` (min > max). Sample (i, j) is kept when the box of the `(k+1)(l+1)` control
+    points of its support meets the tool (`tool.box_overlap`, thesis §3.3.3.2).
     """
+    from bsjax.collide.contact import checked_net, checked_tool
+
+    ctrl = checked_net(blending, ctrl, "ctrl")
+    return _sample_window(blending, ctrl, checked_tool(tool).cast(ctrl.dtype))
+
+
+def _sample_window(blending, ctrl, tool):
+    """The kernel of `sample_window` (no checks)."""
     su = support_start(blending.a_u[0], blending.degree_u, blending.periodic_u)
     sv = support_start(blending.a_v[0], blending.degree_v, blending.periodic_v)
     lo, hi = _blocks(ctrl, blending.degree_u, blending.degree_v, blending.periodic_u, blending.periodic_v)
     block_hit = tool.box_overlap(lo, hi)
     mask = block_hit[su[:, None], sv[None, :]]
-    return mask, parametric_window(mask, blending.params_u, blending.params_v)
+    return mask, _parametric_window(mask, blending.params_u, blending.params_v)
 
 
-def parametric_window(mask, params_u, params_v) -> Float[Array, "4"]:
-    """`[u_min, u_max, v_min, v_max]` of the True entries of an `(m, n)` mask."""
+@compiled
+def parametric_window(mask: Bool[Array, "m n"], params_u: Float[Array, " m"], params_v: Float[Array, " n"]):
+    """`[u_min, u_max, v_min, v_max]` of the True entries of an `(m, n)` mask.
+
+    **Arguments:** `mask (m, n)` bool, the grid's parameters `params_u (m,)`, `params_v (n,)`.
+
+    **Returns:** `(4,)`; an empty mask gives `[1, 0, 1, 0]` (min > max).
+    """
+    mask = jnp.asarray(mask)
+    if mask.dtype != jnp.bool_:
+        raise TypeError(f"mask: expected a bool array, got dtype {mask.dtype}")
+    _checks.check_ndim(mask, "mask", 2)
+    params_u, params_v = jnp.asarray(params_u), jnp.asarray(params_v)
+    for name, p, size in (("params_u", params_u, mask.shape[0]), ("params_v", params_v, mask.shape[1])):
+        if p.shape != (size,):
+            _checks.fail(name, f"shape ({size},) (the mask's {name[-1]} size)", f"shape {p.shape}")
+    params_u, params_v = _checks.finite(params_u, "params_u"), _checks.finite(params_v, "params_v")
+    return _parametric_window(mask, params_u, params_v)
+
+
+def _parametric_window(mask, params_u, params_v):
+    """The kernel of `parametric_window` (no checks)."""
     rows, cols = jnp.any(mask, 1), jnp.any(mask, 0)
     one, zero = jnp.ones((), params_u.dtype), jnp.zeros((), params_u.dtype)
     return jnp.stack(

@@ -6,6 +6,15 @@ direct evaluation of the tool's implicit function on the window's samples (thesi
 point tool the two triangles of the nearest cell (thesis §3.4); for two surfaces the
 level-of-detail sphere hierarchy with a fixed pair capacity, tessellation of the candidate
 cells and vmapped triangle–triangle tests. Each query also has a dense reference method.
+
+`contacts` and `surface_contacts` are compiled at the public boundary
+(`bsjax._boundary.compiled`): the blending's and tools' arrays, the control nets and Python
+floats are traced; `method`, `capacity`, `flat_angle` and the static fields of the blending and
+the tool (degrees, periodicity, an `Implicit`'s function) select a compilation. A direct call is
+as fast as the same call inside the caller's `jax.jit` from its second call on; it also works
+inside the caller's `jit`, `vmap` and `grad`. The fixed capacity of `surface_contacts` is
+decided on the host: when `overflow` comes back True, call again with a larger `capacity` (one
+more compilation per capacity, then cached), as `bsjax.merge` does.
 """
 
 from __future__ import annotations
@@ -18,20 +27,24 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from bsjax import _checks
-from bsjax._tensor import safe_norm, unit
-from bsjax.collide.broad import hulls_apart, parametric_window, sample_window
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
+from bsjax.collide.broad import _hulls_apart, _parametric_window, _sample_window
 from bsjax.collide.flat import flat_pairs, normal_cones, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
+    _cell_triangles,
+    _sphere_hierarchy,
     block_order,
     candidate_triangles,
-    cell_triangles,
     levels_for,
-    sphere_hierarchy,
     traverse,
 )
 from bsjax.collide.tools import AbstractTool, Point
-from bsjax.collide.triangles import candidate_pairs_intersect, closest_point_on_triangle, triangles_intersect
+from bsjax.collide.triangles import (
+    _closest_point_on_triangle,
+    _triangles_intersect,
+    candidate_pairs_intersect,
+)
 
 
 class Contact(eqx.Module):
@@ -64,10 +77,11 @@ class SurfaceContact(eqx.Module):
     """Result of `surface_contacts`: contact regions on both surfaces.
 
     **Fields:** `hit ()`; `mask_a (m_a, n_a)`, `mask_b (m_b, n_b)`: vertices of intersecting
-    triangles (and of the contact cells of flat pairs); `cells_a (K, 2)`, `cells_b (K, 2)`: candidate cell pairs (row, column) after the
-    sphere hierarchy, `pair_hit (K,)`: whether that pair's triangles intersect (the contact
-    pairs); `candidates ()`: number of intersecting sphere pairs at the last level;
-    `overflow ()`: more candidates than `capacity` (results incomplete — raise the capacity);
+    triangles (and of the contact cells of flat pairs); `cells_a (K, 2)`, `cells_b (K, 2)`:
+    candidate cell pairs (row, column) after the sphere hierarchy, `pair_hit (K,)`: whether
+    that pair's triangles intersect (the contact pairs); `candidates ()`: number of
+    intersecting sphere pairs at the last level; `overflow ()`: more candidates than
+    `capacity` (results incomplete — call again with a larger capacity);
     `flat_pairs ()`: flat block pairs in contact, resolved by planes (`collide.flat`);
     `apart ()`: the control hulls are certified apart.
     """
@@ -96,35 +110,54 @@ def _unless_apart(apart, query, *args):
     return eqx.tree_at(lambda c: c.apart, out, apart)
 
 
-def _check_net(blending, ctrl, name):
-    if np.shape(ctrl) != tuple(blending.ctrl_shape) + (3,):
-        _checks.fail(
-            name, f"shape {tuple(blending.ctrl_shape) + (3,)} (the blending's control net)", np.shape(ctrl)
-        )
+def checked_net(blending, ctrl, name: str = "ctrl", blending_name: str = "blending"):
+    """`ctrl` as a floating array of the blending's control-net shape `(r, s, 3)`, finite.
+
+    Structure (the blending's type, the net's shape, real numbers) raises now; finiteness is
+    checked at run time too (`_checks.finite`), so a NaN net raises inside `jit` as well.
+    """
+    if not hasattr(blending, "ctrl_shape") or not hasattr(blending, "points"):
+        raise TypeError(f"{blending_name}: expected a bsjax.basis.Blending, got {type(blending).__name__}")
+    _checks.check_real(ctrl, name)
+    expected = tuple(blending.ctrl_shape) + (3,)
+    if np.shape(ctrl) != expected:
+        _checks.fail(name, f"shape {expected} (the blending's control net)", f"shape {np.shape(ctrl)}")
+    ctrl = jnp.asarray(ctrl)
+    if not jnp.issubdtype(ctrl.dtype, jnp.floating):
+        ctrl = ctrl.astype(jnp.result_type(float))
+    return _checks.finite(ctrl, name)
 
 
+def checked_tool(tool) -> AbstractTool:
+    """`tool`, after checking that it is a `bsjax.collide` tool."""
+    if not isinstance(tool, AbstractTool):
+        raise TypeError(f"tool: expected a bsjax.collide tool (Point, Sphere, …), got {type(tool).__name__}")
+    return tool
+
+
+@compiled
 def contacts(blending, ctrl: Float[Array, "r s 3"], tool: AbstractTool, *, method: str = "window") -> Contact:
     """Contact of the surface `(blending, ctrl)` with a rigid `tool`.
 
     **Arguments:**
     - `blending`: the surface's `Blending` (any grid, window or LOD view).
-    - `ctrl (r, s, 3)`: control net (differentiable).
+    - `ctrl (r, s, 3)`: control net (finite; differentiable).
     - `tool`: `Point`, `Sphere`, `Ellipsoid`, `Plane`, `Implicit` or `TriangleMesh`.
-    - `method`: `"window"` (broad phase + parametric window, thesis ch. 3) or `"dense"` (every
-      sample; the reference). Both give the same result.
+    - `method` (static): `"window"` (broad phase + parametric window, thesis ch. 3) or
+      `"dense"` (every sample; the reference). Both give the same result.
 
     **Returns:** a `Contact`. A sample is in contact when it lies inside the solid tool
     (`value < 0`); its depth is the tool's penetration depth along the sample's normal
-    (quadrics), the signed distance (plane, mesh) or the closest-point distance (implicit).
-    For a `Point`, the three vertices of the nearest triangle carry the point's penetration
-    split by barycentric weights, so `Σ depth` is the point's depth behind the surface.
+    (quadrics; Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with
+    shaped tools*, §3.2.2), the signed distance (plane, mesh) or the closest-point distance
+    (implicit). For a `Point`, the three vertices of the nearest triangle carry the point's
+    penetration split by barycentric weights, so `Σ depth` is the point's depth behind the
+    surface.
     """
-    if not isinstance(tool, AbstractTool):
-        raise TypeError(f"tool: expected a bsjax.collide tool (Point, Sphere, …), got {type(tool).__name__}")
+    tool = checked_tool(tool)  # first: the clearest error for a wrong argument order
     if method not in ("window", "dense"):
         _checks.fail("method", "'window' or 'dense'", repr(method))
-    _check_net(blending, ctrl, "ctrl")
-    ctrl = jnp.asarray(ctrl)
+    ctrl = checked_net(blending, ctrl, "ctrl")
     tool = tool.cast(ctrl.dtype)
     query = _point_contact if isinstance(tool, Point) else _solid_contact
     query = functools.partial(query, use_window=method == "window")
@@ -143,12 +176,12 @@ def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
     points, normals = points_normals(blending, ctrl)
     inside = tool.value(points) < 0
     if use_window:
-        window_mask, window = sample_window(
+        window_mask, window = _sample_window(
             blending, jax.lax.stop_gradient(ctrl), jax.lax.stop_gradient(tool)
         )
         inside = inside & window_mask
     else:
-        window = parametric_window(jnp.ones(inside.shape, bool), blending.params_u, blending.params_v)
+        window = _parametric_window(jnp.ones(inside.shape, bool), blending.params_u, blending.params_v)
     depth, tool_normals = tool.penetration(points, normals)
     depth = jnp.where(inside, depth, 0)
     return Contact(
@@ -170,8 +203,8 @@ _BLOCK = 6  # samples per side of the neighbourhood searched first by the point 
 
 def _nearest_triangle(x, tris):
     """Index, closest point and barycentrics of the triangle of `(T, 3, 3)` nearest to `x`."""
-    closest, bary = closest_point_on_triangle(x[None], tris)
-    k = jnp.argmin(jnp.sum((closest - x) ** 2, -1))
+    closest, bary = _closest_point_on_triangle(jnp.broadcast_to(x, tris.shape[:-1]), tris)
+    k = jnp.argmin(jnp.sum((closest - x[None]) ** 2, -1))
     return k, closest[k], bary[k]
 
 
@@ -185,18 +218,18 @@ def _nearest_on_grid(x, points):
     m, n = points.shape[:2]
     corners = jnp.stack([points[:-1, :-1], points[1:, :-1], points[:-1, 1:], points[1:, 1:]], -2)
     centre = corners.mean(-2)
-    radius = jnp.max(safe_norm(corners - centre[..., None, :]), -1)
-    bound = jax.lax.stop_gradient(safe_norm(x - centre) - radius)
+    radius = jnp.max(_safe.norm(corners - centre[..., None, :]), -1)
+    bound = jax.lax.stop_gradient(_safe.norm(x[None, None] - centre) - radius)
 
     def search(block):
-        tris, faces = cell_triangles(block)
+        tris, faces = _cell_triangles(block)
         k, closest, bary = _nearest_triangle(x, tris.reshape(-1, 3, 3))
         return faces.reshape(-1, 3)[k], closest, bary
 
     if m <= _BLOCK and n <= _BLOCK:
         return _cast_face(search(points))
     bu, bv = min(_BLOCK, m), min(_BLOCK, n)
-    near = jnp.argmin(jax.lax.stop_gradient(jnp.sum((points - x) ** 2, -1)).reshape(-1))
+    near = jnp.argmin(jax.lax.stop_gradient(jnp.sum((points - x[None, None]) ** 2, -1)).reshape(-1))
     i0 = jnp.clip(near // n - bu // 2, 0, m - bu).astype(jnp.int32)
     j0 = jnp.clip(near % n - bv // 2, 0, n - bv).astype(jnp.int32)
     block = jax.lax.dynamic_slice(points, (i0, j0, jnp.zeros((), jnp.int32)), (bu, bv, 3))
@@ -207,7 +240,7 @@ def _nearest_on_grid(x, points):
     r, c = jnp.arange(m - 1, dtype=jnp.int32)[:, None], jnp.arange(n - 1, dtype=jnp.int32)[None, :]
     inside = (r >= i0) & (r < i0 + bu - 1) & (c >= j0) & (c < j0 + bv - 1)
     outside_bound = jnp.min(jnp.where(inside, jnp.inf, bound))
-    certain = safe_norm(x - closest) <= outside_bound
+    certain = _safe.norm(x - closest) <= outside_bound
     return jax.lax.cond(certain, lambda: (face, closest, bary), lambda: _cast_face(search(points)))
 
 
@@ -222,13 +255,13 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
     x = tool.position
     face, closest, bary = _nearest_on_grid(x, points)
     tri = points.reshape(-1, 3)[face]
-    face_normal = unit(jnp.cross(tri[1] - tri[0], tri[2] - tri[0]))
+    face_normal = _safe.unit(jnp.cross(tri[1] - tri[0], tri[2] - tri[0]))
     offset = x - closest
-    dist = safe_norm(offset)
+    dist = _safe.norm(offset)
     inside = (jnp.dot(offset, face_normal) < 0) & (dist <= tool.reach)
     depth = jnp.zeros(m * n, x.dtype).at[face].add(jnp.where(inside, bary * dist, 0)).reshape(m, n)
     mask = jnp.zeros(m * n, bool).at[face].set(inside).reshape(m, n)
-    probe = jnp.where(dist > 0, unit(offset), -face_normal)
+    probe = jnp.where(dist > 0, _safe.unit(offset), -face_normal)
     tool_normals = jnp.zeros((m * n, 3), x.dtype).at[face].set(probe).reshape(m, n, 3)
     return Contact(
         hit=inside,
@@ -239,11 +272,12 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
         tool_normals=tool_normals,
         params_u=blending.params_u,
         params_v=blending.params_v,
-        window=parametric_window(mask, blending.params_u, blending.params_v),
+        window=_parametric_window(mask, blending.params_u, blending.params_v),
         apart=jnp.zeros((), bool),
     )
 
 
+@compiled(static=("capacity", "flat_angle"))
 def surface_contacts(
     blending_a,
     ctrl_a: Float[Array, "ra sa 3"],
@@ -256,8 +290,9 @@ def surface_contacts(
 ) -> SurfaceContact:
     """Contact regions of two deformable B-spline surfaces (thesis §3.3).
 
-    **Arguments:** each surface as `(blending, ctrl)`; `capacity` (static): the most candidate
-    cell pairs kept per refinement step (`overflow` reports when more intersect); `method`:
+    **Arguments:** each surface as `(blending, ctrl)` (finite control nets `(r, s, 3)`);
+    `capacity` (static int ≥ 1): the most candidate cell pairs kept per refinement step
+    (`overflow` reports when more intersect: call again with a larger capacity); `method`:
     `"hierarchy"` (control-hull broad phase → alternating LOD sphere refinement → triangle
     tests of the candidate cells) or `"dense"` (every triangle pair; the reference, small grids
     only); `flat_angle` δ (radians, static): blocks of ≥ 3 × 3 cells whose triangle normals
@@ -269,20 +304,20 @@ def surface_contacts(
     """
     if method not in ("hierarchy", "dense"):
         _checks.fail("method", "'hierarchy' or 'dense'", repr(method))
-    if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) or capacity < 1:
-        _checks.fail("capacity", "an int >= 1", capacity)
-    _check_net(blending_a, ctrl_a, "ctrl_a")
-    _check_net(blending_b, ctrl_b, "ctrl_b")
-    ctrl_a, ctrl_b = jnp.asarray(ctrl_a), jnp.asarray(ctrl_b)
-    if method == "dense":
-        return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
-    apart = hulls_apart(
-        jax.lax.stop_gradient(ctrl_a).reshape(-1, 3), jax.lax.stop_gradient(ctrl_b).reshape(-1, 3)
-    )
+    capacity = _checks.check_count(capacity, "capacity")
     if flat_angle is not None and not (
-        isinstance(flat_angle, (int, float, np.floating)) and 0 <= flat_angle < np.pi / 2
+        isinstance(flat_angle, (int, float, np.integer, np.floating))
+        and not isinstance(flat_angle, bool)
+        and 0 <= flat_angle < np.pi / 2
     ):
         _checks.fail("flat_angle", "None or an angle in radians in [0, π/2)", flat_angle)
+    ctrl_a = checked_net(blending_a, ctrl_a, "ctrl_a", "blending_a")
+    ctrl_b = checked_net(blending_b, ctrl_b, "ctrl_b", "blending_b")
+    if method == "dense":
+        return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
+    a = jax.lax.stop_gradient(ctrl_a).reshape(-1, 3)
+    b = jax.lax.stop_gradient(ctrl_b).reshape(-1, 3).astype(a.dtype)
+    apart = _hulls_apart(a, b, jnp.zeros((), a.dtype))
     query = functools.partial(
         _hierarchy_surfaces,
         capacity=int(capacity),
@@ -304,7 +339,7 @@ def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_a
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
-    spheres = (sphere_hierarchy(pa, lev_a), sphere_hierarchy(pb, lev_b))  # built once for both passes
+    spheres = (_sphere_hierarchy(pa, lev_a), _sphere_hierarchy(pb, lev_b))  # built once for both passes
     exact = _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, None)
     if flat_angle is None:
         return exact
@@ -379,10 +414,10 @@ def _cells(leaf, levels, shape):
 
 def _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b):
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
-    ta, fa = cell_triangles(pa)
-    tb, fb = cell_triangles(pb)
+    ta, fa = _cell_triangles(pa)
+    tb, fb = _cell_triangles(pb)
     ta, fa, tb, fb = ta.reshape(-1, 3, 3), fa.reshape(-1, 3), tb.reshape(-1, 3, 3), fb.reshape(-1, 3)
-    hits = triangles_intersect(ta[:, None], tb[None, :])
+    hits = _triangles_intersect(ta[:, None], tb[None, :])
     mask_a = _vertex_mask(fa, jnp.any(hits, 1), pa.shape[:2])
     mask_b = _vertex_mask(fb, jnp.any(hits, 0), pb.shape[:2])
     empty = jnp.zeros((0, 2), jnp.int32)

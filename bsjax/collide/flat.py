@@ -14,6 +14,8 @@ contact when its corners straddle the other block's plane slab (the slab of that
 corners, so the flatness tolerance is exact) and it lies over that block's footprint (the
 quad of its corners on the intermittent rows). The vertices of contact cells are marked, as the
 vertices of intersecting triangles are for the refined pairs.
+
+These are kernels of `surface_contacts` (compiled there), called inside its trace.
 """
 
 from __future__ import annotations
@@ -23,19 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax._tensor import safe_norm
+from bsjax import _safe
 from bsjax.collide.hierarchy import BRANCH, block_order
 
 
 def _angle(a, b):
     """Angle between unit vectors along the last axis, `arccos` clipped into its domain."""
     return jnp.arccos(jnp.clip(jnp.sum(a * b, -1), -1.0, 1.0))
-
-
-def _unit_or_zero(v):
-    n = safe_norm(v)
-    ok = n > jnp.finfo(v.dtype).tiny
-    return jnp.where(ok[..., None], v / jnp.where(ok, n, 1)[..., None], 0), ok
 
 
 def normal_cones(points: Float[Array, "m n 3"], levels: int) -> list[tuple[Array, Array]]:
@@ -53,9 +49,9 @@ def normal_cones(points: Float[Array, "m n 3"], levels: int) -> list[tuple[Array
     main_short = jnp.sum((p11 - p00) ** 2, -1) <= jnp.sum((p10 - p01) ** 2, -1)
     n1 = jnp.where(main_short[..., None], jnp.cross(p10 - p00, p11 - p00), jnp.cross(p10 - p00, p01 - p00))
     n2 = jnp.where(main_short[..., None], jnp.cross(p11 - p00, p01 - p00), jnp.cross(p11 - p10, p01 - p10))
-    u1, ok1 = _unit_or_zero(n1)
-    u2, ok2 = _unit_or_zero(n2)
-    axis, ok = _unit_or_zero(u1 + u2)
+    u1, ok1 = _safe.unit_or_zero(n1)
+    u2, ok2 = _safe.unit_or_zero(n2)
+    axis, ok = _safe.unit_or_zero(u1 + u2)
     half = jnp.where(ok1 & ok2 & ok, 0.5 * _angle(u1, u2), jnp.inf)
     rows, cols = block_order(levels)
     present = jnp.asarray((rows < m - 1) & (cols < n - 1))
@@ -66,7 +62,7 @@ def normal_cones(points: Float[Array, "m n 3"], levels: int) -> list[tuple[Array
         child_axis = axis.reshape(-1, BRANCH * BRANCH, 3)
         child_half = half.reshape(-1, BRANCH * BRANCH)
         child_present = present.reshape(-1, BRANCH * BRANCH)
-        axis, _ = _unit_or_zero(jnp.sum(jnp.where(child_present[..., None], child_axis, 0), 1))
+        axis, _ = _safe.unit_or_zero(jnp.sum(jnp.where(child_present[..., None], child_axis, 0), 1))
         spread = jnp.where(child_present, child_half + _angle(child_axis, axis[:, None]), 0)
         present = jnp.any(child_present, 1)
         half = jnp.max(spread, 1)
@@ -119,7 +115,7 @@ def _over_quad(x, quad, normal):
     inward = jnp.cross(normal[:, None], edges)  # (K, 4, 3)
     offset = jnp.sum(inward * quad, -1)
     side = jnp.einsum("kpc,kec->kpe", x, inward) - offset[:, None]
-    scale = jnp.max(safe_norm(edges), -1) ** 2
+    scale = jnp.max(_safe.norm(edges), -1) ** 2
     tol = (64 * jnp.finfo(x.dtype).eps * scale)[:, None, None]
     return jnp.all(side >= -tol, -1) | jnp.all(side <= tol, -1)
 

@@ -1,11 +1,17 @@
-"""Contact forces: Gao & Gibson's distributed springs (paper 002 §3.2.2–3.2.3).
+"""Contact forces: Gao & Gibson's distributed springs.
 
-Each contact sample i is a spring of stiffness k compressed by its depth d_i. The force on the
-tool has magnitude `k Σ d_i` (plus damping `−c ṡ` per spring) and the direction of the
-depth-weighted sum of normals: the surface normals (**surface-normal method**, smooth on
-smooth surfaces and consistent when the probe passes through a wall) or the reversed outward
-normals of the probe at the contacts (**probe-normal method**, no jumps at sharp edges). The
-surface receives equal and opposite forces, per sample and then per lattice node.
+Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools*
+(§3.2.2–3.2.3): each contact sample i is a spring of stiffness k compressed by its depth d_i.
+The force on the tool has magnitude `k Σ d_i` (plus damping `−c ṡ` per spring) and the
+direction of the depth-weighted sum of normals: the surface normals (**surface-normal method**,
+smooth on smooth surfaces and consistent when the probe passes through a wall) or the reversed
+outward normals of the probe at the contacts (**probe-normal method**, no jumps at sharp
+edges). The surface receives equal and opposite forces, per sample and then per lattice node.
+
+`contact_force`, `sample_forces` and `nodal_forces` are compiled at the public boundary
+(`bsjax._boundary.compiled`): `method` and `k` are static, stiffness, damping and velocity are
+traced (a new stiffness never recompiles). Values are checked under `jit` too (stiffness and
+damping ≥ 0, finite velocity); a force that overflows the dtype raises instead of giving inf/NaN.
 """
 
 from __future__ import annotations
@@ -15,10 +21,25 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import _checks
-from bsjax._tensor import unit
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
+from bsjax.collide.contact import Contact
 
 METHODS = ("surface_normal", "probe_normal")
+
+
+def _checked_contact(contact):
+    if not isinstance(contact, Contact):
+        raise TypeError(f"contact: expected a bsjax.collide.Contact, got {type(contact).__name__}")
+    return contact
+
+
+def _coefficient(value, name: str, dtype):
+    """A scalar `value` ≥ 0 and finite (checked at run time too), in `dtype`."""
+    _checks.check_real(value, name)
+    if np.ndim(value) != 0:
+        _checks.fail(name, "a scalar", f"shape {np.shape(value)}")
+    return _checks.positive(jnp.asarray(value, dtype), name, strict=False)
 
 
 def _direction(contact, method: str):
@@ -26,54 +47,64 @@ def _direction(contact, method: str):
         _checks.fail("method", f"one of {METHODS}", repr(method))
     w = contact.depth[..., None]
     normals = contact.normals if method == "surface_normal" else -contact.tool_normals
-    return unit(jnp.sum(w * normals, axis=(0, 1)))
+    return _safe.unit(jnp.sum(w * normals, axis=(0, 1)))
 
 
 def _magnitudes(contact, stiffness, damping, velocity, direction):
     """Per-sample spring forces along `direction`: `k d_i + c ṡ_i`, `ṡ_i = −v·ê` in contact."""
-    _checks.check_positive(stiffness, "stiffness", strict=False)
-    _checks.check_positive(damping, "damping", strict=False)
     dtype = contact.depth.dtype
-    k = jnp.asarray(stiffness, dtype)
-    c = jnp.asarray(damping, dtype)
+    k = _coefficient(stiffness, "stiffness", dtype)
+    c = _coefficient(damping, "damping", dtype)
     spring = k * contact.depth
     if velocity is None:
         return spring
-    v = jnp.asarray(velocity, dtype)
-    if v.shape != (3,):
-        _checks.fail("velocity", "shape (3,)", v.shape)
+    _checks.check_real(velocity, "velocity")
+    if np.shape(velocity) != (3,):
+        _checks.fail("velocity", "shape (3,)", np.shape(velocity))
+    v = _checks.finite(jnp.asarray(velocity, dtype), "velocity")
     # ṡ_i: the depth grows while the tool moves against ê; the damper resists that motion
     # (the paper's `F = k s − d ṡ` with s measured along the spring from the tool side).
     closing = -jnp.dot(v, direction)
     return spring + jnp.where(contact.mask, c * closing, 0)
 
 
+def _representable(force):
+    """`force`, checked to be finite: a huge stiffness, damping or velocity must not give inf/NaN."""
+    expected = f"a force that fits in {force.dtype} (k Σ d_i + c Σ ṡ_i finite)"
+    return _checks.check(force, ~jnp.isfinite(force), "stiffness, damping", expected, "an overflow")
+
+
+@compiled
 def contact_force(
-    contact,
+    contact: Contact,
     stiffness: float | Array,
     method: str = "surface_normal",
     damping: float | Array = 0.0,
     velocity: Float[Array, "3"] | None = None,
 ) -> Float[Array, "3"]:
-    """Force on the tool from the distributed contact springs (paper 002 §3.2).
+    """Force on the tool from the distributed contact springs (Gao & Gibson §3.2).
 
     **Arguments:**
     - `contact`: a `Contact` from `contacts`.
-    - `stiffness` k ≥ 0 (N/m per contact sample); `damping` c ≥ 0 (N·s/m per contact sample).
-    - `method`: `"surface_normal"` (direction `Σ d_i N_i`, surface normals) or `"probe_normal"`
-      (direction `−Σ d_i n_i`, the tool's outward normals at the contacts).
-    - `velocity (3,)`: the tool's velocity, for damping (`F = k s − c ṡ` per spring).
+    - `stiffness` k ≥ 0 (N/m per contact sample); `damping` c ≥ 0 (N·s/m per contact sample);
+      scalars, traced.
+    - `method` (static): `"surface_normal"` (direction `Σ d_i N_i`, surface normals) or
+      `"probe_normal"` (direction `−Σ d_i n_i`, the tool's outward normals at the contacts).
+    - `velocity (3,)`: the tool's velocity (finite), for damping (`F = k s − c ṡ` per spring).
 
     **Returns:** `(3,)` force `ê (k Σ d_i + c Σ_contacts ṡ_i)`, `ṡ_i = −v·ê` the rate at which
-    the tool closes in (damping resists penetration); zero without contact.
-    Differentiable in the tool pose, size and the control points.
+    the tool closes in (damping resists penetration); zero without contact. Differentiable in
+    the tool pose, size and the control points. A force beyond the dtype's range raises
+    (`ValueError`, or the `eqx.error_if` runtime error inside a caller's `jit`).
     """
+    contact = _checked_contact(contact)
     e = _direction(contact, method)
-    return e * jnp.sum(_magnitudes(contact, stiffness, damping, velocity, e))
+    return _representable(e * jnp.sum(_magnitudes(contact, stiffness, damping, velocity, e)))
 
 
+@compiled
 def sample_forces(
-    contact,
+    contact: Contact,
     stiffness: float | Array,
     method: str = "surface_normal",
     damping: float | Array = 0.0,
@@ -81,36 +112,55 @@ def sample_forces(
 ) -> Float[Array, "m n 3"]:
     """Per-sample reaction forces on the surface, equal and opposite to `contact_force`.
 
-    Sample i receives `−ê (k d_i + c ṡ_i)`, so `sample_forces(...).sum((0, 1)) ==
-    −contact_force(...)` exactly.
+    **Arguments:** as `contact_force`. **Returns:** `(m, n, 3)`: sample i receives
+    `−ê (k d_i + c ṡ_i)`, so `sample_forces(...).sum((0, 1)) == −contact_force(...)`
+    (Gao & Gibson §3.2.3, the reaction on the surface).
     """
+    contact = _checked_contact(contact)
     e = _direction(contact, method)
-    return -_magnitudes(contact, stiffness, damping, velocity, e)[..., None] * e
+    forces = -_magnitudes(contact, stiffness, damping, velocity, e)[..., None] * e[None, None]
+    return _representable(forces)
 
 
+def _positions(x, name: str):
+    _checks.check_real(x, name)
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    if x.ndim < 1 or x.shape[-1] != 3:
+        _checks.fail(name, "shape (..., 3)", f"shape {x.shape}")
+    return _checks.finite(x, name)
+
+
+@compiled
 def nodal_forces(
     points: Float[Array, "... 3"], forces: Float[Array, "... 3"], nodes: Float[Array, "N 3"], k: int = 1
 ) -> Float[Array, "N 3"]:
-    """Spread point forces onto the nearest lattice nodes (for the mass-spring system, SPEC §3).
+    """Spread point forces onto the nearest lattice nodes (for the mass-spring system).
 
     **Arguments:** `points (..., 3)` where the forces act (e.g. `contact.points`), `forces
-    (..., 3)` (e.g. `sample_forces`), `nodes (N, 3)` node positions, `k` (static) nearest nodes
-    per point, weighted by inverse distance (weights sum to 1, so the total force is kept).
+    (..., 3)` (e.g. `sample_forces`), `nodes (N, 3)` node positions (all finite), `k` (static
+    int in [1, N]) nearest nodes per point, weighted by inverse distance (weights sum to 1, so
+    the total force is kept; a point on a node gives that node everything).
 
-    **Returns:** `(N, 3)` summed nodal forces.
+    **Returns:** `(N, 3)` summed nodal forces, `F_j = Σ_i w_ij f_i`, `w_ij ∝ 1 / |p_i − x_j|`.
     """
     _checks.check_ndim(nodes, "nodes", 2, last=3)
     if np.shape(points) != np.shape(forces):
         _checks.fail("forces", f"the shape of points {np.shape(points)}", np.shape(forces))
-    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= nodes.shape[0]:
-        _checks.fail("k", f"an int in [1, {nodes.shape[0]}]", k)
+    count = np.shape(nodes)[0]
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= count:
+        _checks.fail("k", f"an int in [1, {count}]", k)
+    points, forces = _positions(points, "points"), _positions(forces, "forces")
+    nodes = _positions(nodes, "nodes")
     p, f = points.reshape(-1, 3), forces.reshape(-1, 3)
+    nodes = nodes.astype(p.dtype)
     d2 = jnp.sum((p[:, None, :] - nodes[None, :, :]) ** 2, -1)
-    neg, idx = jax.lax.top_k(-jax.lax.stop_gradient(d2), k)
+    neg, idx = jax.lax.top_k(-jax.lax.stop_gradient(d2), int(k))
     if k == 1:
         w = jnp.ones(neg.shape, f.dtype)
     else:
-        dist = jnp.sqrt(jnp.maximum(-neg, 0))
+        dist = _safe.sqrt(-neg)
         exact = dist <= jnp.finfo(dist.dtype).eps
         # inverse-distance weights; a point sitting on a node gives it everything
         inv = jnp.where(exact, 0, 1 / jnp.where(exact, 1, dist))

@@ -11,6 +11,10 @@ The pair traversal is the thesis's alternating refinement with static shapes: a 
 list of candidate (block_a, block_b) pairs; each step splits the blocks of one surface into
 their 3 × 3 children, keeps the pairs whose spheres intersect (`jnp.nonzero(size=capacity)`)
 and reports overflow when more than `capacity` pairs intersect.
+
+`sphere_hierarchy`, `cell_triangles` and `tessellate` are compiled at the public boundary
+(`bsjax._boundary.compiled`); the queries call their private kernels, and `traverse`,
+`candidate_triangles`, `block_order`, `levels_for` are kernels of those queries.
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from bsjax._tensor import safe_norm
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
 
 BRANCH = 3
 
@@ -69,15 +74,38 @@ def block_order(levels: int) -> tuple[np.ndarray, np.ndarray]:
     return reorder(rows), reorder(cols)
 
 
+def _grid(points, name: str = "points"):
+    """A floating `(m, n, 3)` sample grid with m, n ≥ 2 and finite entries."""
+    _checks.check_real(points, name)
+    points = jnp.asarray(points)
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        points = points.astype(jnp.result_type(float))
+    _checks.check_ndim(points, name, 3, last=3)
+    if points.shape[0] < 2 or points.shape[1] < 2:
+        _checks.fail(name, "a grid of at least 2 x 2 samples", f"shape {points.shape}")
+    return _checks.finite(points, name)
+
+
+@compiled
 def sphere_hierarchy(points: Float[Array, "m n 3"], levels: int) -> list[tuple[Array, Array]]:
     """Bounding spheres of every level, `[(centers (3, N_l), radii (N_l,)) for l = 0..levels]`.
 
-    `N_l = 9^(levels − l)` blocks in block-major order (`block_order`); padding blocks beyond
-    the grid have radius −∞ and never intersect anything.
+    **Arguments:** a sample grid `points (m, n, 3)` (m, n ≥ 2, finite); `levels` (static int
+    ≥ 0; `levels_for(max(m, n) − 1)` makes one top block cover the grid).
+
+    **Returns:** `N_l = 9^(levels − l)` blocks per level in block-major order (`block_order`);
+    padding blocks beyond the grid have radius −∞ and never intersect anything. Level 0: the
+    three-point sphere of each cell; level L: the three-point sphere of the block's corners
+    grown to enclose its nine children (thesis §3.3.3.4, Fig. 3.6).
     """
+    levels = _checks.check_count(levels, "levels", minimum=0)
+    return _sphere_hierarchy(_grid(points), levels)
+
+
+def _sphere_hierarchy(points, levels: int):
+    """The kernel of `sphere_hierarchy` (no checks)."""
     m, n = points.shape[:2]
     dtype = points.dtype
-    size = BRANCH**levels
     neg = jnp.array(-jnp.inf, dtype)
     out = []
     centers = radii = None
@@ -92,23 +120,31 @@ def sphere_hierarchy(points: Float[Array, "m n 3"], levels: int) -> list[tuple[A
         c = three_point_sphere(*corners)[rows, cols]  # (N_l, 3)
         valid = jnp.asarray((rows * step < m - 1) & (cols * step < n - 1))
         if level == 0:
-            radius = jnp.max(jnp.stack([safe_norm(p[rows, cols] - c) for p in corners]), 0)
+            radius = jnp.max(jnp.stack([_safe.norm(p[rows, cols] - c) for p in corners]), 0)
         else:
             child_c = centers.T.reshape(-1, BRANCH * BRANCH, 3)
             child_r = radii.reshape(-1, BRANCH * BRANCH)
-            radius = jnp.max(safe_norm(child_c - c[:, None]) + child_r, axis=1)
+            radius = jnp.max(_safe.norm(child_c - c[:, None]) + child_r, axis=1)
         centers, radii = c.T, jnp.where(valid, radius, neg)
         out.append((centers, radii))
     return out
 
 
+@compiled
 def cell_triangles(points: Float[Array, "m n 3"]) -> tuple[Array, Array]:
     """Two triangles per grid cell, split along the shorter diagonal (the thesis drops the longest side).
 
+    **Arguments:** a sample grid `points (m, n, 3)` (m, n ≥ 2, finite).
+
     **Returns:** `(triangles (m−1, n−1, 2, 3, 3), vertex indices (m−1, n−1, 2, 3))` into the
     flattened `(m·n)` grid; triangles are counter-clockwise in (u, v), so their normals follow
-    `T_u × T_v`.
+    `T_u × T_v` (thesis §3.3.3.5).
     """
+    return _cell_triangles(_grid(points))
+
+
+def _cell_triangles(points):
+    """The kernel of `cell_triangles` (no checks)."""
     m, n = points.shape[:2]
     idx = np.arange(m * n).reshape(m, n)
     i00, i10, i01, i11 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
@@ -122,7 +158,7 @@ def cell_triangles(points: Float[Array, "m n 3"]) -> tuple[Array, Array]:
 
 def candidate_triangles(points: Float[Array, "m n 3"], cells: Int[Array, "K 2"]) -> tuple[Array, Array]:
     """`cell_triangles` of the listed cells only: `(triangles (K, 2, 3, 3), vertex indices (K, 2, 3))`."""
-    m, n = points.shape[:2]
+    n = points.shape[1]
     i, j = cells[:, 0], cells[:, 1]
     i00, i10, i01, i11 = i * n + j, (i + 1) * n + j, i * n + j + 1, (i + 1) * n + j + 1
     flat = points.reshape(-1, 3)
@@ -134,9 +170,15 @@ def candidate_triangles(points: Float[Array, "m n 3"], cells: Int[Array, "K 2"])
     return flat[faces], faces
 
 
+@compiled
 def tessellate(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[Array, "F 3"]]:
-    """The triangle mesh of a sample grid: `(vertices (m·n, 3), faces (2(m−1)(n−1), 3))`."""
-    _, faces = cell_triangles(points)
+    """The triangle mesh of a sample grid: `(vertices (m·n, 3), faces (2(m−1)(n−1), 3))`.
+
+    **Arguments:** `points (m, n, 3)` (m, n ≥ 2, finite). Each cell is split along its shorter
+    diagonal (`cell_triangles`); faces are counter-clockwise in (u, v).
+    """
+    points = _grid(points)
+    _, faces = _cell_triangles(points)
     return points.reshape(-1, 3), faces.reshape(-1, 3)
 
 

@@ -6,6 +6,9 @@ representable inputs (e.g. small integers) every decision is exact. Guigue–Dev
 non-degenerate, non-coplanar triangles; pairs that are coplanar or contain a zero-area triangle
 go to a robust edge-based test (two closed triangles meet iff an edge of one meets the other),
 run under `lax.cond` only when a batch contains such a pair.
+
+`triangles_intersect` and `closest_point_on_triangle` are compiled at the public boundary
+(`bsjax._boundary.compiled`); the queries call their private kernels.
 """
 
 from __future__ import annotations
@@ -14,6 +17,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
+
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
 
 
 def _dot(a, b):
@@ -199,28 +205,48 @@ def _robust(t1, t2):
     return jnp.any(_segment_triangle_3d(a, b, tri), 0)
 
 
+def _floating(x, name: str):
+    _checks.check_real(x, name)
+    x = jnp.asarray(x)
+    return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.result_type(float))
+
+
+@compiled
 def triangles_intersect(t1: Float[Array, "... 3 3"], t2: Float[Array, "... 3 3"]) -> Bool[Array, "..."]:
     """Whether closed triangles `t1` and `t2` share at least one point.
 
-    **Arguments:** `t1`, `t2`: `(..., 3, 3)` triangles (3 vertices × xyz) whose batch shapes
-    broadcast; touching counts as intersecting.
+    **Arguments:** `t1`, `t2`: `(..., 3, 3)` triangles (3 vertices × xyz, finite) whose batch
+    shapes broadcast; touching counts as intersecting.
 
     **Returns:** `(...)` bool.
 
-    Guigue–Devillers (2003) orientation predicates; coplanar and degenerate (zero-area, segment
-    or point) triangles are handled by an exact edge-based test that runs only when the batch
-    holds such a pair (`lax.cond`). Jittable and vmappable.
+    Guigue & Devillers, *Fast and robust triangle-triangle overlap test using orientation
+    predicates* (2003); coplanar and degenerate (zero-area, segment or point) triangles are
+    handled by an exact edge-based test that runs only when the batch holds such a pair
+    (`lax.cond`). Jittable and vmappable.
     """
-    t1, t2 = jnp.asarray(t1), jnp.asarray(t2)
+    t1, t2 = _floating(t1, "t1"), _floating(t2, "t2")
     dtype = jnp.result_type(t1.dtype, t2.dtype)
-    if not jnp.issubdtype(dtype, jnp.floating):
-        dtype = jnp.result_type(float)
     if t1.shape[-2:] != (3, 3) or t2.shape[-2:] != (3, 3):
         raise ValueError(f"t1, t2: expected arrays of shape (..., 3, 3), got {t1.shape} and {t2.shape}")
-    t1, t2 = jnp.broadcast_arrays(t1.astype(dtype), t2.astype(dtype))
+    batch = _broadcast(t1.shape[:-2], t2.shape[:-2], "t1, t2")
+    t1 = _checks.finite(jnp.broadcast_to(t1.astype(dtype), batch + (3, 3)), "t1")
+    t2 = _checks.finite(jnp.broadcast_to(t2.astype(dtype), batch + (3, 3)), "t2")
+    return _triangles_intersect(t1, t2)
+
+
+def _triangles_intersect(t1, t2):
+    """The kernel of `triangles_intersect` (no checks; batch shapes that broadcast)."""
+    t1, t2 = jnp.broadcast_arrays(t1, t2)
     batch = t1.shape[:-2]
-    f1, f2 = t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3)
-    return _intersect_flat(f1, f2).reshape(batch)
+    return _intersect_flat(t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3)).reshape(batch)
+
+
+def _broadcast(a, b, name: str) -> tuple[int, ...]:
+    try:
+        return tuple(np.broadcast_shapes(a, b))
+    except ValueError:
+        raise ValueError(_checks.message(name, "batch shapes that broadcast", f"{a} and {b}")) from None
 
 
 def _intersect_flat(f1, f2, active=None):
@@ -243,39 +269,71 @@ def candidate_pairs_intersect(t1, t2, active):
     )
 
 
+@compiled
 def closest_point_on_triangle(x: Float[Array, "... 3"], tri: Float[Array, "... 3 3"]) -> tuple[Array, Array]:
     """Closest point of triangle `tri` to `x` and its barycentric coordinates.
 
+    **Arguments:** points `x (..., 3)` and triangles `tri (..., 3, 3)` (finite) whose batch
+    shapes broadcast.
+
+    **Returns:** `(point (..., 3), bary (..., 3))`, `point = Σ_k bary_k tri_k`.
+
     Ericson, *Real-Time Collision Detection* §5.1.5 (Voronoi regions), branch-free; degenerate
-    triangles fall into an edge or vertex region. **Returns:** `(point (..., 3), bary (..., 3))`.
+    triangles fall into an edge or vertex region.
+    """
+    x, tri = _floating(x, "x"), _floating(tri, "tri")
+    if x.ndim < 1 or x.shape[-1] != 3:
+        _checks.fail("x", "shape (..., 3)", f"shape {x.shape}")
+    if tri.ndim < 2 or tri.shape[-2:] != (3, 3):
+        _checks.fail("tri", "shape (..., 3, 3)", f"shape {tri.shape}")
+    batch = _broadcast(x.shape[:-1], tri.shape[:-2], "x, tri")
+    dtype = jnp.result_type(x.dtype, tri.dtype)
+    x = _checks.finite(jnp.broadcast_to(x.astype(dtype), batch + (3,)), "x")
+    tri = _checks.finite(jnp.broadcast_to(tri.astype(dtype), batch + (3, 3)), "tri")
+    return _closest_point_on_triangle(x, tri)
+
+
+def _closest_on_segment(x, p, q):
+    """Closest point of segment [p, q] to x and its parameter t ∈ [0, 1] (a point for p = q)."""
+    d = q - p
+    t = jnp.clip(_safe.ratio(_dot(x - p, d), _dot(d, d)), 0, 1)
+    return p + t[..., None] * d, t
+
+
+def _closest_point_on_triangle(x, tri):
+    """The kernel of `closest_point_on_triangle` (no checks; `x`, `tri` of one batch shape).
+
+    The projection onto the plane where it falls inside the triangle, else the nearest of the
+    three edges' closest points. Unlike the region table of Ericson §5.1.5, no decision rests
+    on an exact cancellation (which fused multiply-adds break under `jit` for zero-area
+    triangles), so degenerate triangles are exact too.
     """
     a, b, c = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
     ab, ac, ap = b - a, c - a, x - a
-    d1, d2 = _dot(ab, ap), _dot(ac, ap)
-    bp = x - b
-    d3, d4 = _dot(ab, bp), _dot(ac, bp)
-    cp = x - c
-    d5, d6 = _dot(ab, cp), _dot(ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    one, zero = jnp.ones_like(d1), jnp.zeros_like(d1)
-
-    def div(n, d):
-        ok = d != 0
-        return jnp.where(ok, n / jnp.where(ok, d, 1), 0)
-
-    t_ab, t_ac = div(d1, d1 - d3), div(d2, d2 - d6)
-    t_bc = div(d4 - d3, (d4 - d3) + (d5 - d6))
-    denom = va + vb + vc
-    v_in, w_in = div(vb, denom), div(vc, denom)
-    regions = [
-        (d1 <= 0) & (d2 <= 0),
-        (d3 >= 0) & (d4 <= d3),
-        (d6 >= 0) & (d5 <= d6),
-        (vc <= 0) & (d1 >= 0) & (d3 <= 0),
-        (vb <= 0) & (d2 >= 0) & (d6 <= 0),
-        (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0),
-    ]
-    bary_v = jnp.select(regions, [zero, one, zero, t_ab, zero, 1 - t_bc], default=v_in)
-    bary_w = jnp.select(regions, [zero, zero, one, zero, t_ac, t_bc], default=w_in)
-    bary = jnp.stack([1 - bary_v - bary_w, bary_v, bary_w], -1)
-    return jnp.einsum("...k,...kc->...c", bary, tri), bary
+    n = jnp.cross(ab, ac)
+    nn = _dot(n, n)
+    v = _safe.ratio(_dot(jnp.cross(ap, ac), n), nn)
+    w = _safe.ratio(_dot(jnp.cross(ab, ap), n), nn)
+    inside = (nn > 0) & (v >= 0) & (w >= 0) & (v + w <= 1)
+    face = a + v[..., None] * ab + w[..., None] * ac
+    on_ab, t_ab = _closest_on_segment(x, a, b)
+    on_bc, t_bc = _closest_on_segment(x, b, c)
+    on_ca, t_ca = _closest_on_segment(x, c, a)
+    d_ab, d_bc, d_ca = (_dot(x - q, x - q) for q in (on_ab, on_bc, on_ca))
+    zero = jnp.zeros_like(t_ab)
+    edge_bary = jnp.where(
+        ((d_ab <= d_bc) & (d_ab <= d_ca))[..., None],
+        jnp.stack([1 - t_ab, t_ab, zero], -1),
+        jnp.where(
+            (d_bc <= d_ca)[..., None],
+            jnp.stack([zero, 1 - t_bc, t_bc], -1),
+            jnp.stack([t_ca, zero, 1 - t_ca], -1),
+        ),
+    )
+    edge = jnp.where(
+        ((d_ab <= d_bc) & (d_ab <= d_ca))[..., None],
+        on_ab,
+        jnp.where((d_bc <= d_ca)[..., None], on_bc, on_ca),
+    )
+    bary = jnp.where(inside[..., None], jnp.stack([1 - v - w, v, w], -1), edge_bary)
+    return jnp.where(inside[..., None], face, edge), bary
