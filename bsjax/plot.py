@@ -52,6 +52,7 @@ def equal_axes(ax, xyz):
 
 
 def save(fig, path) -> None:
+    """Write `fig` to `path` (PNG at 110 dpi, or the format of the extension) and close it."""
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     import matplotlib.pyplot as plt

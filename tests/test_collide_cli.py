@@ -24,6 +24,6 @@ def test_cli_sphere_report(tmp_path, capsys):
 def test_cli_errors(tmp_path, capsys):
     assert main([str(tmp_path / "missing.json"), "--point", "0,0,0"]) == 2
     assert "missing.json" in capsys.readouterr().err
-    io.save(shapes.plate(3, 3), tmp_path / "x.json")
+    io.save(shapes.plate(4, 4), tmp_path / "x.json")
     assert main([str(tmp_path / "x.json")]) == 2  # no tool
     assert "--sphere" in capsys.readouterr().err
