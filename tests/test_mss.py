@@ -5,9 +5,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tests.helpers import check_grad
 
 from bsjax import mss, shapes
+from tests.helpers import check_grad, raises_both
 
 GRAVITY = jnp.array([0.0, 0.0, -9.81])
 
@@ -123,7 +123,7 @@ def test_clamped_bar_static_deflection_matches_linear_solve():
     g = grid((5, 2, 2))
     fixed = (g[..., 0] == 0).reshape(-1)
     lat = plain_hex((5, 2, 2), 1e4, 20.0, 0.01, fixed, node_damping=0.5)
-    state, steps, ok = relax(
+    state, _, ok = relax(
         lat,
         mss.init(lat),
         0.02,
@@ -490,5 +490,166 @@ def test_checkpointed_long_rollout_gradient_and_memory():
     fwd = jax.jit(lambda k: loss(k, 100))
     fd = (float(fwd(1.0 + 1e-6)) - float(fwd(1.0 - 1e-6))) / 2e-6
     assert np.isclose(a, fd, rtol=1e-4)
-    mem = lambda f: f.memory_analysis().temp_size_in_bytes  # noqa: E731
+    mem = lambda f: f.memory_analysis().temp_size_in_bytes
     assert mem(g_ckpt) * 10 < mem(g_plain)  # stores ~n/c + c states instead of n
+
+
+# --- the compiled boundary: same values as called, inside jit, vmap and grad; checks that hold ------
+
+
+def test_step_and_simulate_same_values_direct_jit_vmap_grad():
+    lat = small_lattice()
+    x0 = jnp.asarray(lat.rest_positions) + 0.01 * jnp.asarray(np.random.default_rng(4).normal(size=(12, 3)))
+    s0 = mss.init(lat, x0)
+    dt = 2e-3
+
+    direct = mss.step(lat, s0, dt, gravity=GRAVITY)
+    jitted = jax.jit(lambda l, s, h: mss.step(l, s, h, gravity=GRAVITY))(lat, s0, dt)
+    np.testing.assert_array_equal(direct.position, jitted.position)
+    # one step by hand (thesis eqs. 5.14-5.16) as the independent reference
+    f = np.asarray(mss.forces(lat, s0, gravity=GRAVITY))
+    free = ~np.asarray(lat.fixed)[:, None]
+    v = np.where(free, dt * f / np.asarray(lat.mass)[:, None], 0.0)
+    np.testing.assert_allclose(direct.velocity, v, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(direct.position, np.where(free, np.asarray(x0) + dt * v, x0), rtol=1e-12)
+
+    def run(k, s):
+        l2 = eqx.tree_at(lambda l: l.stiffness, lat, lat.stiffness * k)
+        return mss.simulate(l2, s, dt, 50, gravity=GRAVITY).position
+
+    ks = jnp.array([0.5, 1.0, 2.0])
+    one_by_one = np.stack([np.asarray(run(float(k), s0)) for k in ks])
+    np.testing.assert_allclose(jax.vmap(run, (0, None))(ks, s0), one_by_one, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(jax.jit(jax.vmap(run, (0, None)))(ks, s0), one_by_one, rtol=1e-12, atol=1e-15)
+    states = jax.vmap(lambda a: mss.State(x0 + a, jnp.zeros_like(x0)))(jnp.array([0.0, 0.01]))
+    by_state = jax.vmap(lambda s: run(1.0, s))(states)
+    np.testing.assert_allclose(by_state[0], one_by_one[1], rtol=1e-12, atol=1e-15)
+    assert not np.allclose(by_state[1], by_state[0])
+
+    loss = lambda k: jnp.sum(run(k, s0)[:, 2])
+    g = check_grad(loss, jnp.array(1.0).reshape(()), eps=1e-6, rtol=1e-5, n_dirs=1)
+    np.testing.assert_allclose(jax.jit(jax.grad(loss))(1.0), g, rtol=1e-12)
+
+
+def test_stable_dt_never_nan_for_extreme_finite_values():
+    for k, m in [
+        (100.0, 1e-300),
+        (1e300, 1.0),
+        (1e300, 1e-300),
+        (1e-300, 1e300),
+        (0.0, 1.0),
+        (100.0, 1e-310),
+    ]:
+        lat = one_spring(k, 0.0, m, free_both=True)
+        h = float(mss.stable_dt(lat))
+        assert not np.isnan(h) and h >= 0, (k, m, h)
+        with np.errstate(all="ignore"):
+            ref = 2.0 / np.sqrt(2 * k / m)  # exact for one free spring (inf when k/m underflows)
+        if np.isfinite(ref) and ref > 0 and 2 * k / m < 1e300:
+            np.testing.assert_allclose(h, ref, rtol=1e-12)
+    heavy_damping = one_spring(1.0, 1e200, 1.0, free_both=True)
+    h = float(mss.stable_dt(heavy_damping))
+    assert np.isfinite(h) and 0 < h <= 2.0 / 1e200 * 1.01  # c ~ 4e200 dominates: h ~ 2/c, no c² overflow
+
+
+def _two_nodes(mass=1.0, stiffness=100.0, damping=0.0):
+    return mss.Lattice(jnp.array([[0.0, 0, 0], [1.0, 0, 0]]), np.array([[0, 1]]), stiffness, damping, mass)
+
+
+_LAT = _two_nodes()
+_S = mss.State(jnp.array([[0.0, 0, 0], [1.1, 0, 0]]), jnp.zeros((2, 3)))
+_UNSTABLE = 1.0  # stable_dt of the two-node lattice is 2/sqrt(200) ≈ 0.14
+
+
+@pytest.mark.parametrize(
+    "fn, args, match",
+    [
+        (lambda h: mss.step(_LAT, _S, h), (jnp.nan,), "dt: expected finite values > 0"),
+        (lambda h: mss.step(_LAT, _S, h), (-1e-3,), "dt: expected finite values > 0"),
+        (lambda h: mss.step(_LAT, _S, h), (_UNSTABLE,), "dt: expected a time step <= mss.stable_dt"),
+        (lambda h: mss.implicit_step(_LAT, _S, h), (jnp.nan,), "dt: expected finite values > 0"),
+        (lambda h: mss.implicit_step(_LAT, _S, h), (-1e-3,), "dt: expected finite values > 0"),
+        (lambda h: mss.implicit_step(_LAT, _S, h), (1e300,), "dt: .*overflows"),
+        (
+            lambda h: mss.implicit_step(_LAT, _S, h, cg_iterations=-1),
+            (1e-3,),
+            "cg_iterations: expected an int >= 1",
+        ),
+        (lambda h: mss.simulate(_LAT, _S, h, 5), (jnp.inf,), "dt: expected finite values > 0"),
+        (lambda h: mss.simulate(_LAT, _S, h, 5), (_UNSTABLE,), "dt: expected a time step <= mss.stable_dt"),
+        (lambda h: mss.simulate(_LAT, _S, h, 0), (1e-3,), "n_steps: expected an int >= 1, got 0"),
+        (lambda h: mss.simulate(_LAT, _S, h, 5, checkpoint_every=-3), (1e-3,), "checkpoint_every: .*got -3"),
+        (lambda h: mss.simulate(_LAT, _S, h, 5, checkpoint_every=0), (1e-3,), "checkpoint_every: .*got 0"),
+        (
+            lambda h: mss.simulate(_LAT, _S, h, 5, method="implicit", cg_iterations=-1),
+            (1e-3,),
+            "cg_iterations",
+        ),
+        (lambda h: mss.simulate(_LAT, _S, h, 5, method="implicit"), (jnp.nan,), "dt: expected finite"),
+        (
+            lambda x: mss.simulate(_LAT, mss.State(x, x), 1e-3, 5),
+            (jnp.full((2, 3), jnp.nan),),
+            "state.position",
+        ),
+        (lambda h: mss.trajectory(_LAT, _S, h, 6, save_every=0), (1e-3,), "save_every: .*got 0"),
+        (lambda h: mss.trajectory(_LAT, _S, h, 6, save_every=4), (1e-3,), "save_every: expected a divisor"),
+        (lambda h: mss.trajectory(_LAT, _S, h, 6, save_every=2), (-1.0,), "dt: expected finite values > 0"),
+        (lambda h: mss.relax(_LAT, _S, h, check_every=-1), (1e-3,), "check_every: .*got -1"),
+        (lambda h: mss.relax(_LAT, _S, h, max_steps=0), (1e-3,), "max_steps: .*got 0"),
+        (lambda t: mss.relax(_LAT, _S, 1e-3, tol=t, max_steps=10, check_every=5), (-1.0,), "tol: expected"),
+        (
+            lambda h: mss.relax(_LAT, _S, h, max_steps=10, check_every=5),
+            (_UNSTABLE,),
+            "dt: expected a time step",
+        ),
+        (lambda e: mss.simulate_plastic(_LAT, _S, 1e-3, 5, mss.Plasticity(e)), (-0.1,), "yield_strain"),
+        (
+            lambda h: mss.simulate_plastic(_LAT, _S, h, 5, mss.Plasticity(0.1)),
+            (jnp.nan,),
+            "dt: expected finite",
+        ),
+        (
+            lambda x: mss.yield_rest_lengths(_LAT, x, mss.Plasticity(0.1)),
+            (jnp.full((2, 3), jnp.nan),),
+            "position",
+        ),
+        (lambda k: mss.stable_dt(_LAT, k), (-1.0,), "contact_stiffness: expected finite values >= 0"),
+        (lambda h: mss.check_dt(_LAT, h), (jnp.nan,), "dt: expected finite values > 0"),
+        (lambda h: mss.check_dt(_LAT, h, 1e6), (0.1,), "dt: expected a time step <= mss.stable_dt"),
+        (lambda m: mss.step(_two_nodes(mass=m), _S, 1e-3), (-1.0,), "mass: expected finite values > 0"),
+        (lambda k: mss.simulate(_two_nodes(stiffness=k), _S, 1e-3, 5), (-1.0,), "stiffness: expected finite"),
+        (lambda c: mss.simulate(_two_nodes(damping=c), _S, 1e-3, 5), (-1.0,), "damping: expected finite"),
+        (
+            lambda k: mss.simulate(
+                _LAT, _S, 1e-3, 5, tools=(mss.RigidSphere(jnp.zeros(3), 0.5),), contact=mss.Contact(k)
+            ),
+            (-1.0,),
+            "stiffness",
+        ),
+        (lambda x: mss.init(_LAT, x), (jnp.full((2, 3), jnp.inf),), "position: expected finite"),
+        (lambda g: mss.energy(_LAT, _S, g), (jnp.zeros(2),), "gravity: expected an acceleration of shape"),
+        (
+            lambda g: mss.forces(_LAT, _S, gravity=g),
+            (jnp.zeros(2),),
+            "gravity: expected an acceleration of shape",
+        ),
+        (
+            lambda e: mss.from_material(np.eye(3), np.array([[0, 1]]), mss.Material(e, 1.0), 1.0),
+            (-1.0,),
+            "youngs_modulus",
+        ),
+        (lambda v: mss.from_material(np.eye(3), np.array([[0, 1]]), mss.JELLY, v), (-1.0,), "volume"),
+        (lambda x: mss.hex_lattice(x, 1.0, 0.0, 1.0), (jnp.full((2, 2, 2, 3), jnp.nan),), "rest_positions"),
+        (lambda x: mss.hex_volume(x), (jnp.zeros((2, 2, 3)),), "positions: expected an array with 4"),
+        (
+            lambda l: mss.spring_stiffness(mss.JELLY, l, 1e-4),
+            (-0.01,),
+            "rest_length: expected finite values > 0",
+        ),
+        (lambda m: mss.spring_damping(mss.JELLY, 10.0, m), (0.0,), "mass: expected finite values > 0"),
+        (lambda m: mss.natural_frequency(10.0, m), (-1.0,), "mass"),
+        (lambda d: mss.damping_ratio(d, 10.0, 1.0), (-1.0,), "damping: expected finite values >= 0"),
+    ],
+)
+def test_bad_values_raise_eagerly_and_under_jit(fn, args, match):
+    raises_both(fn, *args, match=match)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from bsjax import mss, shapes, vsofm
+from tests.helpers import raises_both
 
 
 def fibonacci_sphere(n, radius=1.0):
@@ -43,7 +44,7 @@ def revolved_points(surf, m=40, n=40):
     from scipy.interpolate import BSpline
 
     ctrl = np.asarray(surf.ctrl)
-    r, s, _ = ctrl.shape
+    _, s, _ = ctrl.shape
     tu = np.asarray(surf.knots_u)
     tv = np.arange(-3, s + 4) / s
     wrapped = np.concatenate([ctrl, ctrl[:, :3]], axis=1)
@@ -137,3 +138,53 @@ def test_bad_inputs(args, match):
         vsofm.fit(*args)
     with pytest.raises(ValueError, match="cycles"):
         vsofm.fit(np.random.default_rng(0).normal(size=(10, 3)), (4, 4, 4), cycles=0)
+
+
+_CLOUD = jnp.asarray(fibonacci_sphere(40))
+
+
+@pytest.mark.parametrize(
+    "fn, args, match",
+    [
+        (
+            lambda p: vsofm.fit(p, (3, 3, 3), cycles=2),
+            (_CLOUD.at[3, 1].set(jnp.nan),),
+            "points: expected finite",
+        ),
+        (lambda p: vsofm.fit(p, (3, 3, 3), cycles=0), (_CLOUD,), "cycles: expected an int >= 1, got 0"),
+        (lambda p: vsofm.fit(p, (3, 1, 3)), (_CLOUD,), "shape: expected three lattice sizes >= 2"),
+        (lambda p: vsofm.fit(p[:, :2], (3, 3, 3)), (_CLOUD,), "points: expected trailing dimension 3"),
+        (
+            lambda x: vsofm.lattice(x, material=mss.JELLY),
+            (jnp.full((2, 2, 2, 3), jnp.nan),),
+            "rest_positions",
+        ),
+        (
+            lambda x: vsofm.lattice(x, stiffness=1.0, damping=0.0, mass=-1.0),
+            (jnp.zeros((2, 2, 2, 3)),),
+            "mass: expected finite values > 0",
+        ),
+        (lambda x: vsofm.corner_jacobians(x), (jnp.zeros((2, 2, 3)),), "nodes: expected an array with 4"),
+    ],
+)
+def test_bad_values_raise_eagerly_and_under_jit(fn, args, match):
+    raises_both(fn, *args, match=match)
+
+
+def test_bad_settings_and_report_inputs():
+    with pytest.raises(ValueError, match="batch: expected an int >= 1"):
+        vsofm.Settings(batch=0)
+    with pytest.raises(ValueError, match="radius_start: expected a finite float > 0"):
+        vsofm.Settings(radius_start=-1.0)
+    with pytest.raises(ValueError, match="nodes: expected finite"):
+        vsofm.report(fibonacci_sphere(40), np.full((3, 3, 3, 3), np.nan))
+
+
+def test_lattice_same_as_called_and_inside_jit():
+    g = np.stack(np.meshgrid(*[np.linspace(0.0, 0.02, 3)] * 3, indexing="ij"), -1)
+    direct = vsofm.lattice(g, material=mss.JELLY)
+    jitted = jax.jit(lambda x: vsofm.lattice(x, material=mss.JELLY))(jnp.asarray(g))
+    for a, b in zip(jax.tree.leaves(direct), jax.tree.leaves(jitted)):
+        np.testing.assert_array_equal(a, b)
+    assert direct.grid_shape == jitted.grid_shape == (3, 3, 3)
+    np.testing.assert_allclose(float(jnp.sum(direct.mass)), 1050.0 * 0.02**3)  # ρ V shared by the nodes

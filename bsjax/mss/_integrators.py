@@ -17,7 +17,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _linalg, _safe
 from bsjax._boundary import compiled
-from bsjax.mss._forces import _dot3, _inv_length, edge_sum, spring_forces, tool_forces
+from bsjax.mss._forces import _dot3, _inv_length, contact_tangent, edge_sum, spring_forces, tool_forces
 from bsjax.mss._lattice import Lattice, State
 
 METHODS = ("semi_implicit", "implicit")
@@ -294,28 +294,6 @@ def _transverse(rest, inv):
     return jnp.where(inv > 0, jnp.maximum(1.0 - rest * inv, 0.0), (rest == 0).astype(inv.dtype))
 
 
-def _inside_normal(tool, x):
-    """`(inside (N,), n (N, 3))`: nodes in the tool and the tool's outward normal there."""
-    if hasattr(tool, "push"):  # the collide tools' contact interface
-        depth, normal = tool.push(x)
-        return depth > 0, normal
-    if hasattr(tool, "radius"):
-        d = x - tool.center[None]
-        return _safe.norm(d) < tool.radius, _safe.unit(d)
-    n = jnp.broadcast_to(_safe.unit(jnp.asarray(tool.normal, dtype=x.dtype)), x.shape)
-    return jnp.sum((x - tool.point[None]) * n, axis=-1) < 0, n
-
-
-def _contact_diag(tools, x, contact):
-    """`k_c n nᵀ` of every node inside a tool (the penalty force's normal stiffness), `(N, 3, 3)`."""
-    out = jnp.zeros(x.shape + (3,), x.dtype)
-    k = contact.stiffness.astype(x.dtype)
-    for tool in tools:
-        inside, n = _inside_normal(tool, x)
-        out = out + jnp.where(inside[:, None, None], k * n[:, :, None] * n[:, None, :], 0.0)
-    return out
-
-
 def _implicit(
     lattice,
     state,
@@ -334,7 +312,7 @@ def _implicit(
     contact = Contact() if (tools and contact is None) else contact
     free = ~lattice.fixed[:, None]
     pair = _tangent_pair(h)
-    cdiag = _contact_diag(tools, x, contact) if tools else None
+    cdiag = contact_tangent(tools, x, contact.stiffness.astype(x.dtype)) if tools else None
     mass = lattice.mass[:, None] + h * lattice.node_damping[:, None]
 
     def stiffness_only(w):  # h²K_t w (plus h C w from the spring dampers)
