@@ -11,16 +11,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tests.helpers import check_grad, random_knots, random_surface
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from tests.oracles import ndbspline_surface
 from scipy import interpolate
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.merge import _orient
 from bsjax.merge._layout import changed_degree_knots
+from tests.helpers import check_grad, random_knots, random_surface
+from tests.oracles import ndbspline_surface
 
 S = 16  # samples per patch direction: small, and one size so compiled kernels are shared
 U1 = [0, 0, 0, 0, 0.2138, 0.4959, 0.7262, 1, 1, 1, 1]
@@ -469,7 +469,7 @@ def test_deviation_closed_form_and_brute_force():
 def test_refine_reduces_deviation(c):
     """Edges of unequal length (1 vs 1.4, thesis case 4): parameter correction lowers the
     deviation of the linear merge."""
-    bend = lambda x, y: 0.2 * np.sin(3.0 * y)  # noqa: E731
+    bend = lambda x, y: 0.2 * np.sin(3.0 * y)
     a = _plate(0.0, 1.0, 5, 4, bend)
     b = _plate(1.0, 2.5, 5, 4, bend, y0=-0.2, y1=1.2)
     linear = mg.deviation([a, b], mg.merge([a, b], "u", c, samples=S), samples=12)
@@ -567,3 +567,87 @@ def test_bad_input(surface):
         mg.merge([a, b], "u", 2, samples=2)
     with pytest.raises(ValueError, match="trim"):
         mg.merge([a, b], "u", 2, samples=S, trim=[(0.5, 0.2), None])
+
+
+# --- the plan cache and the compiled boundary -----------------------------------------------
+def test_merge_reuses_the_cached_layout(surface):
+    """A second `merge` with the same bases builds nothing (cache_info) and gives the same net as
+    a fresh plan; new control values on the same bases reuse the layout too."""
+    a, b = split(surface, "u", 0.5)
+    mg.clear_cache()
+    first = mg.merge([a, b], "u", 2, samples=S)
+    assert mg.cache_info()["builds"] == 1 and mg.cache_info()["hits"] == 0
+    second = mg.merge([a, b], "u", 2, samples=S)
+    assert mg.cache_info()["builds"] == 1 and mg.cache_info()["hits"] == 1
+    np.testing.assert_array_equal(first.ctrl, second.ctrl)
+    mg.clear_cache()
+    fresh = mg.plan([a, b], "u", 2, samples=S)
+    np.testing.assert_array_equal(fresh.apply([a.ctrl, b.ctrl]), second.ctrl)
+    moved = b.with_ctrl(b.ctrl * 1.01)
+    mg.merge([a, moved], "u", 2, samples=S, orient="as_given")
+    info = mg.cache_info()
+    mg.merge([a, moved.with_ctrl(moved.ctrl + 0.01)], "u", 2, samples=S, orient="as_given")
+    assert mg.cache_info()["builds"] == info["builds"] and mg.cache_info()["hits"] == info["hits"] + 1
+    from bsjax import _boundary
+
+    _boundary.clear_caches()
+    assert mg.cache_info() == {"layouts": 0, "trims": 0, "builds": 0, "hits": 0}
+
+
+def test_overlap_drop_is_keyed_by_values():
+    """`overlap="drop"` finds the trims from the nets: moving the crossing patch changes the
+    layout (no stale trims from the cache), the same nets reuse it."""
+    a = _plate(0.0, 1.2, 5, 4)
+    b = _plate(0.9, 2.0, 5, 4, lambda x, y: 0.5 * (x - 1.0))
+    c = b.with_ctrl(b.ctrl + jnp.array([0.15, 0.0, 0.0])[None, None])
+    kw = dict(samples=S, overlap="drop", overlap_method="dense", orient="as_given")
+    mg.clear_cache()
+    lay_b = mg.plan([a, b], "u", 0, **kw)
+    lay_c = mg.plan([a, c], "u", 0, **kw)
+    assert lay_c.patches[1][0].grid_shape != lay_b.patches[1][0].grid_shape
+    assert mg.plan([a, b], "u", 0, **kw) is lay_b and mg.cache_info()["trims"] == 2
+
+
+def test_bad_input_eager_and_jit(surface):
+    """Value errors raise the same message eagerly and inside `jax.jit`; structure errors (a
+    continuity out of range) too, while tracing."""
+    from tests.helpers import raises_both
+
+    a, b = split(surface, "u", 0.5)
+    layout = mg.plan([a, b], "u", 2, samples=S)
+    bad = a.ctrl.at[1, 2, 0].set(jnp.nan)
+    raises_both(lambda p: layout.apply([p, b.ctrl]), bad, match="finite")
+    raises_both(lambda p: layout.points([p, b.ctrl]), bad, match="finite")
+    raises_both(lambda p: mg.refine(layout, [p, b.ctrl], 2), bad, match="finite")
+    raises_both(lambda p: mg.refit(layout, [a.ctrl, p]).ctrl, bad[: b.shape[0]], match="ctrls")
+    raises_both(lambda p: mg.deviation([a.with_ctrl(p)], a, samples=5).max, bad, match="finite")
+    raises_both(
+        lambda p: mg.merge([a.with_ctrl(p), b], "u", 3, orient="as_given").ctrl, a.ctrl, match="continuity"
+    )
+    raises_both(
+        lambda p: mg.plan([a.with_ctrl(p), b], "u", -1, orient="as_given").merged.a_u,
+        a.ctrl,
+        match="continuity",
+    )
+    raises_both(
+        lambda p: mg.merge_grid([[a.with_ctrl(p)], [b]], 5, orient="as_given").ctrl,
+        a.ctrl,
+        match="continuity",
+    )
+    with pytest.raises(ValueError, match="finite"):
+        mg.merge([a.with_ctrl(bad), b], "u", 2, samples=S)
+    with pytest.raises(ValueError, match="rtol"):
+        mg.refit(layout, [a.ctrl, b.ctrl], mg.RefitSolver(rtol=-1.0))
+    with pytest.raises(ValueError, match="tolerance"):
+        mg.deviation([a], a, samples=5, tolerance=0.0)
+    with pytest.raises(TypeError, match="orient='auto'"):
+        jax.jit(lambda p: mg.plan([a, b.with_ctrl(p)], "u", 2, samples=S).merged.a_u)(b.ctrl)
+
+
+def test_merge_inside_jit_with_a_planned_layout(surface):
+    """The documented way inside `jit`: plan outside, `layout.apply` and `refit` inside."""
+    a, b = split(surface, "u", 0.5)
+    layout = mg.plan([a, b], "u", 2, samples=S)
+    want = mg.merge([a, b], "u", 2, samples=S, refine=True).ctrl
+    got = jax.jit(lambda lay, p: mg.refine(lay, [p, b.ctrl]))(layout, a.ctrl)
+    np.testing.assert_allclose(got, want, atol=1e-12)

@@ -11,13 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
-from tests.helpers import random_surface
-from tests.oracles import ndbspline_surface
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.examples import merge_cases as cases
 from bsjax.merge import _nonlinear
+from tests.helpers import random_surface
+from tests.oracles import ndbspline_surface
 
 
 def _plate(r=5, s=4):
@@ -120,3 +120,118 @@ def test_refit_status_and_refine_wrapper():
         mg.refit(layout, ctrls, mg.RefitSolver(rounds=0))
     with pytest.raises(TypeError, match="solver"):
         mg.refit(layout, ctrls, solver=3)
+
+
+# --- closed surfaces and seams ----------------------------------------------------------------
+def _closed_tube():
+    """A clamped bicubic tube closed along u (first and last control rows equal, knots at
+    1/4, 1/2, 3/4) and its four Bézier quarters along u (knot insertion by FITPACK)."""
+    from tests.test_merge import split
+
+    th = 2 * np.pi * np.arange(7) / 6
+    z = np.array([0.0, 1 / 3, 2 / 3, 1.0]) * 2
+    ctrl = np.stack(np.broadcast_arrays(np.cos(th)[:, None], np.sin(th)[:, None], z[None, :]), -1)
+    tube = BSplineSurface(ctrl, clamped_knots(7, 3), clamped_knots(4, 3), 3, 3)
+    q0, rest = split(tube, "u", 0.25)
+    q1, rest = split(rest, "u", 1 / 3)
+    q2, q3 = split(rest, "u", 0.5)
+    return tube, [q0, q1, q2, q3]
+
+
+def _brute(surface, pts, count=401):
+    """Distances to a dense scipy sampling of `surface` (k-d tree) and the sampling's cell size."""
+    from scipy.spatial import cKDTree
+
+    g = np.linspace(0, 1, count)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    dense = ndbspline_surface(surface, uu.ravel(), vv.ravel())
+    grid = dense.reshape(count, count, 3)
+    cell = max(
+        np.linalg.norm(np.diff(grid, axis=0), axis=-1).max(),
+        np.linalg.norm(np.diff(grid, axis=1), axis=-1).max(),
+    )
+    return cKDTree(dense).query(pts)[0], cell
+
+
+def test_deviation_on_a_closed_merge_is_exact():
+    """Four quarters of a closed tube merged into one surface whose edges u = 0 and u = 1
+    coincide: the merge reproduces the tube (scipy), so every original point lies on it. The
+    nearest grid sample of points next to the seam lies across it, where a single domain-clamped
+    Gauss–Newton start stays (0.07 away); the multi-start search finds the foot points."""
+    tube, quarters = _closed_tube()
+    merged = mg.merge(quarters, "u", 2, samples=16, orient="as_given")
+    g = np.linspace(0, 1, 23)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    np.testing.assert_allclose(
+        ndbspline_surface(merged, uu.ravel(), vv.ravel()),
+        ndbspline_surface(tube, uu.ravel(), vv.ravel()),
+        atol=1e-12,
+    )
+    report = mg.deviation(quarters, merged, samples=41)
+    assert float(report.max) < 1e-9 and int(report.n_within) == report.n_points == 4 * 41**2
+    g = np.linspace(0, 1, 41)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    pts = jnp.concatenate([q.evaluate(uu, vv).reshape(-1, 3) for q in quarters])
+    one = mg.closest_points(merged, pts, None, mg.ProjectionSolver(), None, 1)
+    assert float(one.distances.max()) > 1e-2  # the single start fails at the seam (the old report)
+
+
+def test_closest_points_global_matches_brute_force_near_a_seam():
+    """Points off the closed tube (±0.1 along the radius) around its seam: the global search's
+    distances agree with a brute-force dense projection (within one cell, never above it)."""
+    tube, quarters = _closed_tube()
+    merged = mg.merge(quarters, "u", 2, samples=16, orient="as_given")
+    rng = np.random.default_rng(3)
+    u = np.mod(rng.uniform(-0.08, 0.08, 200), 1.0)
+    v = rng.uniform(0.0, 1.0, 200)
+    on = ndbspline_surface(tube, u, v)
+    radial = on * np.array([1.0, 1.0, 0.0])[None]
+    pts = on + rng.uniform(-0.1, 0.1, (200, 1)) * radial / np.linalg.norm(radial, axis=-1, keepdims=True)
+    proj = mg.closest_points(merged, jnp.asarray(pts))
+    brute, cell = _brute(merged, pts)
+    d = np.asarray(proj.distances)
+    assert np.all(d <= brute + 1e-9) and np.all(d >= brute - cell)
+    np.testing.assert_allclose(ndbspline_surface(merged, *np.asarray(proj.params).T), pts, atol=0.11)
+
+
+def test_closest_points_periodic_crosses_the_seam():
+    """On a periodic (closed) direction the iteration wraps: from a start on the far side of the
+    seam (u = 0.97) it reaches a foot point at u = 0.02 (brute force over a dense sampling)."""
+    rng = np.random.default_rng(2)
+    th = 2 * np.pi * np.arange(8) / 8
+    ctrl = np.stack(
+        np.broadcast_arrays(np.cos(th)[:, None], np.sin(th)[:, None], np.arange(5.0)[None] / 4), -1
+    )
+    ctrl = ctrl + 0.05 * rng.normal(size=ctrl.shape)
+    ring = BSplineSurface(ctrl, None, clamped_knots(5, 3), 3, 3, periodic_u=True)
+    u_true = np.array([0.02, 0.98, 0.5])
+    v_true = np.array([0.4, 0.6, 0.5])
+    pts = ring.evaluate(jnp.asarray(u_true), jnp.asarray(v_true))
+    starts = jnp.asarray([[0.97, 0.4], [0.03, 0.6], [0.45, 0.5]])
+    proj = mg.closest_points(ring, pts, starts)
+    np.testing.assert_allclose(proj.distances, 0.0, atol=1e-9)
+    wrapped = np.mod(np.asarray(proj.params[:, 0]) - u_true + 0.5, 1.0) - 0.5
+    np.testing.assert_allclose(wrapped, 0.0, atol=1e-7)
+    assert bool(jnp.all((proj.params >= 0.0) & (proj.params < 1.0)))
+    far = pts + 0.05 * ring.normal(jnp.asarray(u_true), jnp.asarray(v_true))
+    g = np.linspace(0, 1, 801, endpoint=False)
+    uu, vv = np.meshgrid(g, np.linspace(0, 1, 201), indexing="ij")
+    dense = np.asarray(ring.evaluate(jnp.asarray(uu), jnp.asarray(vv))).reshape(-1, 3)
+    brute = np.min(np.linalg.norm(dense[None] - np.asarray(far)[:, None], axis=-1), axis=1)
+    got = np.asarray(mg.closest_points(ring, far).distances)
+    assert np.all(got <= brute + 1e-9) and np.all(got >= brute - 0.02)
+
+
+def test_projection_bad_input_eager_and_jit():
+    from tests.helpers import raises_both
+
+    plate = _plate()
+    pts = jnp.asarray([[0.6, 0.3, 0.5], [np.nan, 0.0, 0.0]])
+    raises_both(lambda p: mg.closest_points(plate, p, jnp.full((2, 2), 0.5)).params, pts, match="points")
+    raises_both(lambda p: mg.project(plate, p), pts, match="points")
+    raises_both(lambda p: mg.closest_parameters(plate, p)[1], pts, match="points")
+    good = pts.at[1, 0].set(0.0)
+    raises_both(lambda uv: mg.project(plate, good, uv), jnp.asarray([[0.5, 0.5], [1.5, 0.2]]), match="uv0")
+    raises_both(lambda p: mg.closest_points(plate, p[:, :2]).params, good, match="points")
+    with pytest.raises(TypeError, match="solver"):
+        mg.closest_points(plate, good, None, 3)
