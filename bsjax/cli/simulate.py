@@ -79,14 +79,14 @@ def _parser() -> argparse.ArgumentParser:
 def _tools(args, dtype):
     import jax.numpy as jnp
 
-    from bsjax import mss
+    from bsjax import collide
 
     tools = []
     if args.table:
-        tools.append(mss.RigidPlane(jnp.asarray(args.table, dtype), jnp.asarray([0, 0, 1], dtype)))
+        tools.append(collide.Plane(jnp.asarray(args.table, dtype), jnp.asarray([0, 0, 1], dtype)))
     if args.sphere:
         s = args.sphere
-        tools.append(mss.RigidSphere(jnp.asarray(s[:3], dtype), jnp.asarray(s[3], dtype)))
+        tools.append(collide.Sphere(jnp.asarray(s[:3], dtype), jnp.asarray(s[3], dtype)))
     return tuple(tools)
 
 
