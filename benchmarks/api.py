@@ -16,7 +16,10 @@ One row per entry:
   the same arguments passed as arguments (static options closed over).
 * **ratio** = as-called median / jitted median, and the verdict: `ok` when the ratio is ≤ 2 or
   the two medians differ by ≤ 0.3 ms (issue #10), `SLOW` otherwise; `n/a` for host-side entries
-  that have no jitted equivalent (their result is a Python summary).
+  that have no jitted equivalent (`merge.plan`, a cached host-side plan; `vsofm.report`, a
+  summary of Python numbers). `merge.merge`/`merge_grid` cannot run inside a caller's jit (they
+  plan on the host from concrete knots); their jitted twin is what the README shows a user:
+  `layout = plan(...)` once, then `layout.surface(layout.apply(nets))` under `jax.jit`.
 
 An entry that raises prints `ERROR: <type>: <first line of the message>` and the run goes on, so
 the table also works while the modules change. Each entry is a small function in `ENTRIES`
@@ -82,9 +85,8 @@ class Case:
     """One benchmark call: `call(*args)` is the user's call; `args` hold only arrays, Python
     floats and pytrees of arrays (static options are closed over in `call`), so `jax.jit(call)`
     is the same call compiled by the caller. `jit=False`: a host-side entry (no jitted twin).
-    `twin`: for calls that read concrete values on the host (a merge plans from the knots and,
-    with `orient="auto"`, the nets' edges), the hand-jitted equivalent a user writes: the same
-    function on the same arguments with the host-side structure closed over."""
+    `twin`: for calls that plan on the host (a merge reads the knots and, with `orient="auto"`, the
+    nets' edges), the hand-jitted equivalent a user writes, on the same arguments."""
 
     call: Callable
     args: tuple
@@ -280,38 +282,37 @@ def _pair_size(q):
     return f"2 x {q.patch}x{q.patch}, {q.merge_samples} samples"
 
 
-def _merge_twin(fn, *surfaces):
-    """`fn(*surfaces)` under jit: the patches' bases closed over (planned on the host, as inside
-    any user jit), their control nets traced, and `orient="as_given"` (the patches meet as given)."""
-    return lambda *traced: fn(*(s.with_ctrl(t.ctrl) for s, t in zip(surfaces, traced, strict=True)))
+def _applied(layout, nets):
+    """The hand-jitted merge a user writes (README): the layout planned once on the host, then
+    `layout.apply` on the traced nets inside jit (`nets(*surfaces)` arranges them as `apply` wants)."""
+    return lambda *surfaces: layout.surface(layout.apply(nets(*surfaces)))
 
 
 @entry("merge.merge")
 def _(q):
     a, b, _, _ = patches(q)
     n = q.merge_samples
-    call = lambda orient: lambda a, b: merge.merge([a, b], "u", 0, samples=n, orient=orient)
-    return Case(call("auto"), (a, b), _pair_size(q), twin=_merge_twin(call("as_given"), a, b))
+    layout = merge.plan([a, b], "u", 0, samples=n)
+    twin = _applied(layout, lambda a, b: [a.ctrl, b.ctrl])
+    return Case(lambda a, b: merge.merge([a, b], "u", 0, samples=n), (a, b), _pair_size(q), twin=twin)
 
 
 @entry("merge.merge_grid")
 def _(q):
     a, b, c, d = patches(q)
     n = q.merge_samples
-    size = f"2x2 x {q.patch}x{q.patch}, {n} samples"
-
-    def call(orient):
-        return lambda a, b, c, d: merge.merge_grid([[a, c], [b, d]], 0, samples=n, orient=orient)
-
-    return Case(call("auto"), (a, b, c, d), size, twin=_merge_twin(call("as_given"), a, b, c, d))
+    layout = merge.plan_grid([[a, c], [b, d]], 0, samples=n)
+    twin = _applied(layout, lambda a, b, c, d: [[a.ctrl, c.ctrl], [b.ctrl, d.ctrl]])
+    call = lambda a, b, c, d: merge.merge_grid([[a, c], [b, d]], 0, samples=n)
+    return Case(call, (a, b, c, d), f"2x2 x {q.patch}x{q.patch}, {n} samples", twin=twin)
 
 
 @entry("merge.plan")
 def _(q):
     a, b, _, _ = patches(q)
     n = q.merge_samples
-    call = lambda orient: lambda a, b: merge.plan([a, b], "u", 0, samples=n, orient=orient)
-    return Case(call("auto"), (a, b), _pair_size(q), twin=_merge_twin(call("as_given"), a, b))
+    call = lambda a, b: merge.plan([a, b], "u", 0, samples=n)
+    return Case(call, (a, b), _pair_size(q) + ", host-side, cached", jit=False)
 
 
 @entry("merge.deviation")
