@@ -6,6 +6,9 @@
 * `.3dm`: a periodic direction is written as Rhino writes a periodic NURBS — uniform unclamped
   knots with the first `degree` control columns repeated at the end — and read back as periodic,
   so the round trip is exact and Rhino shows a closed surface.
+* From the shell: `bsjax convert IN OUT` (`bsjax.cli.convert`).
+
+rhino3dm and trimesh are imported by the functions that use them, so `import bsjax.io` stays light.
 """
 
 from __future__ import annotations
