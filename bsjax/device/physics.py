@@ -5,16 +5,19 @@ grid of samples of the surface at fixed parameters, so after each physics tick t
 is the least-squares refit of those nodes, `P = A_u^+ M (A_v^+)^T` (thesis eq. 3.7,
 `Blending.refit`). Below the surface the lattice has `layers − 1` more layers shrunk towards
 the axis of a body closed in v (the teardrop: each u-ring scaled about its centroid), or
-extruded along −normal for an open sheet; the innermost layers are fixed. Dynamics: `bsjax.mss` — `mss.hex_lattice` on the `m × n × layers` node grid (edges, face
-and body diagonals, dense-slice kernel), plus, for a body closed in v, a small edge-list
-`mss.Lattice` of the springs across the v seam; `mss.step` (semi-implicit Euler, thesis eqs.
-5.14–5.16) runs `substeps` times per tick inside one jitted call and `mss.check_dt` refuses an
-unstable step; the tool's push and the seam springs enter as `external_force`, plasticity (the
-plastic set on release) as `rest_length`.
+extruded along −normal for an open sheet; the innermost layers are fixed. Dynamics: `bsjax.mss` —
+`mss.hex_lattice` on the `m × n × layers` node grid (edges, face and body diagonals, dense-slice
+kernel), plus, for a body closed in v, a small edge-list `mss.Lattice` of the springs across the
+v seam. Each tick runs `substeps` times the chain `mss.coupled_step` (surface → contacts → forces
+on the lattice nodes → semi-implicit Euler step, thesis eqs. 5.14–5.16 → refit) inside one
+jitted call, with the surface layer mapped by `mss.SurfaceCoupling.on_nodes`; `mss.check_dt`
+refuses an unstable step once, at construction; the seam springs enter as `external_force`,
+plasticity (the plastic set on release) as `rest_length`.
 
-Sculpting (002 §4.2): while the stylus button is held, every node inside the tool (a sphere or an
-ellipsoid at the stylus pose) gets a penalty force `k_tool · depth` away from the tool centre —
-a push from outside, a pull when the tool sits inside the body and moves out. When the button is
+Sculpting (002 §4.2): while the stylus button is held, every node inside the tool (a
+`collide.Sphere`, or a `collide.Ellipsoid` at the stylus pose) gets the penalty force
+`k_tool · depth · normal` of the tool's `push` (closest-point depth, outward normal) — a push
+from outside, a pull when the tool sits inside the body and moves out. When the button is
 released the deformation is set: rest lengths become the current lengths (plastic set).
 
 Haptic proxy: the refit surface is sampled on a denser grid. In contact, `bsjax.collide`
@@ -28,7 +31,6 @@ button is held, the plane is moved back by the nodes' summed reaction on the too
 `reaction_gain`, over the proxy stiffness), so the user feels the material give way but push back.
 
 `SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`).
-The tool's push on the lattice nodes (ellipsoid penalty) is local to this module.
 """
 
 from __future__ import annotations
@@ -41,8 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bsjax import collide, mss, shapes
-from bsjax._tensor import safe_norm
+from bsjax import _safe, collide, mss, shapes
 from bsjax.device.protocol import DeviceSample
 from bsjax.device.proxy import Proxy
 
@@ -93,6 +94,11 @@ def check_step(lattice, dt: float, tool_stiffness: float) -> None:
             f"substeps: the explicit step is unstable for this material ({err}); "
             "raise substeps or lower the stiffness"
         ) from None
+
+
+def _is_sphere(axes) -> bool:
+    """Equal semi-axes: the tool is a `collide.Sphere` (its push is closed-form)."""
+    return bool(np.all(np.asarray(axes) == np.asarray(axes)[0]))
 
 
 def quat_to_matrix(q) -> np.ndarray:
@@ -201,6 +207,8 @@ class SculptModel:
         # The seam nodes' springs split between the two lattices add up to an interior node's
         # stencil, so the bound of the dense lattice covers them.
         check_step(self.lattice, self.dt, tool_stiffness)
+        surface_nodes = np.arange(m * n * layers).reshape(m, n, layers)[:, :, -1]
+        self.coupling = mss.SurfaceCoupling.on_nodes(self.blending, surface_nodes, self.lattice.n_nodes)
         self.tool_stiffness = tool_stiffness
         self.n_nodes = self.lattice.n_nodes
         self.n_springs = self.lattice.n_edges + (self.seam.n_edges if self.seam else 0)
@@ -210,7 +218,8 @@ class SculptModel:
         self.ctrl = surface.ctrl
         self.tool_axes = np.full(3, float(tool_radius)) if tool_axes is None else np.asarray(tool_axes, float)
         self.set_tool(axes=self.tool_axes)
-        self._tick = jax.jit(self._tick_impl)
+        self._tick = jax.jit(self._tick_impl, static_argnums=5)  # one program per tool kind
+        self._compiled: set[bool] = set()
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
         self._lock = threading.Lock()
@@ -222,44 +231,55 @@ class SculptModel:
         a = np.full(3, float(radius)) if radius is not None else np.asarray(axes, dtype=np.float64)
         if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a <= 0):
             raise ValueError(f"tool: expected a radius or 3 semi-axes, finite and > 0, got {a.tolist()}")
+        if hasattr(self, "_tick"):
+            self._compile(_is_sphere(a))  # a new tool kind compiles here, not in the physics thread
         self.tool_axes = a  # one reference swap, picked up at the next tick
 
     # --- jitted kernels -----------------------------------------------------------------------
-    def _tool_push(self, x, centre, axes, rot, pressing):
-        """Nodes inside the tool (ellipsoid `|diag(1/a) Rᵀ (y − centre)| ≤ 1`) pushed radially
-        out to its surface: `k_tool · depth`, only while the button is held (002 §4.2)."""
-        r = x - centre
-        rho = safe_norm((r @ rot) / axes)
-        dist = safe_norm(r)
-        inside = (rho < 1) & (dist > 0)
-        depth = jnp.where(inside, dist * (1 / jnp.where(inside, rho, 1) - 1), 0)
-        return (self.tool_stiffness * pressing) * depth[:, None] * r / jnp.where(dist > 0, dist, 1)[:, None]
+    def _tool(self, centre, axes, rot, sphere: bool):
+        """The sculpting tool at the stylus pose: a `collide.Sphere` when the axes are equal
+        (the cheaper exact push), else a `collide.Ellipsoid` aligned with the stylus."""
+        return collide.Sphere(centre, axes[0]) if sphere else collide.Ellipsoid(centre, axes, rot)
 
-    def _step(self, carry, tool):
-        state, rest, rest_seam = carry
-        push = self._tool_push(state.position, *tool)
+    def _step(self, carry, tool, contact):
+        state, rest, rest_seam, _ = carry
+        seam = None
         if self.seam is not None:
-            push = push + mss.spring_forces(self.seam, state.position, state.velocity, rest_seam)
-        state = mss.step(self.lattice, state, self.dt, external_force=push, rest_length=rest)
-        return state, rest, rest_seam
+            seam = mss.spring_forces(self.seam, state.position, state.velocity, rest_seam)
+        state, ctrl = mss.coupled_step(
+            self.lattice,
+            self.coupling,
+            state,
+            self.dt,
+            (tool,),
+            contact,
+            external_force=seam,
+            rest_length=rest,
+            check_stability=False,  # checked once by the constructor (`check_step`)
+        )
+        return state, rest, rest_seam, ctrl
 
-    def _tick_impl(self, carry, centre, axes, rot, pressing, settle):
-        tool = (centre, axes, rot, pressing)
+    def _tick_impl(self, carry, centre, axes, rot, pressing, sphere, settle):
+        tool = self._tool(centre, axes, rot, sphere)
+        zero = jnp.zeros((), self.dtype)
+        contact = mss.Contact(self.tool_stiffness * pressing, zero)
         carry = self._settled(carry, settle)
-        carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tool), carry)
-        m, n = self.grid
+        ctrl = jnp.zeros(self.surface0.ctrl.shape, self.dtype)  # the last substep's refit replaces it
+        carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tool, contact), (*carry, ctrl))
+        carry, ctrl = carry[:3], carry[3]
         x = carry[0].position
-        ctrl = self.blending.refit(x.reshape(m, n, self.layers, 3)[:, :, -1])
         pts = self.dense.points(ctrl).reshape(-1, 3)
         nrm = self.sign * self.dense.normals(ctrl).reshape(-1, 3)
-        k = jnp.argmin(jnp.sum((pts - centre) ** 2, axis=-1))
+        k = jnp.argmin(jnp.sum((pts - centre[None]) ** 2, axis=-1))
         q, nq = pts[k], nrm[k]
-        support = safe_norm(axes * (nq @ rot))  # ellipsoid support distance along nq
+        support = axes[0] if sphere else _safe.norm(axes * (nq @ rot))  # support distance along nq
         # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
-        reaction = safe_norm(jnp.sum(self._tool_push(x, *tool), axis=0))
+        reaction = _safe.norm(
+            jnp.sum(mss.tool_forces((tool,), x, jnp.zeros_like(x), contact.stiffness), axis=0)
+        )
         # Distributed springs of 002 §3.2 (eq. 3.3, surface-normal method) through bsjax.collide.
         # method="dense": 40×40 samples are cheap, and one branch-free program compiles faster.
-        contact = collide.contacts(self.dense, ctrl, collide.Ellipsoid(centre, axes, rot), method="dense")
+        contact = collide.contacts(self.dense, ctrl, tool, method="dense")
         spring = self.sign * collide.contact_force(contact, self.contact_stiffness)
         hit = contact.hit.astype(x.dtype)
         return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None], spring, hit[None]])
@@ -269,7 +289,7 @@ class SculptModel:
 
         def lengths(lattice, x):
             e = lattice.edges
-            return safe_norm(x[e[:, 0]] - x[e[:, 1]])
+            return _safe.norm(x[e[:, 0]] - x[e[:, 1]])
 
         def set_shape(carry):
             state, _, rest_seam = carry
@@ -288,12 +308,22 @@ class SculptModel:
             jnp.asarray(quat_to_matrix(orientation), dt),
         )
 
-    def warmup(self) -> None:
-        """Compile the tick (all shapes are fixed, so this happens once)."""
+    def _sphere(self) -> bool:
+        return _is_sphere(self.tool_axes)
+
+    def _compile(self, sphere: bool) -> None:
+        """Compile the tick for one tool kind (a tick with the tool far away, result dropped)."""
+        if sphere in self._compiled:
+            return
         centre, axes, rot = self._tool_args(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0))
-        jax.block_until_ready(
-            self._tick(self._state, centre, axes, rot, jnp.asarray(0.0, self.dtype), jnp.asarray(False))
-        )
+        off = jnp.asarray(0.0, self.dtype)
+        jax.block_until_ready(self._tick(self._state, centre, axes, rot, off, sphere, jnp.asarray(False)))
+        self._compiled.add(sphere)
+
+    def warmup(self) -> None:
+        """Compile the tick for the current tool kind (all shapes are fixed, so this happens once;
+        `set_tool` compiles the other kind, sphere or ellipsoid, when it first changes to it)."""
+        self._compile(self._sphere())
 
     def update(self, sample: DeviceSample) -> Proxy:
         """One physics tick with the tool at `sample`; returns the plane proxy for the servo."""
@@ -302,7 +332,13 @@ class SculptModel:
             centre, axes, rot = self._tool_args(sample.position, sample.orientation)
             settle = jnp.asarray(self._was_pressed and not pressed)  # released: set the shape first
             state, ctrl, out = self._tick(
-                self._state, centre, axes, rot, jnp.asarray(float(pressed), self.dtype), settle
+                self._state,
+                centre,
+                axes,
+                rot,
+                jnp.asarray(float(pressed), self.dtype),
+                self._sphere(),
+                settle,
             )
             self._was_pressed = pressed
             out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
