@@ -1,5 +1,6 @@
 """Bad input → `ValueError` naming the argument, the expected and the received value (SPEC §11)."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -43,35 +44,54 @@ def _ctrl_inf():
     return c
 
 
-@pytest.mark.parametrize(
-    "change, name, got",
-    [
-        (dict(ctrl=np.zeros((R, S, 2))), "ctrl", "(6, 5, 2)"),
-        (dict(ctrl=np.zeros((R * S, 3))), "ctrl", "(30, 3)"),
-        (dict(ctrl=_ctrl_nan()), "ctrl", "NaN"),
-        (dict(ctrl=_ctrl_inf()), "ctrl", "inf"),
-        (dict(degree_u=6), "degree_u", "6"),  # degree >= number of control points
-        (dict(degree_u=7, knots_u=np.r_[np.zeros(8), np.ones(6)][:14]), "degree_u", "7"),
-        (dict(degree_v=0), "degree_v", "0"),
-        (dict(knots_u=np.asarray(clamped_knots(R + 1, 3))), "knots_u", "11"),  # wrong length
-        (dict(knots_u=np.r_[0, 0, 0, 0, 0.6, 0.4, 1, 1, 1, 1]), "knots_u", "decrease"),
-        (dict(knots_v=np.r_[0, 0, 0.1, 0.4, 0.7, 0.9, 1, 1]), "knots_v", "clamped"),
-        (dict(knots_v=np.r_[0, 0, 0, 0.4, 0.7, 2, 2, 2.0]), "knots_v", "[0.0, 2.0]"),
-        (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5 * np.nan, 1, 1, 1, 1]), "knots_u", "NaN"),
-        (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5, 0.5, 0.5, 1, 1, 1, 1][:10]), "knots_u", ""),
-        (dict(knots_u=np.zeros((10, 1))), "knots_u", "(10, 1)"),
-        (dict(knots_u=None), "knots_u", "None"),
-        (dict(weights=np.ones((S, R))), "weights", "(5, 6)"),
-        (dict(weights=-np.ones((R, S))), "weights", "-1"),
-        (dict(weights=np.full((R, S), np.nan)), "weights", "nan"),
-    ],
-)
+CONSTRUCTOR_CASES = [
+    (dict(ctrl=np.zeros((R, S, 2))), "ctrl", "(6, 5, 2)"),
+    (dict(ctrl=np.zeros((R * S, 3))), "ctrl", "(30, 3)"),
+    (dict(ctrl=_ctrl_nan()), "ctrl", "NaN"),
+    (dict(ctrl=_ctrl_inf()), "ctrl", "inf"),
+    (dict(degree_u=6), "degree_u", "6"),  # degree >= number of control points
+    (dict(degree_u=7, knots_u=np.r_[np.zeros(8), np.ones(6)][:14]), "degree_u", "7"),
+    (dict(degree_v=0), "degree_v", "0"),
+    (dict(knots_u=np.asarray(clamped_knots(R + 1, 3))), "knots_u", "11"),  # wrong length
+    (dict(knots_u=np.r_[0, 0, 0, 0, 0.6, 0.4, 1, 1, 1, 1]), "knots_u", "decrease"),
+    (dict(knots_v=np.r_[0, 0, 0.1, 0.4, 0.7, 0.9, 1, 1]), "knots_v", "clamped"),
+    (dict(knots_v=np.r_[0, 0, 0, 0.4, 0.7, 2, 2, 2.0]), "knots_v", "[0.0, 2.0]"),
+    (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5 * np.nan, 1, 1, 1, 1]), "knots_u", "NaN"),
+    (dict(knots_u=np.r_[0, 0, 0, 0, 0.5, 0.5, 0.5, 0.5, 1, 1, 1, 1][:10]), "knots_u", ""),
+    (dict(knots_u=np.zeros((10, 1))), "knots_u", "(10, 1)"),
+    (dict(knots_u=None), "knots_u", "None"),
+    (dict(weights=np.ones((S, R))), "weights", "(5, 6)"),
+    (dict(weights=-np.ones((R, S))), "weights", "-1"),
+    (dict(weights=np.full((R, S), np.nan)), "weights", "nan"),
+]
+
+
+@pytest.mark.parametrize("change, name, got", CONSTRUCTOR_CASES)
 def test_surface_constructor_errors(surface, change, name, got):
     with pytest.raises(ValueError) as info:
         _make(surface, **change)
     message = str(info.value)
     assert message.startswith(name), message
     assert "expected" in message and got.lower() in message.lower(), message
+
+
+@pytest.mark.parametrize("change, name, got", CONSTRUCTOR_CASES)
+def test_surface_constructor_errors_under_jit(surface, change, name, got):
+    """The same errors inside the caller's `jax.jit`, the arrays traced: structure errors while
+    tracing, value errors (NaN, decreasing or unclamped knots, negative weights) at run time."""
+    args = dict(
+        ctrl=np.asarray(surface.ctrl),
+        knots_u=np.asarray(surface.knots_u),
+        knots_v=np.asarray(surface.knots_v),
+        degree_u=3,
+        degree_v=2,
+        weights=None,
+    )
+    args.update(change)
+    arrays = {k: v for k, v in args.items() if isinstance(v, np.ndarray)}
+    fixed = {k: v for k, v in args.items() if k not in arrays}
+    with pytest.raises((ValueError, TypeError, jax.errors.JaxRuntimeError), match=f"{name}: expected"):
+        jax.block_until_ready(jax.jit(lambda a: BSplineSurface(**fixed, **a))(arrays))
 
 
 def test_periodic_direction_takes_no_knot_vector(surface):
@@ -105,6 +125,8 @@ def test_non_int_degree_is_a_type_error(surface):
 def test_surface_method_errors(surface, call, name):
     with pytest.raises(ValueError, match=f"^{name}: expected"):
         call(surface)
+    with pytest.raises((ValueError, jax.errors.JaxRuntimeError), match=f"{name}: expected"):
+        jax.block_until_ready(jax.jit(call)(surface))  # the surface traced
 
 
 @pytest.mark.parametrize(
@@ -127,6 +149,16 @@ def test_blending_errors(surface, call, name):
     b = surface.blending(9, 9)
     with pytest.raises((ValueError, TypeError), match=f"^{name}: expected"):
         call(b, surface)
+    if name != "window":  # a window's size depends on the values: a host-side view (see below)
+        with pytest.raises((ValueError, TypeError, jax.errors.JaxRuntimeError), match=f"{name}: expected"):
+            jax.block_until_ready(jax.jit(lambda b: call(b, surface))(b))
+
+
+def test_window_is_host_side(surface):
+    """`Blending.window` picks rows by value, so its size is data-dependent: under `jit` it says so."""
+    b = surface.blending(9, 9)
+    with pytest.raises(TypeError, match="window: expected a concrete Blending"):
+        jax.jit(lambda b: b.window(0.0, 0.5, 0.0, 1.0).params_u)(b)
 
 
 @pytest.mark.parametrize("m, n", [(R - 1, 9), (9, S - 1), (2, 2)])

@@ -7,9 +7,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from bsjax import _checks
+from bsjax._typing import ArrayLike
 from bsjax.basis._functions import check_order, periodic_rows, rows
 from bsjax.basis._knots import clamped_knots, float_dtype
 

@@ -14,10 +14,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax._typing import ArrayLike
 from bsjax.basis._knots import float_dtype, periodic_knots
 
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from bsjax import _checks
+from bsjax._typing import ArrayLike
 
 
 def float_dtype(*xs):
@@ -29,7 +30,7 @@ def _check_dtype(dtype, name: str = "dtype"):
         _checks.fail(name, "a floating dtype (float32 or float64)", jnp.dtype(dtype).name)
 
 
-def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " n_ctrl+degree+1"]:
+def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     """Clamped (open) uniform knot vector on [0, 1].
 
     **Arguments:**
@@ -47,7 +48,7 @@ def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " n_ctrl
     return jnp.asarray(knots, dtype=dtype or float_dtype())
 
 
-def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " n_ctrl+2*degree+1"]:
+def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     """The unclamped uniform knot vector behind the periodic basis: `(j − k) / n`, j = 0…n+2k.
 
     Its `n_ctrl + degree` basis functions cover the domain `[t_k, t_{n+k}] = [0, 1]`; the last

@@ -13,10 +13,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, Float, Int
 
 from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax._typing import ArrayLike
 from bsjax.basis import _tensor
 from bsjax.basis._direction import SplineDirection
 from bsjax.basis._functions import check_order
@@ -279,7 +280,12 @@ class Blending(eqx.Module):
     # --- views -------------------------------------------------------------------------------
     def window(self, u_min: float, u_max: float, v_min: float, v_max: float) -> Blending:
         """The rows and columns whose parameters lie in `[u_min, u_max] × [v_min, v_max]`
-        (host-side: the view's size depends on the values)."""
+        (host-side: the view's size depends on the values, so it cannot be built under `jit`)."""
+        if not _checks.is_concrete((self.params_u, self.params_v)):
+            raise TypeError(
+                "window: expected a concrete Blending (a host-side view whose size depends on the "
+                "parameter values), got a traced one inside jit/vmap/grad; build the window outside"
+            )
         pu, pv = np.asarray(self.params_u), np.asarray(self.params_v)
         rows = np.nonzero((pu >= u_min) & (pu <= u_max))[0]
         cols = np.nonzero((pv >= v_min) & (pv <= v_max))[0]
