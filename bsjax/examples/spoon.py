@@ -1,8 +1,10 @@
 """The spoon case study of the thesis (§7.3, SPEC §9), as composable steps.
 
 1. `bend_handle`: a surface mass-spring lattice on the handle's blending grid (plasticine,
-   plastic yield), one end clamped by a plane, the neck pushed up by a sphere tool; the control
-   points come back by the least-squares refit (paper 002 §4.1 dual representation).
+   plastic yield), one end clamped by a plane, the neck pushed up by a `collide.Sphere`; each
+   step is the chain `mss.coupled_step` (surface → contacts by the tool's `push` → forces on the
+   lattice nodes → step → refit, the dual representation of Gao & Gibson, *Haptic sculpting of
+   multi-resolution B-spline surfaces with shaped tools*, §4.1).
 2. `attach_bowl` + `bsjax.merge.merge`: the bowl follows the bent neck and the two patches
    become one surface.
 3. `jelly`, `drop`, `spill`: a jelly (B-spline sphere + VSOFM hexahedral lattice) dropped into
@@ -22,17 +24,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import mss
+from bsjax import collide, mss
 from bsjax.basis import BSplineSurface
 
 GRAVITY = 9.81
-
-
-class _Ball(eqx.Module):
-    """A rigid sphere tool in the shape the mass-spring penalty expects (`center`, `radius`)."""
-
-    center: Float[Array, "... 3"]
-    radius: Float[Array, "..."]
 
 
 # --- 1. bending the handle -------------------------------------------------------------------
@@ -55,29 +50,24 @@ def bend_handle(
     """
     m, n = samples
     blending = handle.blending(m, n)
-    nodes = blending.points(handle.ctrl).reshape(-1, 3)
-    edges = mss.grid_edges(np.arange(m * n).reshape(m, n))
-    volume = 0.12 * 0.012 * 0.003  # a 3 mm plasticine strip
-    # ground damping (N·s/m per node) settles the strip's slow bending mode after the push
-    lattice = mss.from_material(
-        nodes, edges, mss.PLASTICINE, volume, fixed=nodes[:, 0] < clamp_x, node_damping=node_damping
+    grid = np.asarray(blending.points(handle.ctrl))
+    # a 3 mm plasticine strip on the sample grid; ground damping (N·s/m per node) settles the
+    # strip's slow bending mode after the push
+    lattice, coupling = mss.surface_lattice(
+        blending,
+        handle.ctrl,
+        mss.PLASTICINE,
+        thickness=0.003,
+        fixed=grid[..., 0] < clamp_x,
+        node_damping=node_damping,
     )
+    dtype = handle.ctrl.dtype
     lift = jnp.minimum(jnp.linspace(0.0, 1.5, steps), 1.0)[:, None]
-    start = jnp.array([-0.03, 0.0, -0.0065], dtype=nodes.dtype)
-    path = _Ball(
-        center=start + lift * jnp.array([0.0, 0.0, push], dtype=nodes.dtype),
-        radius=jnp.full((steps,), 0.006, dtype=nodes.dtype),
+    start = jnp.array([-0.03, 0.0, -0.0065], dtype=dtype)
+    path = jax.vmap(collide.Sphere)(  # the rising ball, one tool per step
+        start[None] + lift * jnp.array([0.0, 0.0, push], dtype=dtype)[None], jnp.full((steps,), 0.006, dtype)
     )
-    plastic, state = mss.simulate_plastic(
-        lattice,
-        mss.init(lattice),
-        dt,
-        steps,
-        mss.Plasticity(yield_strain),
-        tool_path=[path],
-        contact=mss.Contact(5e3, 1.0),
-        method="implicit",
-    )
+    plastic, state = _push(lattice, coupling, path, dt, mss.Contact(5e3, 1.0), mss.Plasticity(yield_strain))
     rest, taken, converged = mss.relax(
         plastic,
         mss.State(state.position, jnp.zeros_like(state.velocity)),
@@ -86,19 +76,35 @@ def bend_handle(
         tol=1e-10,
         max_steps=relax_steps,
     )
-    ctrl = blending.refit(rest.position.reshape(m, n, 3))
-    lift_neck = float(jnp.mean(rest.position.reshape(m, n, 3)[-1, :, 2] - nodes.reshape(m, n, 3)[-1, :, 2]))
+    ctrl = coupling.ctrl(rest.position)
+    lift_neck = float(jnp.mean(coupling.grid(rest.position)[-1, :, 2] - grid[-1, :, 2]))
     info = {
-        "lattice_nodes": m * n,
-        "springs": int(edges.shape[0]),
+        "lattice_nodes": lattice.n_nodes,
+        "springs": lattice.n_edges,
         "steps": steps,
         "dt": dt,
         "neck_lift_m": lift_neck,
         "relaxed": bool(converged),
         "relax_steps": int(taken),
-        "fixed_nodes": int(np.sum(np.asarray(nodes[:, 0]) < clamp_x)),
+        "fixed_nodes": int(np.sum(np.asarray(lattice.fixed))),
     }
     return handle.with_ctrl(ctrl), info
+
+
+@jax.jit
+def _push(lattice, coupling, path, dt, contact, plasticity):
+    """The tool path through the coupled chain (implicit steps, a plastic yield after each);
+    returns the lattice with its yielded rest lengths and the final state."""
+
+    def body(carry, ball):
+        state, rest = carry
+        state, _ = mss.coupled_step(
+            lattice, coupling, state, dt, (ball,), contact, rest_length=rest, method="implicit"
+        )
+        return (state, mss.yield_rest_lengths(lattice, state.position, plasticity, rest)), None
+
+    (state, rest), _ = jax.lax.scan(body, (mss.init(lattice), lattice.rest_length), path)
+    return eqx.tree_at(lambda lat: lat.rest_length, lattice, rest), state
 
 
 def attach_bowl(handle: BSplineSurface, bowl: BSplineSurface) -> BSplineSurface:
