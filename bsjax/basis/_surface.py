@@ -110,6 +110,7 @@ class BSplineSurface(eqx.Module):
         return self.direction(direction).matrix(jnp.asarray(params, self.ctrl.dtype), nu)
 
     # --- evaluation --------------------------------------------------------------------------
+    @compiled
     def evaluate(self, u: ArrayLike, v: ArrayLike, nu: int = 0, nv: int = 0) -> Float[Array, "... 3"]:
         """Points (or the (nu, nv) partial derivative) at equal-shape parameter arrays `u`, `v`.
 
@@ -121,14 +122,18 @@ class BSplineSurface(eqx.Module):
         check_order(nv, "nv")
         return _evaluate(self, self._params(u, "u"), self._params(v, "v"), nu, nv)
 
+    @compiled
     def normal(self, u: ArrayLike, v: ArrayLike) -> Float[Array, "... 3"]:
         """Unit normal `T_u × T_v / |T_u × T_v|` at `u`, `v` (limit normal at poles, never NaN)."""
-        return _normal(self, self._params(u, "u"), self._params(v, "v"))
+        u, v = self._params(u, "u"), self._params(v, "v")
+        t_u, t_v, t_uv = (_evaluate(self, u, v, a, b) for a, b in ((1, 0), (0, 1), (1, 1)))
+        return _tensor.unit_normal(t_u, t_v, t_uv, u, v)
 
     def _params(self, x, name):
         _checks.check_real(x, name)
         return jnp.asarray(x, self.ctrl.dtype)
 
+    @compiled
     def blending(self, m: int = 82, n: int = 82, params_u=None, params_v=None) -> Blending:
         """Pre-computed blending matrices for an `m × n` sample grid (default `linspace(0, 1, ·)`).
 
@@ -136,7 +141,15 @@ class BSplineSurface(eqx.Module):
         """
         pu = _grid_params(params_u, m, "params_u", "m", self.ctrl.dtype)
         pv = _grid_params(params_v, n, "params_v", "n", self.ctrl.dtype)
-        return _build_blending(self.direction_u, self.direction_v, self.weights, pu, pv)
+        du, dv = self.direction_u, self.direction_v
+        pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
+        a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
+        (refit_u, ok_u), (refit_v, ok_v) = _pinv(a_u[0]), _pinv(a_v[0])
+        return Blending(
+            params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
+            full_rank=ok_u & ok_v, weights=self.weights, direction_u=du, direction_v=dv,
+            index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
+        )  # fmt: skip
 
     def with_ctrl(self, ctrl: ArrayLike) -> BSplineSurface:
         """The same basis with another control net (shape checked)."""
@@ -145,7 +158,6 @@ class BSplineSurface(eqx.Module):
         return BSplineSurface.from_directions(ctrl, self.direction_u, self.direction_v, self.weights)
 
 
-@compiled
 def _evaluate(surface: BSplineSurface, u, v, nu: int, nv: int):
     if u.shape != v.shape:
         _checks.fail("v", f"the shape of u {u.shape}", v.shape)
@@ -162,12 +174,6 @@ def _evaluate(surface: BSplineSurface, u, v, nu: int, nv: int):
         h = {(k, l): _tensor.pointwise(a_u[k], net, a_v[l]) for k in range(nu + 1) for l in range(nv + 1)}
         out = _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
     return out.reshape(u.shape + (3,))
-
-
-@compiled
-def _normal(surface: BSplineSurface, u, v):
-    t_u, t_v, t_uv = (_evaluate(surface, u, v, a, b) for a, b in ((1, 0), (0, 1), (1, 1)))
-    return _tensor.unit_normal(t_u, t_v, t_uv, u, v)
 
 
 class Blending(eqx.Module):
@@ -335,18 +341,6 @@ _REFIT_NEEDS = (
     "a full grid with m >= r and n >= s samples whose blending matrices have full column rank "
     "(a closed direction samples its seam twice)"
 )
-
-
-@compiled
-def _build_blending(du: SplineDirection, dv: SplineDirection, weights, pu, pv) -> Blending:
-    pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
-    a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
-    (refit_u, ok_u), (refit_v, ok_v) = _pinv(a_u[0]), _pinv(a_v[0])
-    return Blending(
-        params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
-        full_rank=ok_u & ok_v, weights=weights, direction_u=du, direction_v=dv,
-        index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
-    )  # fmt: skip
 
 
 def _grid_params(params, count, name, count_name, dtype):
