@@ -1,17 +1,38 @@
 """bsjax: differentiable B-spline geometry and physics in JAX.
 
-The names a newcomer needs first; everything else lives in its module
-(`bsjax.basis`, `bsjax.io`, …). Importing bsjax changes no global configuration.
+The names a newcomer needs first; everything else lives in its module (`bsjax.basis`,
+`bsjax.collide`, `bsjax.merge`, `bsjax.mss`, `bsjax.vsofm`, `bsjax.device`, `bsjax.io`, …).
+Importing bsjax changes no global configuration. Every public function that computes is
+compiled at its boundary; `clear_caches()` forgets every compiled entry point and cached plan.
+
+Sources cited in the docstrings:
+* the thesis — H. Pungotra, *Collision detection and merging of deformable B-spline surfaces in
+  virtual reality environment*, PhD thesis, The University of Western Ontario (2010);
+* Pungotra, Knopf & Canas, *An alternative methodology to represent B-spline surface for
+  applications in virtual reality environment*, Computer-Aided Design & Applications (2013);
+* Gao & Gibson, *Haptic B-spline surface sculpting with a shaped tool of implicit surface*,
+  Computer-Aided Design & Applications (2005);
+* *Interactive shape modeling and dynamic deformation based on spline sculpting*, PhD thesis,
+  University of Trento (2007);
+* Piegl & Tiller, *The NURBS Book* (2nd ed., 1997).
 """
 
-from bsjax.basis import Blending, BSplineSurface, blending_matrix, clamped_knots, periodic_blending_matrix
+from bsjax._boundary import clear_caches as clear_caches
+from bsjax.basis import Blending as Blending
+from bsjax.basis import BSplineSurface as BSplineSurface
+from bsjax.basis import SplineDirection as SplineDirection
+from bsjax.basis import blending_matrix as blending_matrix
+from bsjax.basis import clamped_knots as clamped_knots
+from bsjax.basis import periodic_blending_matrix as periodic_blending_matrix
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BSplineSurface",
     "Blending",
+    "SplineDirection",
     "blending_matrix",
     "clamped_knots",
+    "clear_caches",
     "periodic_blending_matrix",
 ]

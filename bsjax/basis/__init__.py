@@ -14,6 +14,10 @@ from bsjax.basis._functions import periodic_blending_matrix as periodic_blending
 from bsjax.basis._knots import clamped_knots as clamped_knots
 from bsjax.basis._knots import greville as greville
 from bsjax.basis._knots import periodic_knots as periodic_knots
+from bsjax.basis._project import Projection as Projection
+from bsjax.basis._project import ProjectionSolver as ProjectionSolver
+from bsjax.basis._project import closest_points as closest_points
+from bsjax.basis._project import project as project
 from bsjax.basis._refine import elevate_degree as elevate_degree
 from bsjax.basis._refine import insert_knots as insert_knots
 from bsjax.basis._refine import reduce_degree as reduce_degree
@@ -23,15 +27,19 @@ from bsjax.basis._surface import BSplineSurface as BSplineSurface
 __all__ = [
     "BSplineSurface",
     "Blending",
+    "Projection",
+    "ProjectionSolver",
     "SplineDirection",
     "basis_functions",
     "blending_matrix",
     "clamped_knots",
+    "closest_points",
     "elevate_degree",
     "fold_periodic",
     "greville",
     "insert_knots",
     "periodic_blending_matrix",
     "periodic_knots",
+    "project",
     "reduce_degree",
 ]
