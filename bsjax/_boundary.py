@@ -128,6 +128,9 @@ class _Compiled:
                 raise
             raise ValueError(found.group(1).strip()) from None
 
+    def __repr__(self) -> str:
+        return f"<compiled {self.__qualname__}>"
+
     def __get__(self, instance, owner=None):
         if instance is None:
             return self
