@@ -112,16 +112,17 @@ def fit(
     quadric fits), interior nodes inside. Check `report(points, nodes).inverted == 0`.
 
     The training is compiled at the boundary (`bsjax._boundary.compiled`, once per sample count,
-    `shape`, `cycles` and `settings`); called with concrete samples, the host first drops repeated
-    samples and finds each sample's 16 nearest neighbours with a k-d tree (O(P log P)); inside the
-    caller's `jit` the samples are used as given and the neighbours found by brute force.
+    `shape`, `cycles` and `settings`), the samples' 16 nearest neighbours found by a k-d tree on
+    the host (`jax.pure_callback`). Called with concrete samples, repeated samples are dropped
+    first; inside the caller's `jit` the samples are used as given (the count of distinct
+    samples is not known there).
     """
     pts, shape = _check_fit_input(points, shape)
     cycles = _checks.check_count(cycles, "cycles")
     if not isinstance(settings, Settings):
         raise TypeError(f"settings: expected a vsofm.Settings, got {type(settings).__name__}")
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit(pts, _neighbours(pts, _NEAR), key, shape, cycles, settings)
+    return _fit(pts, key, shape, cycles, settings)
 
 
 def _check_fit_input(points, shape):
@@ -147,8 +148,9 @@ def _distinct(points):
 
 
 @compiled
-def _fit(points, nbr, key, shape, cycles, settings):
+def _fit(points, key, shape, cycles, settings):
     dtype = points.dtype
+    nbr = _neighbours(points, _NEAR)
     # draw probability of each sample ∝ the surface area it stands for (squared mean distance to
     # its 6 nearest samples), so a parameter grid crowded at the poles does not crowd the lattice
     gap = jnp.linalg.norm(points[nbr[:, 1:7]] - points[:, None], axis=-1)
@@ -254,16 +256,20 @@ _NEAR = 16  # samples per quadric patch (6 coefficients)
 
 
 def _neighbours(points, k):
-    """`(P, k)` indices of each sample's `k` nearest samples (itself first): a k-d tree when the
-    samples are concrete, blocked brute force when traced."""
+    """`(P, k)` indices of each sample's `k` nearest samples (itself first), from a k-d tree on
+    the host (`scipy.spatial.cKDTree`, O(P log P)); a `jax.pure_callback`, so the same search
+    runs inside the caller's `jit` and `vmap` (integer indices: no gradient flows through)."""
     k = min(k, points.shape[0])
-    if not isinstance(points, jax.core.Tracer):
-        from scipy.spatial import cKDTree
+    shape = jax.ShapeDtypeStruct((points.shape[0], k), jnp.int32)
+    search = functools.partial(_kd_neighbours, k=k)
+    return jax.pure_callback(search, shape, jax.lax.stop_gradient(points), vmap_method="sequential")
 
-        p = np.asarray(points, dtype=np.float64)
-        return jnp.asarray(cKDTree(p).query(p, k=k)[1].astype(np.int32))
-    p2 = jnp.sum(points * points, axis=-1)
-    return jax.lax.map(lambda x: jax.lax.top_k(2.0 * points @ x - p2, k)[1], points, batch_size=512)
+
+def _kd_neighbours(points, k):
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)
+    return cKDTree(p).query(p, k=k)[1].astype(np.int32)
 
 
 def _patches(points, nbr):
@@ -381,7 +387,7 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
     b = nodes[boundary_mask(nodes.shape[:3])]
     near = cKDTree(pts).query(b)[0]
     p = jnp.asarray(pts)
-    measures = _quality(jnp.asarray(nodes), p, _neighbours(p, _NEAR))
+    measures = _quality(jnp.asarray(nodes), p)
     inverted, n_elements, jmin, jmean, dmax, dmean = (np.asarray(m) for m in measures)
     return Report(
         int(inverted),
@@ -395,13 +401,13 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
 
 
 @compiled
-def _quality(nodes, points, nbr):
+def _quality(nodes, points):
     """`(inverted, n_elements, min and mean scaled Jacobian, max and mean boundary distance to the
     quadric patches)` of `report`, as arrays."""
     jac = corner_jacobians(nodes)
     bad = jnp.any(jac <= 0, axis=-1)
     b = nodes[boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
-    dist = _safe.norm(b - _project(b, points, *_patches(points, nbr)))
+    dist = _safe.norm(b - _project(b, points, *_patches(points, _neighbours(points, _NEAR))))
     return jnp.sum(bad), jnp.asarray(bad.size), jnp.min(jac), jnp.mean(jac), jnp.max(dist), jnp.mean(dist)
 
 
