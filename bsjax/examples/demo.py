@@ -124,7 +124,7 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     patch = merged.blending(
         params_u=np.linspace(0.5, 1.0, 160), params_v=np.linspace(0.0, 1.0, 80), m=160, n=80
     )
-    local = (patch.points(merged.ctrl) - origin) @ rot  # world → bowl frame
+    local = (patch.points(merged.ctrl) - origin[None, None]) @ rot  # world → bowl frame
     hm = spoon.height_map(local, (-0.01, -0.035), (0.075, 0.035))
     ball = shapes.sphere(radius=0.007)
     centre = np.array([0.032, 0.0, 0.004])
