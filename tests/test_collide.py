@@ -1,12 +1,13 @@
 """Collision queries and contact forces: closed forms, dense references, trimesh and python-fcl."""
 
+import functools
+
 import fcl
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
-from tests.helpers import check_grad, random_surface
 from scipy.optimize import brentq
 
 from bsjax import shapes
@@ -18,18 +19,25 @@ from bsjax.collide import (
     Point,
     Sphere,
     TriangleMesh,
+    cell_triangles,
     contact_force,
     contacts,
+    hulls_apart,
     nodal_forces,
+    parametric_window,
     sample_forces,
+    sample_window,
+    sphere_hierarchy,
     surface_contacts,
     tessellate,
 )
 from bsjax.collide.flat import normal_cones
-from bsjax.collide.hierarchy import block_order, cell_triangles, sphere_hierarchy, traverse
+from bsjax.collide.hierarchy import block_order, traverse
+from tests.helpers import check_grad, raises_both, random_surface
 
-_contacts = jax.jit(contacts, static_argnames="method")
-_surfaces = jax.jit(surface_contacts, static_argnames=("capacity", "method", "flat_angle"))
+# the queries are compiled at their public boundary: the tests call them as users do
+_contacts = contacts
+_surfaces = surface_contacts
 
 # one control-net shape, degree and grid for most tests, so the jitted queries compile once per tool
 PLATE = shapes.plate(6, 6)
@@ -48,6 +56,11 @@ def _cylinder(radius=1.0):
 
 CYL = _cylinder()
 CYL_B = CYL.blending(21, 11)
+
+
+def _shift(ctrl, offset):
+    """A control net translated by `offset (3,)`."""
+    return jnp.asarray(ctrl) + jnp.asarray(offset, jnp.float64)[None, None]
 
 
 def _bumpy(seed, r=6, s=6, l=3):
@@ -239,7 +252,7 @@ def test_surfaces_hierarchy_matches_dense_and_fcl():
     ctrl_b = np.asarray(b.ctrl).copy()
     ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 1.2 + 0.05 * rng.normal(size=ctrl_b.shape[:2])
     ba = bb = a.blending(10, 10)
-    pairs = [(a.ctrl, jnp.asarray(ctrl_b)), (a.ctrl, jnp.asarray(ctrl_b) + jnp.array([0.05, 0.0, 0.02]))]
+    pairs = [(a.ctrl, jnp.asarray(ctrl_b)), (a.ctrl, _shift(ctrl_b, [0.05, 0.0, 0.02]))]
     for ctrl_a, ctrl_b2 in pairs:
         hier = _surfaces(ba, ctrl_a, bb, ctrl_b2, capacity=512)
         dense = _surfaces(ba, ctrl_a, bb, ctrl_b2, method="dense")
@@ -253,14 +266,46 @@ def test_surfaces_hierarchy_matches_dense_and_fcl():
         np.testing.assert_array_equal(np.asarray(dense.mask_a).reshape(-1), ma)
         np.testing.assert_array_equal(np.asarray(dense.mask_b).reshape(-1), mb)
     # moved apart: certified by the control hulls, no contact
-    far = _surfaces(ba, a.ctrl, bb, jnp.asarray(ctrl_b) + jnp.array([0, 0, 5.0]), capacity=512)
+    far = _surfaces(ba, a.ctrl, bb, _shift(ctrl_b, [0, 0, 5.0]), capacity=512)
     assert bool(far.apart) and not bool(far.hit)
+
+
+def test_surface_contacts_direct_jit_vmap_and_retry():
+    """The compiled boundary of `surface_contacts`: a direct call, the same call inside the
+    caller's `jit` and `vmap` over translations of one surface agree; an overflow is retried
+    on the host with a larger (static) capacity, as `bsjax.merge` does."""
+    rng = np.random.default_rng(3)
+    a, b = _bumpy(3), _bumpy(13)
+    ctrl_b = np.asarray(b.ctrl).copy()
+    ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 1.2 + 0.05 * rng.normal(size=ctrl_b.shape[:2])
+    ctrl_b = jnp.asarray(ctrl_b)
+    ba = a.blending(10, 10)
+    shifts = jnp.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.02], [0.0, 0.0, 5.0]])
+    query = lambda shift: surface_contacts(ba, a.ctrl, ba, ctrl_b + shift[None, None], capacity=512)
+    direct = [query(d) for d in shifts]
+    assert [bool(r.hit) for r in direct] == [True, True, False] and bool(direct[2].apart)
+    batched = jax.jit(jax.vmap(query))(shifts)  # one compilation for both transformations
+    for name in ("mask_a", "mask_b", "pair_hit", "hit", "apart", "overflow"):
+        for k in range(3):
+            got, want = getattr(batched, name)[k], getattr(direct[k], name)
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    # retry: a capacity of 8 overflows along the crossing curve; the host retries with 512
+    tried = []
+    for capacity in (8, 512):
+        result = surface_contacts(ba, a.ctrl, ba, ctrl_b, capacity=capacity)
+        tried.append(bool(result.overflow))
+        if not tried[-1]:
+            break
+    assert tried == [True, False]
+    dense = surface_contacts(ba, a.ctrl, ba, ctrl_b, method="dense")
+    np.testing.assert_array_equal(np.asarray(result.mask_a), np.asarray(dense.mask_a))
+    np.testing.assert_array_equal(np.asarray(result.mask_b), np.asarray(dense.mask_b))
 
 
 def test_closed_surface_against_plate_hierarchy():
     drop = shapes.teardrop()
     plate = shapes.plate(4, 4, size=2.0)
-    ctrl_p = jnp.asarray(plate.ctrl) + jnp.array([-1.0, -1.0, 0.3])
+    ctrl_p = _shift(plate.ctrl, [-1.0, -1.0, 0.3])
     bd, bp = drop.blending(10, 10), plate.blending(9, 9)
     hier = _surfaces(bd, drop.ctrl, bp, ctrl_p, capacity=256)
     dense = _surfaces(bd, drop.ctrl, bp, ctrl_p, method="dense")
@@ -284,10 +329,10 @@ def _sheets(kind):
     ctrl = jnp.asarray(PLATE.ctrl)
     other = {
         "coplanar": ctrl,
-        "gap": ctrl + jnp.array([0, 0, 1e-3]),
+        "gap": _shift(ctrl, [0, 0, 1e-3]),
         "tilted": ctrl.at[..., 2].set(0.02 * (ctrl[..., 0] - 0.6)),
     }[kind]
-    return b, ctrl, b, other + jnp.array([0.3, 0.2, 0.0])
+    return b, ctrl, b, _shift(other, [0.3, 0.2, 0.0])
 
 
 @pytest.mark.parametrize("kind", ["coplanar", "gap", "tilted"])
@@ -337,18 +382,30 @@ def test_normal_cones_bound_every_triangle_normal():
 # --- jit / vmap / gradients -------------------------------------------------------------------
 
 
-def test_vmap_over_tool_poses():
-    surf = _bumpy(5)
-    b = PLATE_B
-    centres = jnp.array([[0.5, 0.5, 0.0], [0.2, 0.7, 0.1], [0.5, 0.5, 3.0], [0.8, 0.3, -0.05]])
-    batched = jax.jit(jax.vmap(lambda c: contacts(b, surf.ctrl, Sphere(c, 0.2)).depth))(centres)
+def test_contacts_direct_jit_vmap_grad_agree():
+    """The compiled boundary of `contacts`: a direct call, the same call inside the caller's
+    `jit`, `vmap` over tool centres and `grad` w.r.t. the radius and centre agree, and the
+    gradients match the closed form of a ball over a flat plate."""
+    b, ctrl = PLATE_B, jnp.asarray(PLATE.ctrl)
+    centres = jnp.array([[0.5, 0.5, 0.05], [0.2, 0.7, 0.1], [0.5, 0.5, 3.0], [0.8, 0.3, -0.05]])
+    depth = lambda c, r: contacts(b, ctrl, Sphere(c, r)).depth
+    direct = [np.asarray(depth(c, 0.2)) for c in centres]
+    batched = np.asarray(jax.jit(jax.vmap(depth, (0, None)))(centres, 0.2))  # one compilation for both
     for k in range(4):
-        np.testing.assert_allclose(
-            np.asarray(batched[k]),
-            np.asarray(_contacts(b, surf.ctrl, Sphere(centres[k], 0.2)).depth),
-            atol=1e-14,
-        )
-    assert float(batched[2].sum()) == 0.0
+        np.testing.assert_allclose(batched[k], direct[k], atol=1e-14)
+    assert float(direct[2].sum()) == 0.0 and float(direct[0].sum()) > 0
+    # Σ depth = Σ_contacts √(r² − ρ²) − h: ∂/∂r = Σ r / √(r² − ρ²), ∂/∂h = −(number of contacts)
+    total = lambda c, r: depth(c, r).sum()
+    radius, h = 0.2, 0.05
+    grads = jax.grad(total, (0, 1))(centres[0], radius)
+    grads_batched = jax.jit(jax.vmap(jax.grad(total, (0, 1)), (0, None)))(centres[:2], radius)
+    pts = np.asarray(b.points(ctrl))
+    rho2 = (pts[..., 0] - 0.5) ** 2 + (pts[..., 1] - 0.5) ** 2
+    inside = rho2 < radius**2 - h**2
+    assert float(grads[1]) == pytest.approx(np.sum(radius / np.sqrt(radius**2 - rho2[inside])), rel=1e-10)
+    np.testing.assert_allclose(np.asarray(grads[0]), [0, 0, -inside.sum()], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(grads_batched[0][0]), np.asarray(grads[0]), atol=1e-12)
+    np.testing.assert_allclose(float(grads_batched[1][0]), float(grads[1]), rtol=1e-12)
 
 
 def test_gradients_match_finite_differences():
@@ -465,3 +522,103 @@ def test_bad_inputs_raise_clear_errors():
         surface_contacts(PLATE_B, PLATE.ctrl, PLATE_B, PLATE.ctrl, flat_angle=-0.1)
     with pytest.raises(TypeError, match="tool"):
         contacts(PLATE_B, PLATE.ctrl, "sphere")
+
+
+# every public query that takes values: the same clear error eagerly and inside `jax.jit`
+SMALL_B = PLATE.blending(4, 4)
+PLANE = Plane([0.0, 0.0, 0.05], [0.0, 0.0, 1.0])
+
+
+def _with_nan(x):
+    return jnp.asarray(x).at[(0,) * jnp.ndim(x)].set(jnp.nan)
+
+
+@functools.cache
+def _plate_contact():
+    return contacts(PLATE_B, PLATE.ctrl, Sphere([0.5, 0.5, 0.1], 0.25))  # as in the force test
+
+
+_GRID = jnp.asarray(PLATE_B.points(PLATE.ctrl))
+_TRI = jnp.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+BAD_INPUTS = {
+    "contacts ctrl shape": (
+        lambda c: contacts(SMALL_B, c, PLANE),
+        jnp.zeros((5, 6, 3)),
+        "ctrl: expected shape",
+    ),
+    "contacts NaN ctrl": (
+        lambda c: contacts(SMALL_B, c, PLANE),
+        _with_nan(PLATE.ctrl),
+        "ctrl: expected finite",
+    ),
+    "contacts tool type": (lambda c: contacts(SMALL_B, c, "sphere"), PLATE.ctrl, "tool: expected"),
+    "contacts blending type": (lambda c: contacts(PLATE, c, PLANE), PLATE.ctrl, "blending: expected"),
+    "surfaces capacity type": (
+        lambda c: surface_contacts(SMALL_B, c, SMALL_B, c, capacity=2.5),
+        PLATE.ctrl,
+        "capacity: expected an int",
+    ),
+    "surfaces capacity 0": (
+        lambda c: surface_contacts(SMALL_B, c, SMALL_B, c, capacity=0),
+        PLATE.ctrl,
+        "capacity: expected an int >= 1",
+    ),
+    "surfaces NaN ctrl_b": (
+        lambda c: surface_contacts(SMALL_B, PLATE.ctrl, SMALL_B, c, method="dense"),
+        _with_nan(PLATE.ctrl),
+        "ctrl_b: expected finite",
+    ),
+    "force negative stiffness": (lambda k: contact_force(_plate_contact(), k), jnp.array(-1.0), "stiffness"),
+    "force overflow": (lambda k: contact_force(_plate_contact(), k), jnp.array(1e308), "overflow"),
+    "force NaN velocity": (
+        lambda v: contact_force(_plate_contact(), 10.0, damping=1.0, velocity=v),
+        jnp.array([0.0, jnp.nan, 0.0]),
+        "velocity: expected finite",
+    ),
+    "sample forces negative damping": (
+        lambda d: sample_forces(_plate_contact(), 10.0, damping=d),
+        jnp.array(-2.0),
+        "damping",
+    ),
+    "nodal NaN nodes": (
+        lambda n: nodal_forces(jnp.zeros((4, 3)), jnp.ones((4, 3)), n),
+        _with_nan(jnp.zeros((2, 3))),
+        "nodes: expected finite",
+    ),
+    "nodal k": (lambda n: nodal_forces(jnp.zeros((4, 3)), jnp.ones((4, 3)), n, k=3), jnp.zeros((2, 3)), "k:"),
+    "hulls NaN": (
+        lambda a: hulls_apart(a, jnp.ones((2, 3))),
+        _with_nan(jnp.zeros((3, 3))),
+        "a: expected finite",
+    ),
+    "hulls margin": (
+        lambda m: hulls_apart(jnp.zeros((3, 3)), jnp.ones((2, 3)), m),
+        jnp.array(-1.0),
+        "margin",
+    ),
+    "window NaN ctrl": (
+        lambda c: sample_window(SMALL_B, c, PLANE),
+        _with_nan(PLATE.ctrl),
+        "ctrl: expected finite",
+    ),
+    "parametric window shape": (
+        lambda p: parametric_window(jnp.ones((4, 5), bool), p, jnp.linspace(0, 1, 5)),
+        jnp.linspace(0, 1, 5),
+        "params_u: expected shape",
+    ),
+    "parametric window NaN": (
+        lambda p: parametric_window(jnp.ones((4, 5), bool), jnp.linspace(0, 1, 4), p),
+        _with_nan(jnp.linspace(0, 1, 5)),
+        "params_v: expected finite",
+    ),
+    "hierarchy NaN": (lambda p: sphere_hierarchy(p, 2), _with_nan(_GRID), "points: expected finite"),
+    "hierarchy levels": (lambda p: sphere_hierarchy(p, -1), _GRID, "levels"),
+    "cell triangles shape": (cell_triangles, jnp.zeros((4, 3)), "points: expected an array with 3"),
+    "tessellate NaN": (tessellate, _with_nan(_GRID), "points: expected finite"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_bad_values_raise_eagerly_and_under_jit(case):
+    fn, arg, match = BAD_INPUTS[case]
+    raises_both(fn, arg, match=match)

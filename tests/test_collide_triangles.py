@@ -9,6 +9,7 @@ import trimesh
 from scipy.optimize import linprog
 
 from bsjax.collide import closest_point_on_triangle, triangles_intersect
+from tests.helpers import raises_both
 
 _intersect = jax.jit(triangles_intersect)
 
@@ -146,3 +147,34 @@ def test_closest_point_matches_trimesh():
     )
     np.testing.assert_allclose(np.asarray(jnp.einsum("nk,nkc->nc", bary, tris)), np.asarray(got), atol=1e-12)
     assert np.all(np.asarray(bary) >= -1e-12)
+
+
+@pytest.mark.parametrize(
+    ("fn", "args", "match"),
+    [
+        (triangles_intersect, (np.full((2, 3, 3), np.nan), np.zeros((2, 3, 3))), "t1: expected finite"),
+        (triangles_intersect, (np.zeros((2, 3, 3)), np.zeros((3, 3, 3))), "t1, t2: expected batch shapes"),
+        (closest_point_on_triangle, (np.array([0.0, np.inf, 0.0]), np.eye(3)), "x: expected finite"),
+        (closest_point_on_triangle, (np.zeros(3), np.full((4, 3, 3), np.nan)), "tri: expected finite"),
+        (closest_point_on_triangle, (np.zeros(2), np.eye(3)), "x: expected shape"),
+    ],
+)
+def test_bad_values_raise_eagerly_and_under_jit(fn, args, match):
+    raises_both(fn, *(jnp.asarray(a) for a in args), match=match)
+
+
+def test_closest_point_direct_matches_jit_on_degenerate_triangles():
+    """Zero-area triangles (segments, points) give the same closest point as called and inside
+    the caller's `jit`: no decision rests on an exact cancellation that fused code breaks."""
+    rng = np.random.default_rng(6)
+    tris = rng.normal(size=(300, 3, 3))
+    tris[::3, 2] = tris[::3, 1]  # segments
+    tris[1::3, 1] = tris[1::3, 2] = tris[1::3, 0]  # points
+    pts = rng.normal(size=(300, 3))
+    direct, _ = closest_point_on_triangle(pts, tris)
+    inside_jit, _ = jax.jit(lambda x, t: closest_point_on_triangle(x, t))(pts, tris)
+    ref = trimesh.triangles.closest_point(tris, pts)
+    for got in (direct, inside_jit):
+        np.testing.assert_allclose(
+            np.linalg.norm(np.asarray(got) - pts, axis=1), np.linalg.norm(ref - pts, axis=1), atol=1e-12
+        )

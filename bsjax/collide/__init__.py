@@ -1,4 +1,4 @@
-"""Collision detection and contact forces for deformable B-spline surfaces (SPEC §3, thesis ch. 3).
+"""Collision detection and contact forces for deformable B-spline surfaces (the thesis, ch. 3).
 
 - Tools: `Point`, `Sphere`, `Ellipsoid`, `Plane`, `Implicit`, `TriangleMesh`.
 - Queries: `contacts(blending, ctrl, tool)` → `Contact`;

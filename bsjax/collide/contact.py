@@ -1,11 +1,13 @@
 """Contact queries: a deformable B-spline surface against a tool or against another surface.
 
-Pipeline (thesis ch. 3, paper 001 §3.1), with static shapes: control-hull broad phase with an
-early exit (`lax.cond`); for solid tools the parametric window of the support spans and a
-direct evaluation of the tool's implicit function on the window's samples (thesis §3.4); for a
-point tool the two triangles of the nearest cell (thesis §3.4); for two surfaces the
-level-of-detail sphere hierarchy with a fixed pair capacity, tessellation of the candidate
-cells and vmapped triangle–triangle tests. Each query also has a dense reference method.
+Pipeline (thesis ch. 3; Pungotra, Knopf & Canas, *An alternative methodology to represent
+B-spline surface for applications in virtual reality environment*, §3.1), with static shapes:
+control-hull broad phase with an early exit (`lax.cond`); for solid tools the parametric window
+of the support spans and a direct evaluation of the tool's implicit function on the window's
+samples (thesis §3.4); for a point tool the two triangles of the nearest cell (thesis §3.4);
+for two surfaces the level-of-detail sphere hierarchy with a fixed pair capacity, tessellation
+of the candidate cells and vmapped triangle–triangle tests. Each query also has a dense
+reference method.
 
 `contacts` and `surface_contacts` are compiled at the public boundary
 (`bsjax._boundary.compiled`): the blending's and tools' arrays, the control nets and Python
@@ -29,6 +31,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax.basis import Blending
 from bsjax.collide.broad import _hulls_apart, _parametric_window, _sample_window
 from bsjax.collide.flat import flat_pairs, normal_cones, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
@@ -116,7 +119,7 @@ def checked_net(blending, ctrl, name: str = "ctrl", blending_name: str = "blendi
     Structure (the blending's type, the net's shape, real numbers) raises now; finiteness is
     checked at run time too (`_checks.finite`), so a NaN net raises inside `jit` as well.
     """
-    if not hasattr(blending, "ctrl_shape") or not hasattr(blending, "points"):
+    if not isinstance(blending, Blending):
         raise TypeError(f"{blending_name}: expected a bsjax.basis.Blending, got {type(blending).__name__}")
     _checks.check_real(ctrl, name)
     expected = tuple(blending.ctrl_shape) + (3,)
@@ -136,7 +139,9 @@ def checked_tool(tool) -> AbstractTool:
 
 
 @compiled
-def contacts(blending, ctrl: Float[Array, "r s 3"], tool: AbstractTool, *, method: str = "window") -> Contact:
+def contacts(
+    blending: Blending, ctrl: Float[Array, "r s 3"], tool: AbstractTool, *, method: str = "window"
+) -> Contact:
     """Contact of the surface `(blending, ctrl)` with a rigid `tool`.
 
     **Arguments:**

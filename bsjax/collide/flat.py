@@ -1,4 +1,4 @@
-"""Flat-contact pruning of the sphere hierarchy (thesis §3.3.3.4–5, SPEC §3 steps 3–4).
+"""Flat-contact pruning of the sphere hierarchy (thesis §3.3.3.4–5).
 
 When two surfaces lie on each other (a plate on a table, a spoon in a bowl) every child sphere
 of a candidate pair intersects every neighbour: refinement prunes nothing and the candidate list
@@ -82,7 +82,7 @@ def block_cells(levels: int, level: int, shape, blocks) -> tuple[Array, Array]:
     """Cells `(K, 9^level, 2)` (row, column) of blocks `(K,)` and which of them exist."""
     rows, cols = block_order(levels)
     per = BRANCH ** (2 * level)
-    leaves = blocks[:, None] * per + jnp.arange(per, dtype=blocks.dtype)
+    leaves = blocks[:, None] * per + jnp.arange(per, dtype=blocks.dtype)[None, :]
     present = jnp.asarray((rows < shape[0] - 1) & (cols < shape[1] - 1))[leaves]
     cells = np.stack([np.minimum(rows, shape[0] - 2), np.minimum(cols, shape[1] - 2)], -1).astype(np.int32)
     return jnp.asarray(cells)[leaves], present

@@ -56,8 +56,8 @@ def _magnitudes(contact, stiffness, damping, velocity, direction):
     k = _coefficient(stiffness, "stiffness", dtype)
     c = _coefficient(damping, "damping", dtype)
     spring = k * contact.depth
-    if velocity is None:
-        return spring
+    if velocity is None:  # a tool at rest: no damping force (and the damping check stays alive)
+        velocity = jnp.zeros(3, dtype)
     _checks.check_real(velocity, "velocity")
     if np.shape(velocity) != (3,):
         _checks.fail("velocity", "shape (3,)", np.shape(velocity))

@@ -236,10 +236,10 @@ def traverse(levels_a, levels_b, capacity: int, flat=None):
         refine_a = (turn_a and la > 0) or lb == 0
         if refine_a:
             la -= 1
-            ja, jb = ia[:, None] * 9 + kids, ib[:, None]
+            ja, jb = ia[:, None] * 9 + kids[None, :], ib[:, None]
         else:
             lb -= 1
-            ja, jb = ia[:, None], ib[:, None] * 9 + kids
+            ja, jb = ia[:, None], ib[:, None] * 9 + kids[None, :]
         (ca, ra), (cb, rb) = levels_a[la], levels_b[lb]
         hit = valid[:, None] & _overlap(ca[:, ja], ra[ja], cb[:, jb], rb[jb])
         # capacity schedule: the full capacity for the last two steps, a third of it for the
