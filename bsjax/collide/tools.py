@@ -658,7 +658,7 @@ class TriangleMesh(AbstractTool):
 
     def box_overlap(self, lo, hi):
         vlo, vhi = self.vertices.min(0), self.vertices.max(0)
-        return jnp.all((lo <= vhi) & (vlo <= hi), -1)
+        return jnp.all((lo <= _bc(vhi, lo)) & (_bc(vlo, hi) <= hi), -1)
 
 
 def _dtype_of(tool):

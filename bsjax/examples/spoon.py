@@ -111,7 +111,7 @@ def attach_bowl(handle: BSplineSurface, bowl: BSplineSurface) -> BSplineSurface:
     """Move the bowl rigidly so that its u = 0 edge sits on the handle's u = 1 edge and it
     continues the handle's end direction (a pitch about y)."""
     rot, origin = bowl_frame(handle, bowl)
-    return bowl.with_ctrl(bowl.ctrl @ rot.T + origin)
+    return bowl.with_ctrl(bowl.ctrl @ rot.T + origin[None, None])
 
 
 def bowl_frame(handle: BSplineSurface, bowl: BSplineSurface):
@@ -173,9 +173,9 @@ def height_map(points: np.ndarray, lo, hi, cells: tuple[int, int] = (160, 100)) 
 
 def _bilinear(grid, hm: HeightMap, xy):
     """Bilinear interpolation of `grid` at `(N, 2)` points (clamped to the grid)."""
-    g = (xy - hm.origin) / hm.spacing
+    g = (xy - hm.origin[None]) / hm.spacing[None]
     hi = jnp.array(grid.shape, dtype=g.dtype) - 1.000001
-    g = jnp.clip(g, 0.0, hi)
+    g = jnp.clip(g, 0.0, hi[None])
     g0 = jnp.floor(g)
     t = g - g0
     i0 = g0.astype(jnp.int32)
