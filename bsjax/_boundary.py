@@ -68,6 +68,7 @@ class _Compiled:
 
     def __init__(self, fn: Callable, static: tuple[str, ...] = ()):
         functools.update_wrapper(self, fn)
+        self.__qualname__: str = fn.__qualname__
         self._fn = fn
         self._cache: dict = {}
         self._static = self._static_positions(fn, static)

@@ -21,9 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 
 
+_Tracer = jax.core.Tracer  # pyright: ignore[reportAttributeAccessIssue]  (public, not in the stubs)
+
+
 def is_concrete(x: Any) -> bool:
     """True when no leaf of `x` is a tracer (its values are known now)."""
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+    return not any(isinstance(leaf, _Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
 def message(name: str, expected: str, got: Any) -> str:

@@ -91,7 +91,7 @@ class SplineDirection(eqx.Module):
         `params` (periodic parameters are taken modulo 1, clamped ones clipped to [0, 1])."""
         for nu in orders:
             check_order(nu)
-        if self.periodic:
+        if self.knots is None:
             return periodic_rows(self.n_ctrl, self.degree, params, tuple(orders))
         return rows(self.knots.astype(params.dtype), self.degree, params, tuple(orders))
 
@@ -107,6 +107,6 @@ class SplineDirection(eqx.Module):
 
     def astype(self, dtype) -> SplineDirection:
         """The same direction with its knots in `dtype`."""
-        if self.periodic or self.knots.dtype == dtype:
+        if self.knots is None or self.knots.dtype == dtype:
             return self
         return SplineDirection(self.knots.astype(dtype), self.degree)

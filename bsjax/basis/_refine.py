@@ -83,8 +83,8 @@ def _rebase(surface, direction, new_knots, new_degree):
     old = surface.direction(direction)
     new = SplineDirection(new_knots, new_degree)
     t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (new.n_ctrl + 1)), greville(new_knots, new_degree)]))
-    a_old = np.asarray(old.matrix(jnp.asarray(t, old.knots.dtype)), dtype=np.float64)
-    a_new = np.asarray(new.matrix(jnp.asarray(t, new.knots.dtype)), dtype=np.float64)
+    a_old = np.asarray(old.matrix(jnp.asarray(t, surface.ctrl.dtype)), dtype=np.float64)
+    a_new = np.asarray(new.matrix(jnp.asarray(t, surface.ctrl.dtype)), dtype=np.float64)
     transform = np.linalg.lstsq(a_new, a_old, rcond=None)[0]  # (n_new, n_old)
     dtype = surface.ctrl.dtype
     w = surface.weights

@@ -68,12 +68,7 @@ class BSplineSurface(eqx.Module):
         self.ctrl = _checks.finite(ctrl, "ctrl")
         self.direction_u = _direction_of("u", knots_u, degree_u, periodic_u, r, dtype)
         self.direction_v = _direction_of("v", knots_v, degree_v, periodic_v, s, dtype)
-        if weights is not None:
-            weights = jnp.asarray(weights, dtype=float_dtype(weights, ctrl))
-            if weights.shape != (r, s):
-                _checks.fail("weights", f"shape {(r, s)}", weights.shape)
-            weights = _checks.positive(weights, "weights")
-        self.weights = weights
+        self.weights = None if weights is None else _weights(weights, ctrl, r, s)
 
     @classmethod
     def from_directions(
@@ -103,7 +98,7 @@ class BSplineSurface(eqx.Module):
     @property
     def shape(self) -> tuple[int, int]:
         """Control-net size `(r, s)`."""
-        return self.ctrl.shape[:2]
+        return self.ctrl.shape[0], self.ctrl.shape[1]
 
     def rows(self, direction: str, params, nu: int = 0):
         """Blending matrix of one direction (`"u"` or `"v"`) at `params`, derivative order `nu`."""
@@ -174,6 +169,13 @@ def _evaluate(surface: BSplineSurface, u, v, nu: int, nv: int):
         h = {(k, l): _tensor.pointwise(a_u[k], net, a_v[l]) for k in range(nu + 1) for l in range(nv + 1)}
         out = _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
     return out.reshape(u.shape + (3,))
+
+
+def _weights(weights, ctrl, r: int, s: int):
+    weights = jnp.asarray(weights, dtype=float_dtype(weights, ctrl))
+    if weights.shape != (r, s):
+        _checks.fail("weights", f"shape {(r, s)}", weights.shape)
+    return _checks.positive(weights, "weights")
 
 
 class Blending(eqx.Module):
