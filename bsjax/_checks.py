@@ -20,7 +20,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
 _Tracer = jax.core.Tracer  # pyright: ignore[reportAttributeAccessIssue]  (public, not in the stubs)
 
 
