@@ -4,21 +4,7 @@ here so `bsjax.merge.closest_points` and friends keep their public paths."""
 
 from __future__ import annotations
 
-from bsjax.basis._project import (
-    Projection as Projection,
-)
-from bsjax.basis._project import (
-    ProjectionSolver as ProjectionSolver,
-)
-from bsjax.basis._project import (
-    TwoUnknownsSolver as TwoUnknownsSolver,
-)
-from bsjax.basis._project import (
-    candidate_count as candidate_count,
-)
-from bsjax.basis._project import (
-    closest_points as closest_points,
-)
-from bsjax.basis._project import (
-    project as project,
-)
+from bsjax.basis import Projection as Projection
+from bsjax.basis import ProjectionSolver as ProjectionSolver
+from bsjax.basis import closest_points as closest_points
+from bsjax.basis import project as project
