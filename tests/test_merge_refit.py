@@ -90,7 +90,7 @@ def _run(number, continuity, samples=20):
 # (4), different degrees (6)
 @pytest.mark.parametrize("number, continuity", [(2, 2), (4, 0), (6, 2)])
 def test_refit_lowers_deviation_on_harder_cases(number, continuity):
-    layout, sol, (linear, refined) = _run(number, continuity)
+    _layout, sol, (linear, refined) = _run(number, continuity)
     assert refined.mean < linear.mean
     assert refined.max <= linear.max * (1 + 1e-3)
     if number == 4:  # unequal edge lengths: the parametrisation was the problem
