@@ -130,10 +130,10 @@ def sample_window(
     `[1, 0, 1, 0]` (min > max). Sample (i, j) is kept when the box of the `(k+1)(l+1)` control
     points of its support meets the tool (`tool.box_overlap`, thesis §3.3.3.2).
     """
-    from bsjax.collide.contact import checked_net, checked_tool
+    from bsjax.collide.contact import _checked_net, _checked_tool
 
-    ctrl = checked_net(blending, ctrl, "ctrl")
-    return _sample_window(blending, ctrl, checked_tool(tool).cast(ctrl.dtype))
+    ctrl = _checked_net(blending, ctrl, "ctrl")
+    return _sample_window(blending, ctrl, _checked_tool(tool).cast(ctrl.dtype))
 
 
 def _sample_window(blending, ctrl, tool):

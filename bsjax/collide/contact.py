@@ -113,7 +113,7 @@ def _unless_apart(apart, query, *args):
     return eqx.tree_at(lambda c: c.apart, out, apart)
 
 
-def checked_net(blending, ctrl, name: str = "ctrl", blending_name: str = "blending"):
+def _checked_net(blending, ctrl, name: str = "ctrl", blending_name: str = "blending"):
     """`ctrl` as a floating array of the blending's control-net shape `(r, s, 3)`, finite.
 
     Structure (the blending's type, the net's shape, real numbers) raises now; finiteness is
@@ -131,7 +131,7 @@ def checked_net(blending, ctrl, name: str = "ctrl", blending_name: str = "blendi
     return _checks.finite(ctrl, name)
 
 
-def checked_tool(tool) -> AbstractTool:
+def _checked_tool(tool) -> AbstractTool:
     """`tool`, after checking that it is a `bsjax.collide` tool."""
     if not isinstance(tool, AbstractTool):
         raise TypeError(f"tool: expected a bsjax.collide tool (Point, Sphere, …), got {type(tool).__name__}")
@@ -159,10 +159,10 @@ def contacts(
     penetration split by barycentric weights, so `Σ depth` is the point's depth behind the
     surface.
     """
-    tool = checked_tool(tool)  # first: the clearest error for a wrong argument order
+    tool = _checked_tool(tool)  # first: the clearest error for a wrong argument order
     if method not in ("window", "dense"):
         _checks.fail("method", "'window' or 'dense'", repr(method))
-    ctrl = checked_net(blending, ctrl, "ctrl")
+    ctrl = _checked_net(blending, ctrl, "ctrl")
     tool = tool.cast(ctrl.dtype)
     query = _point_contact if isinstance(tool, Point) else _solid_contact
     query = functools.partial(query, use_window=method == "window")
@@ -316,8 +316,8 @@ def surface_contacts(
         and 0 <= flat_angle < np.pi / 2
     ):
         _checks.fail("flat_angle", "None or an angle in radians in [0, π/2)", flat_angle)
-    ctrl_a = checked_net(blending_a, ctrl_a, "ctrl_a", "blending_a")
-    ctrl_b = checked_net(blending_b, ctrl_b, "ctrl_b", "blending_b")
+    ctrl_a = _checked_net(blending_a, ctrl_a, "ctrl_a", "blending_a")
+    ctrl_b = _checked_net(blending_b, ctrl_b, "ctrl_b", "blending_b")
     if method == "dense":
         return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
     a = jax.lax.stop_gradient(ctrl_a).reshape(-1, 3)
