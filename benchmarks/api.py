@@ -69,14 +69,15 @@ class Sizes:
     steps: int = 200  # rollout steps
     patch: int = 8  # merge patches
     merge_samples: int = 82
+    deviation: int = 41  # samples per direction of each original (the default 101: ~40 s a call)
     som: int = 12  # VSOFM lattice per side
     cycles: int = 300
     coupled_grid: int = 24  # surface lattice of simulate_coupled
 
 
 FULL = Sizes()
-QUICK = Sizes(net=6, grid=20, n_eval=100, lattice=3, steps=20, patch=4, merge_samples=16, som=4, cycles=10,
-              coupled_grid=8)  # fmt: skip
+QUICK = Sizes(net=6, grid=20, n_eval=100, lattice=3, steps=20, patch=4, merge_samples=16, deviation=11,
+              som=4, cycles=10, coupled_grid=8)  # fmt: skip
 
 
 # --- the table of entries ----------------------------------------------------------------------
@@ -319,7 +320,7 @@ def _(q):
 def _(q):
     a, b, _, _ = patches(q)
     merged = merge.merge([a, b], "u", 0, samples=q.merge_samples)
-    n = 101 if q == FULL else 21
+    n = q.deviation
     call = lambda a, b, m: merge.deviation([a, b], m, samples=n)
     return Case(call, (a, b, merged), _pair_size(q) + f", {n}x{n} per patch")
 
