@@ -13,10 +13,11 @@ a point's failure is its own status).
   would stall the other coordinate too). A periodic direction is not clamped: its basis takes
   the parameter modulo 1, so the iteration crosses the seam freely.
 * Without starting parameters the search is global: the surface is sampled on a parameter grid,
-  and Gauss–Newton runs from the `starts` nearest samples of each point; the best result is
-  kept. One start is not enough: on a surface that closes on itself (a cylinder merged from
-  patches, whose edges u = 0 and u = 1 coincide) the nearest sample may lie across the seam,
-  where the domain-clamped iteration cannot reach the foot point.
+  and Gauss–Newton runs from several samples of each point — the nearest, then the nearest
+  outside the neighbourhoods of those taken; the best result is kept. One start is not
+  enough: on a surface that closes on itself (a cylinder merged from patches, whose edges
+  u = 0 and u = 1 coincide) the nearest sample may lie across the seam, where the
+  domain-clamped iteration cannot reach the foot point.
 
 The pseudo-inverse of the 3×2 systems is closed form (`TwoUnknownsSolver`): it gives what
 lineax's SVD gives, about 4× faster than a LAPACK call per point.
@@ -179,13 +180,16 @@ def _grid(count: int, periodic: bool, dtype):
 
 
 def nearest_samples(surface: BSplineSurface, points, count: int, starts: int, chunk: int = 256):
-    """Parameters `(N, starts, 2)` of the `starts` samples of a `count × count` parameter grid
-    nearest to each point (in chunks of points, so memory stays `chunk × count²`)."""
+    """Parameters `(N, starts, 2)` of starting samples on a `count × count` parameter grid: for
+    each point the nearest sample, then the nearest outside the ±2-cell neighbourhoods of those
+    already taken (a start next to another adds nothing; one across a seam or a fold does). In
+    chunks of points, so memory stays `chunk × count²`."""
     gu = _grid(count, surface.periodic_u, points.dtype)
     gv = _grid(count, surface.periodic_v, points.dtype)
     cu, cv = (x.reshape(-1) for x in jnp.meshgrid(gu, gv, indexing="ij"))
     samples = _points(surface, cu, cv)
     c2 = jnp.sum(samples**2, -1)
+    iu, iv = jnp.divmod(jnp.arange(count * count), count)
     n = points.shape[0]
     pad = (-n) % chunk
     padded = jnp.concatenate([points, jnp.zeros((pad, 3), points.dtype)]).reshape(-1, chunk, 3)
@@ -193,10 +197,13 @@ def nearest_samples(surface: BSplineSurface, points, count: int, starts: int, ch
     def block(p):
         score = 2.0 * p @ samples.T - c2[None, :]  # −|x − c|² up to |x|², common to a row
         found = []
-        for _ in range(starts):  # `starts` argmax passes: lax.top_k sorts, ~200× slower on CPU
+        for _ in range(starts):  # argmax passes: lax.top_k sorts, ~200× slower on CPU
             best = jnp.argmax(score, axis=1)
             found.append(best)
-            score = score.at[jnp.arange(score.shape[0]), best].set(-jnp.inf)
+            near = (jnp.abs(iu[None, :] - iu[best][:, None]) <= 2) & (
+                jnp.abs(iv[None, :] - iv[best][:, None]) <= 2
+            )
+            score = jnp.where(near, -jnp.inf, score)
         return jnp.stack(found, axis=1)
 
     idx = jax.lax.map(block, padded).reshape(-1, starts)[:n]
@@ -217,7 +224,7 @@ def closest_points(
     uv0: Float[Array, "N 2"] | None = None,
     solver: ProjectionSolver = ProjectionSolver(),
     candidates: int | None = None,
-    starts: int = 4,
+    starts: int = 2,
 ) -> Projection:
     """Closest-point parameters of `points` on `surface` ("The NURBS Book" §6.1, point inversion).
 
@@ -230,7 +237,8 @@ def closest_points(
     - `points (N, 3)`: finite points, in the surface's dtype.
     - `uv0 (N, 2)` or `None`: starting parameters (in [0, 1]) for a local search; `None` for a
       global one: a `candidates × candidates` parameter grid (default `4·max(r, s) + 1`, 33…129)
-      and Gauss–Newton from the `starts` nearest samples of each point, the best kept.
+      and Gauss–Newton from `starts` samples of each point (the nearest, then the nearest away
+      from those taken: `nearest_samples`), the best kept.
     - `solver`: a `ProjectionSolver` (tolerances, steps per start).
 
     **Returns:** a `Projection` (parameters, distances, per-point status). Compiled once per
