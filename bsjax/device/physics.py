@@ -241,7 +241,7 @@ class SculptModel:
         (the cheaper exact push), else a `collide.Ellipsoid` aligned with the stylus."""
         return collide.Sphere(centre, axes[0]) if sphere else collide.Ellipsoid(centre, axes, rot)
 
-    def _step(self, carry, tool, contact):
+    def _step(self, carry, tools, contact):
         state, rest, rest_seam, _ = carry
         seam = None
         if self.seam is not None:
@@ -251,7 +251,7 @@ class SculptModel:
             self.coupling,
             state,
             self.dt,
-            (tool,),
+            tools,
             contact,
             external_force=seam,
             rest_length=rest,
@@ -265,7 +265,20 @@ class SculptModel:
         contact = mss.Contact(self.tool_stiffness * pressing, zero)
         carry = self._settled(carry, settle)
         ctrl = jnp.zeros(self.surface0.ctrl.shape, self.dtype)  # the last substep's refit replaces it
-        carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tool, contact), (*carry, ctrl))
+
+        def substeps(tools):
+            def run(carry):
+                carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tools, contact), carry)
+                x = carry[0].position
+                # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
+                f = mss.tool_forces(tools, x, jnp.zeros_like(x), contact.stiffness) if tools else x * 0
+                return carry, _safe.norm(jnp.sum(f, axis=0))
+
+            return run
+
+        # the tool acts only while the button is held: skip its push (an ellipsoid's is the
+        # costly part of the tick) otherwise
+        carry, reaction = jax.lax.cond(pressing > 0, substeps((tool,)), substeps(()), (*carry, ctrl))
         carry, ctrl = carry[:3], carry[3]
         x = carry[0].position
         pts = self.dense.points(ctrl).reshape(-1, 3)
@@ -273,10 +286,6 @@ class SculptModel:
         k = jnp.argmin(jnp.sum((pts - centre[None]) ** 2, axis=-1))
         q, nq = pts[k], nrm[k]
         support = axes[0] if sphere else _safe.norm(axes * (nq @ rot))  # support distance along nq
-        # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
-        reaction = _safe.norm(
-            jnp.sum(mss.tool_forces((tool,), x, jnp.zeros_like(x), contact.stiffness), axis=0)
-        )
         # Distributed springs of 002 §3.2 (eq. 3.3, surface-normal method) through bsjax.collide.
         # method="dense": 40×40 samples are cheap, and one branch-free program compiles faster.
         contact = collide.contacts(self.dense, ctrl, tool, method="dense")
