@@ -34,6 +34,7 @@ import numpy as np
 
 _ERROR = re.compile(r"_EquinoxRuntimeError: (.*?)(?:\n\n-{10}|\Z)", re.S)
 _registry: weakref.WeakSet = weakref.WeakSet()
+_host_caches: list = []
 
 
 class _Static:
@@ -149,7 +150,27 @@ def compiled(fn: Callable | None = None, *, static: tuple[str, ...] = ()) -> Any
     return _Compiled(fn, tuple(static))
 
 
+def host_cache(maxsize: int = 64):
+    """`functools.lru_cache` for host-side planning keyed by static (hashable) values — topology,
+    knot rules, layouts — registered so that `clear_caches()` empties it too."""
+
+    def decorate(fn):
+        cached = functools.lru_cache(maxsize=maxsize)(fn)
+        _host_caches.append(cached)
+        return cached
+
+    return decorate
+
+
+def register(cache) -> None:
+    """Register an object with a `clear_cache()` method (e.g. a plan store) for `clear_caches()`."""
+    _registry.add(cache)
+
+
 def clear_caches() -> None:
-    """Forget every compiled public entry point (the next call of each compiles again)."""
+    """Forget every compiled public entry point and every registered host-side cache (the next
+    call of each compiles or plans again)."""
     for entry in list(_registry):
         entry.clear_cache()
+    for cached in _host_caches:
+        cached.cache_clear()

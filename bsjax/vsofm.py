@@ -44,7 +44,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _linalg, _safe
-from bsjax._boundary import compiled
+from bsjax._boundary import compiled, host_cache
 
 
 class Settings(eqx.Module):
@@ -81,7 +81,7 @@ def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
     return _boundary_mask(shape)
 
 
-@functools.lru_cache(maxsize=64)
+@host_cache(maxsize=64)
 def _boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
     mask = np.zeros(shape, dtype=bool)
     mask[[0, -1]] = True

@@ -7,7 +7,6 @@ diagonals) and the sample-grid lattice of a surface (structural, shear and bendi
 
 from __future__ import annotations
 
-import functools
 import itertools
 
 import equinox as eqx
@@ -16,7 +15,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bsjax import _checks, _safe
-from bsjax._boundary import compiled
+from bsjax._boundary import compiled, host_cache
 from bsjax.mss._materials import Material, _damping, _stiffness
 
 # The 13 half-directions of a 26-neighbour hexahedral lattice: 3 edges, 6 face diagonals,
@@ -206,7 +205,7 @@ def hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
     return _hex_edges(shape)
 
 
-@functools.lru_cache(maxsize=64)
+@host_cache(maxsize=64)
 def _hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
     ids = np.arange(int(np.prod(shape)), dtype=np.int32).reshape(shape)
     blocks = []
