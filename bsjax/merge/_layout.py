@@ -395,7 +395,7 @@ class _PlanCache:
 
 
 _CACHE = _PlanCache()
-_boundary._registry.add(_CACHE)  # bsjax._boundary.clear_caches() clears it with the compiled calls
+_boundary.register(_CACHE)  # bsjax.clear_caches() clears it with the compiled calls
 
 
 def clear_cache() -> None:
