@@ -7,8 +7,8 @@
 - Forces: `contact_force`, `sample_forces`, `nodal_forces`.
 """
 
-from bsjax.collide.broad import hulls_apart, parametric_window, sample_window
-from bsjax.collide.contact import Contact, SurfaceContact, contacts, surface_contacts
+from bsjax.collide.broad import hulls_apart, parametric_window
+from bsjax.collide.contact import Contact, SurfaceContact, contacts, sample_window, surface_contacts
 from bsjax.collide.force import contact_force, nodal_forces, sample_forces
 from bsjax.collide.hierarchy import cell_triangles, sphere_hierarchy, tessellate
 from bsjax.collide.tools import (

@@ -118,35 +118,6 @@ def _blocks(ctrl, k, l, periodic_u, periodic_v):
 
 
 @compiled
-def sample_window(
-    blending, ctrl: Float[Array, "r s 3"], tool
-) -> tuple[Bool[Array, "m n"], Float[Array, "4"]]:
-    """Samples whose local control hull may meet `tool`, and the parametric window they span.
-
-    **Arguments:** the surface's `blending` (an `(m, n)` grid), its control net `ctrl (r, s, 3)`
-    (finite) and a `bsjax.collide` tool.
-
-    **Returns:** `(mask (m, n), window [u_min, u_max, v_min, v_max])`; an empty window is
-    `[1, 0, 1, 0]` (min > max). Sample (i, j) is kept when the box of the `(k+1)(l+1)` control
-    points of its support meets the tool (`tool.box_overlap`, thesis §3.3.3.2).
-    """
-    from bsjax.collide.contact import _checked_net, _checked_tool
-
-    ctrl = _checked_net(blending, ctrl, "ctrl")
-    return _sample_window(blending, ctrl, _checked_tool(tool).cast(ctrl.dtype))
-
-
-def _sample_window(blending, ctrl, tool):
-    """The kernel of `sample_window` (no checks)."""
-    su = support_start(blending.a_u[0], blending.degree_u, blending.periodic_u)
-    sv = support_start(blending.a_v[0], blending.degree_v, blending.periodic_v)
-    lo, hi = _blocks(ctrl, blending.degree_u, blending.degree_v, blending.periodic_u, blending.periodic_v)
-    block_hit = tool.box_overlap(lo, hi)
-    mask = block_hit[su[:, None], sv[None, :]]
-    return mask, _parametric_window(mask, blending.params_u, blending.params_v)
-
-
-@compiled
 def parametric_window(mask: Bool[Array, "m n"], params_u: Float[Array, " m"], params_v: Float[Array, " n"]):
     """`[u_min, u_max, v_min, v_max]` of the True entries of an `(m, n)` mask.
 
