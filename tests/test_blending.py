@@ -5,11 +5,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tests.helpers import check_grad, random_knots
-from tests.oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
 
 from bsjax import shapes
 from bsjax.basis import Blending, BSplineSurface, clamped_knots, greville
+from tests.helpers import check_grad, random_knots
+from tests.oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
 
 R, S, M, N = 7, 5, 13, 11  # non-square control net and non-square grid
 

@@ -7,9 +7,9 @@ kept separate so the foundation owner can fix them and move the tests to their h
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tests.helpers import random_surface
 
 from bsjax.basis import BSplineSurface, basis_functions, blending_matrix, clamped_knots
+from tests.helpers import random_surface
 
 
 def test_rational_evaluate_rejects_bad_derivative_order():

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import rhino3dm
 import trimesh
-from tests.helpers import random_surface
 
 from bsjax import io, shapes
 from bsjax.basis import BSplineSurface, clamped_knots
+from tests.helpers import random_surface
 
 GRID = np.linspace(0.0, 1.0, 9)
 U, V = np.meshgrid(GRID, GRID, indexing="ij")

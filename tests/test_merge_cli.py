@@ -5,11 +5,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from tests.oracles import ndbspline_surface
 
 from bsjax import io
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.cli import main as bsjax_main
+from tests.oracles import ndbspline_surface
 
 
 def _plate(x0, x1, r, s, degree=3):

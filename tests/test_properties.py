@@ -11,9 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from tests.oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
 
 from bsjax.basis import BSplineSurface, blending_matrix, periodic_blending_matrix
+from tests.oracles import ndbspline_surface, periodic_reference, scipy_matrix, tolerance
 
 N_CTRL, M_PARAMS = 10, 32
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from geomdl import helpers as ghelpers
 from geomdl import operations
-from tests.helpers import random_knots
-from tests.oracles import geomdl_surface, ndbspline_surface
 
 from bsjax.basis import BSplineSurface, clamped_knots, elevate_degree, insert_knots, reduce_degree
+from tests.helpers import random_knots
+from tests.oracles import geomdl_surface, ndbspline_surface
 
 R, S = 7, 6
 

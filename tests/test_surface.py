@@ -5,11 +5,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tests.helpers import check_grad, random_knots, random_surface
-from tests.oracles import geomdl_surface, knots_with_repeats, ndbspline_surface, tolerance
 
 from bsjax import shapes
 from bsjax.basis import BSplineSurface, clamped_knots
+from tests.helpers import check_grad, random_knots, random_surface
+from tests.oracles import geomdl_surface, knots_with_repeats, ndbspline_surface, tolerance
 
 R, S = 9, 7  # non-square control net, the same for every degree pair (few compiles)
 ORDERS = [(0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1)]
