@@ -134,7 +134,7 @@ def main(argv=None) -> int:
         pts = np.einsum("ai,ijc,bj->abc", a_u, p, a_v).reshape(-1, 3)
         prebuilt = fcl_mesh(pts, faces)
         n_fcl = max(10, args.calls // 10)
-        f_med, f_p99 = timeit(fcl_rebuild, n_fcl)
+        f_med, _f_p99 = timeit(fcl_rebuild, n_fcl)
         g_med, _ = timeit(lambda: fcl_query(prebuilt, other), n_fcl)
         contacts_n = int(query(ctrl, tool).mask.sum())
         rows.append((label, kind, med, p99, compile_s, f_med, g_med))

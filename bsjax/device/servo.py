@@ -100,7 +100,8 @@ class ServoLoop:
             raise ValueError(f"max_force_rate: expected a finite number > 0, got {max_force_rate!r}")
         if not (isinstance(model, Proxy) or callable(getattr(model, "update", None))):
             raise TypeError(
-                f"model: expected a Proxy or an object with update(sample) -> Proxy, got {type(model).__name__}"
+                "model: expected a Proxy or an object with update(sample) -> Proxy, got "
+                f"{type(model).__name__}"
             )
         self.device, self.model = device, model
         self.rate_hz, self.physics_hz = float(rate_hz), float(physics_hz)

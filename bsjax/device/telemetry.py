@@ -65,18 +65,23 @@ class ServoStats:
         s = self
         return "\n".join(
             [
-                f"servo    {s.ticks} ticks in {s.elapsed_s:.2f} s = {s.rate_hz:.1f} Hz (target {s.target_hz:.0f}), "
+                f"servo    {s.ticks} ticks in {s.elapsed_s:.2f} s = {s.rate_hz:.1f} Hz (target "
+                f"{s.target_hz:.0f}), "
                 f"{'SCHED_FIFO' if s.realtime else 'normal priority'}",
                 f"period   p50 {s.period_p50:.3f}  p99 {s.period_p99:.3f}  max {s.period_max:.3f} ms",
                 f"jitter   p50 {s.jitter_p50:.3f}  p99 {s.jitter_p99:.3f}  max {s.jitter_max:.3f} ms; "
                 f"missed deadlines {s.missed_deadlines}, latest start {s.max_late_ms:.3f} ms late",
-                f"work     p50 {s.work_p50 * 1e3:.1f}  p99 {s.work_p99 * 1e3:.1f}  max {s.work_max * 1e3:.1f} µs per tick",
-                f"physics  {s.physics_updates} updates = {s.physics_rate_hz:.1f} Hz, step p50 {s.physics_p50:.2f} "
+                f"work     p50 {s.work_p50 * 1e3:.1f}  p99 {s.work_p99 * 1e3:.1f}  max "
+                f"{s.work_max * 1e3:.1f} µs per tick",
+                f"physics  {s.physics_updates} updates = {s.physics_rate_hz:.1f} Hz, step p50 "
+                f"{s.physics_p50:.2f} "
                 f"p99 {s.physics_p99:.2f} ms, errors {s.physics_errors}",
-                f"safety   watchdog trips {s.watchdog_trips} ({s.watchdog_ticks} ticks attenuated), clamped {s.clamped}, "
+                f"safety   watchdog trips {s.watchdog_trips} ({s.watchdog_ticks} ticks attenuated), "
+                f"clamped {s.clamped}, "
                 f"rate-limited {s.rate_limited}, non-finite {s.nonfinite}",
                 f"force    mean {s.force_mean:.3f} N, max {s.force_max:.3f} N",
-                f"device   dropped frames {s.dropped_frames}, errors {s.device_errors}, counters {s.device_counters}",
+                f"device   dropped frames {s.dropped_frames}, errors {s.device_errors}, counters "
+                f"{s.device_counters}",
             ]
         )
 
