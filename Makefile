@@ -16,6 +16,9 @@ demo: $(PY)
 
 test: $(PY)
 	$(PY) -m pip install -q -e ".[test,haptics,notebooks]"
+	$(VENV)/bin/ruff format --check bsjax tests benchmarks
+	$(VENV)/bin/ruff check bsjax tests benchmarks
+	$(VENV)/bin/pyright
 	$(PY) -m pytest -q -n 2
 
 bench: $(PY)

@@ -75,7 +75,7 @@ class Settings(eqx.Module):
 
 def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
     """`(a, b, c)` boolean mask of the lattice's outer layer (read-only; cached per shape)."""
-    shape = tuple(int(s) for s in shape)
+    shape = tuple(int(s) for s in shape)  # pyright: ignore[reportAssignmentType]  (length checked next)
     if len(shape) != 3 or min(shape) < 1:
         _checks.fail("shape", "three lattice sizes >= 1", shape)
     return _boundary_mask(shape)
@@ -117,7 +117,7 @@ def fit(
     first; inside the caller's `jit` the samples are used as given (the count of distinct
     samples is not known there).
     """
-    pts, shape = _check_fit_input(points, shape)
+    pts, shape = _check_fit_input(points, shape)  # pyright: ignore[reportAssignmentType]
     cycles = _checks.check_count(cycles, "cycles")
     if not isinstance(settings, Settings):
         raise TypeError(f"settings: expected a vsofm.Settings, got {type(settings).__name__}")

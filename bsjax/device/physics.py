@@ -54,9 +54,11 @@ class PhysicsModel(Protocol):
 
     def warmup(self) -> None:
         """Compile every jitted function (called once, before the threads start)."""
+        ...
 
     def update(self, sample: DeviceSample) -> Proxy:
         """Advance one physics tick with the tool at `sample`'s pose; return the new proxy."""
+        ...
 
 
 def seam_edges(m: int, n: int, layers: int) -> np.ndarray:

@@ -156,9 +156,8 @@ def height_map(points: np.ndarray, lo, hi, cells: tuple[int, int] = (160, 100)) 
     z = np.where(mask > 0, z, np.nanmin(z) - 0.05)  # outside: far below, and masked out anyway
     spacing = np.array([gx[1] - gx[0], gy[1] - gy[0]])
     dzdx, dzdy = np.gradient(z, *spacing)
-    margin = distance_transform_edt(inside, sampling=spacing) - distance_transform_edt(
-        ~inside, sampling=spacing
-    )
+    outside_distance = np.asarray(distance_transform_edt(inside, sampling=spacing))
+    margin = outside_distance - np.asarray(distance_transform_edt(~inside, sampling=spacing))
     as_j = jnp.asarray
     return HeightMap(
         as_j(z),

@@ -19,7 +19,7 @@ from bsjax.basis import BSplineSurface, SplineDirection
 Orientation = tuple[bool, bool, bool]
 IDENTITY: Orientation = (False, False, False)
 # identity first, so that ties (symmetric patches) keep the patch as given
-ALL: tuple[Orientation, ...] = tuple(itertools.product((False, True), repeat=3))
+ALL: tuple[Orientation, ...] = tuple(itertools.product((False, True), repeat=3))  # pyright: ignore[reportAssignmentType]
 
 
 def orient_ctrl(x, op: Orientation):

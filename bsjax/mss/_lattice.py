@@ -199,7 +199,7 @@ def hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
     dense force kernel relies on this order. Returns `(E, 2)` int32 (read-only: the topology is
     built once per `shape` and cached; `_hex_edges.cache_clear()` forgets it).
     """
-    shape = tuple(int(s) for s in shape)
+    shape = tuple(int(s) for s in shape)  # pyright: ignore[reportAssignmentType]  (length checked next)
     if len(shape) != 3 or min(shape) < 1:
         _checks.fail("shape", "three sizes >= 1", shape)
     return _hex_edges(shape)
@@ -229,7 +229,7 @@ def hex_volume(positions: Float[ArrayLike, "a b c 3"]) -> Float[Array, ""]:
     ]
     # corners indexed by (i, j, k) bits: 0=000 1=001 2=010 3=011 4=100 5=101 6=110 7=111
     tets = ((0, 4, 6, 7), (0, 6, 2, 7), (0, 2, 3, 7), (0, 3, 1, 7), (0, 1, 5, 7), (0, 5, 4, 7))
-    vol = 0.0
+    vol = jnp.zeros((), c.dtype)
     for a, b, cc, d in tets:
         u, v, w = c[b] - c[a], c[cc] - c[a], c[d] - c[a]
         vol = vol + jnp.sum(jnp.einsum("...i,...i->...", u, jnp.cross(v, w))) / 6.0

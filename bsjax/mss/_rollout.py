@@ -129,7 +129,7 @@ def _run(
     state, dt, contact = _prepare(
         lattice, state, dt, method, cg_iterations, tools + path_tools, contact, check_stability
     )
-    const_force, path_force = _per_step_force(external_force, n_steps, lattice.n_nodes)
+    const_force, path_force = _per_step_force(external_force, n_steps, lattice.n_nodes)  # pyright: ignore[reportGeneralTypeIssues]
     advance = _kernel(method, cg_iterations)
 
     def body(carry, xs):
@@ -270,7 +270,7 @@ def trajectory(
         None,
         check_stability,
     )
-    return final, saved
+    return final, saved  # pyright: ignore[reportReturnType]
 
 
 @compiled
