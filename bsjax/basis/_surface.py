@@ -136,15 +136,7 @@ class BSplineSurface(eqx.Module):
         """
         pu = _grid_params(params_u, m, "params_u", "m", self.ctrl.dtype)
         pv = _grid_params(params_v, n, "params_v", "n", self.ctrl.dtype)
-        du, dv = self.direction_u, self.direction_v
-        pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
-        a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
-        (refit_u, ok_u), (refit_v, ok_v) = _pinv(a_u[0]), _pinv(a_v[0])
-        return Blending(
-            params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
-            full_rank=ok_u & ok_v, weights=self.weights, direction_u=du, direction_v=dv,
-            index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
-        )  # fmt: skip
+        return _blending(self.direction_u, self.direction_v, pu, pv, self.weights)
 
     def with_ctrl(self, ctrl: ArrayLike) -> BSplineSurface:
         """The same basis with another control net (shape checked)."""
@@ -209,6 +201,20 @@ class Blending(eqx.Module):
     def from_surface(cls, surface: BSplineSurface, m: int = 82, n: int = 82, params_u=None, params_v=None):
         """Build (once) the matrices of `surface`'s basis at an `m × n` grid (`surface.blending`)."""
         return surface.blending(m, n, params_u, params_v)
+
+    @staticmethod
+    def from_directions(
+        direction_u: SplineDirection, direction_v: SplineDirection, params_u, params_v, weights=None
+    ) -> Blending:
+        """The matrices of the basis `direction_u ⊗ direction_v` (NURBS `weights` optional) at the
+        grid `params_u (m,)` × `params_v (n,)` (any sorted parameters in the domain — e.g. the
+        stacked sample parameters of a merge): basis and derivative matrices (eq. 3.6) and the
+        refit factors `A^+` (eq. 3.7), in one compiled call."""
+        dtype = float_dtype(params_u, params_v)
+        pu, pv = jnp.asarray(params_u, dtype), jnp.asarray(params_v, dtype)
+        _checks.check_ndim(pu, "params_u", 1)
+        _checks.check_ndim(pv, "params_v", 1)
+        return _blending(direction_u, direction_v, pu, pv, weights)
 
     knots_u = property(lambda self: self.direction_u.knots, doc="Knots along u (None when periodic).")
     knots_v = property(lambda self: self.direction_v.knots, doc="Knots along v (None when periodic).")
@@ -343,6 +349,18 @@ _REFIT_NEEDS = (
     "a full grid with m >= r and n >= s samples whose blending matrices have full column rank "
     "(a closed direction samples its seam twice)"
 )
+
+
+@compiled
+def _blending(du: SplineDirection, dv: SplineDirection, pu, pv, weights) -> Blending:
+    pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
+    a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
+    (refit_u, ok_u), (refit_v, ok_v) = _pinv(a_u[0]), _pinv(a_v[0])
+    return Blending(
+        params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
+        full_rank=ok_u & ok_v, weights=weights, direction_u=du, direction_v=dv,
+        index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
+    )  # fmt: skip
 
 
 def _grid_params(params, count, name, count_name, dtype):

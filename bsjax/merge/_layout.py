@@ -283,22 +283,6 @@ def merged_knots(oriented, continuity=2, *, cross="average", degrees=None, windo
     return k, l, knots_u, knots_v
 
 
-def _merged_blending(du: SplineDirection, dv: SplineDirection, pu, pv) -> Blending:
-    """The merged basis's `Blending` at the stacked sample parameters, from its two directions:
-    basis and derivative matrices `A = B^{(ν)}(p)` (`SplineDirection.matrices`, thesis eq. 3.6)
-    and the refit factors `A^+` (eq. 3.7), computed once per layout."""
-    a_u, a_v = du.matrices(pu, (0, 1, 2)), dv.matrices(pv, (0, 1, 2))
-    sing = [jnp.linalg.svd(a[0], compute_uv=False) for a in (a_u, a_v)]
-    full_rank = jnp.all(jnp.stack([s[-1] > s[0] * max(a.shape[1:]) * jnp.finfo(a.dtype).eps
-                                   for s, a in zip(sing, (a_u, a_v))]))  # fmt: skip
-    return Blending(
-        params_u=pu, params_v=pv, a_u=a_u, a_v=a_v,
-        refit_u=jnp.linalg.pinv(a_u[0]), refit_v=jnp.linalg.pinv(a_v[0]), full_rank=full_rank,
-        weights=None, direction_u=du, direction_v=dv,
-        index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
-    )  # fmt: skip
-
-
 def build_layout(
     grid,
     continuity=2,
@@ -352,7 +336,7 @@ def build_layout(
             f"at least {du.n_ctrl} × {dv.n_ctrl} samples in all for the merged net",
             f"{len(pu)} × {len(pv)}",
         )
-    merged = _merged_blending(du, dv, jnp.asarray(pu, dtype), jnp.asarray(pv, dtype))
+    merged = Blending.from_directions(du, dv, jnp.asarray(pu, dtype), jnp.asarray(pv, dtype))
     return MergeLayout(
         patches=tuple(tuple(row) for row in blends),
         merged=merged,
