@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bsjax import _checks
+from bsjax import _checks, collide
 from bsjax.basis import BSplineSurface, periodic_knots
 
 __all__ = ["MESH_FORMATS", "from_dict", "load", "load_all", "save", "tessellate", "to_dict"]
@@ -179,18 +179,17 @@ def _load_3dm(path: Path) -> list[BSplineSurface]:
 
 # --- meshes -------------------------------------------------------------------------------
 def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
-    """Triangle mesh of the `m × n` sample grid (two triangles per cell) as a `trimesh.Trimesh`.
+    """Triangle mesh of the `m × n` sample grid as a `trimesh.Trimesh`: `collide.tessellate`'s
+    triangulation (two triangles per cell, split along the shorter diagonal).
 
     Seams of periodic directions and collapsed pole rows are welded, so a closed surface gives
     a closed mesh.
     """
     import trimesh
 
-    points = np.asarray(surface.blending(m, n).points(surface.ctrl), dtype=np.float64)
-    i, j = np.meshgrid(np.arange(m - 1), np.arange(n - 1), indexing="ij")
-    a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
-    faces = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)]).reshape(-1, 3)
-    mesh = trimesh.Trimesh(points.reshape(-1, 3), faces, process=False)
+    vertices, faces = collide.tessellate(surface.blending(m, n).points(surface.ctrl))  # the one triangulation
+    points = np.asarray(vertices, dtype=np.float64)
+    mesh = trimesh.Trimesh(points, np.asarray(faces), process=False)
     scale = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
     mesh.merge_vertices(digits_vertex=int(np.clip(-np.log10(scale * 1e-9), 0, 15)))
     mesh.update_faces(mesh.nondegenerate_faces())
