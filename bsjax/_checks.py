@@ -137,32 +137,3 @@ def _extreme(a):
 
 def _span(a):
     return f"[{np.nanmin(a)}, {np.nanmax(a)}]" if a.size else "[]"
-
-
-# --- deprecated shims (statement form; they do not survive tracing — use the forms above) ---
-def check_finite(x: Any, name: str) -> None:
-    if is_concrete(x):
-        finite(jnp.asarray(x), name)
-
-
-def check_positive(x: Any, name: str, strict: bool = True) -> None:
-    if is_concrete(x):
-        positive(jnp.asarray(x), name, strict)
-
-
-def check_monotone(x: Any, name: str) -> None:
-    if is_concrete(x):
-        monotone(jnp.asarray(x, dtype=jnp.result_type(float)), name)
-
-
-def check_range(x: Any, name: str, lo: float, hi: float) -> None:
-    if is_concrete(x):
-        in_range(jnp.asarray(x), name, lo, hi)
-
-
-def check_knots(knots: Any, degree: int, n_ctrl: int, name: str) -> None:
-    check_ndim(knots, name, 1)
-    if is_concrete(knots):
-        clamped_knots(jnp.asarray(knots, dtype=jnp.result_type(float)), degree, n_ctrl, name)
-    elif len(knots) != n_ctrl + degree + 1:
-        fail(name, f"length n_ctrl + degree + 1 = {n_ctrl + degree + 1}", len(knots))

@@ -47,7 +47,3 @@ def unit_or_zero(x, tiny=None):
     tiny = jnp.finfo(x.dtype).tiny if tiny is None else tiny
     ok = n > tiny
     return jnp.where(ok[..., None], x / jnp.where(ok, n, 1)[..., None], 0), ok
-
-
-# Old names (bsjax._tensor exported these).
-safe_norm = norm

@@ -1,3 +1,0 @@
-"""Deprecated location (moved to `bsjax.basis`); kept until every caller imports `bsjax.basis`."""
-
-from bsjax.basis._surface import BSplineSurface as BSplineSurface
