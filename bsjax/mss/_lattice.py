@@ -229,7 +229,7 @@ def hex_volume(positions: Float[ArrayLike, "a b c 3"]) -> Float[Array, ""]:
     ]
     # corners indexed by (i, j, k) bits: 0=000 1=001 2=010 3=011 4=100 5=101 6=110 7=111
     tets = ((0, 4, 6, 7), (0, 6, 2, 7), (0, 2, 3, 7), (0, 3, 1, 7), (0, 1, 5, 7), (0, 5, 4, 7))
-    vol = jnp.zeros((), c.dtype)
+    vol = jnp.zeros((), p.dtype)
     for a, b, cc, d in tets:
         u, v, w = c[b] - c[a], c[cc] - c[a], c[d] - c[a]
         vol = vol + jnp.sum(jnp.einsum("...i,...i->...", u, jnp.cross(v, w))) / 6.0
