@@ -8,11 +8,14 @@ Each is an exact reparametrisation, applied to the control net (differentiably) 
 from __future__ import annotations
 
 import itertools
+import weakref
+from collections import OrderedDict
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from bsjax import _boundary, _checks
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface, SplineDirection
 
@@ -81,9 +84,44 @@ def _edges(surface: BSplineSurface, count: int = _EDGE_POINTS) -> dict:
     return _edge_dicts([surface], count)[0]
 
 
+class _EdgeMemo:
+    """The edges last read from the same surface objects: surfaces (and their arrays) are
+    immutable, so the same objects have the same edges — a repeated `merge` of the same patches
+    skips the probe. Held by weak reference; `bsjax.clear_caches()` empties it."""
+
+    size = 64
+
+    def __init__(self):
+        self.entries: OrderedDict = OrderedDict()
+
+    def get(self, surfaces, count):
+        hit = self.entries.get((tuple(map(id, surfaces)), count))
+        if hit is not None and all(ref() is s for ref, s in zip(hit[0], surfaces)):
+            return hit[1]
+        return None
+
+    def put(self, surfaces, count, edges):
+        self.entries[(tuple(map(id, surfaces)), count)] = (tuple(weakref.ref(s) for s in surfaces), edges)
+        if len(self.entries) > self.size:
+            self.entries.popitem(last=False)
+
+    def clear_cache(self) -> None:
+        self.entries.clear()
+
+
+_MEMO = _EdgeMemo()
+_boundary.register(_MEMO)
+
+
 def _edge_dicts(surfaces, count: int = _EDGE_POINTS) -> list[dict]:
-    keys = (("u", 0), ("u", 1), ("v", 0), ("v", 1))
-    return [dict(zip(keys, np.asarray(c, np.float64))) for c in _edge_curves(tuple(surfaces), count)]
+    surfaces = tuple(surfaces)
+    edges = _MEMO.get(surfaces, count)
+    if edges is None:
+        keys = (("u", 0), ("u", 1), ("v", 0), ("v", 1))
+        edges = [dict(zip(keys, np.asarray(c, np.float64))) for c in _edge_curves(surfaces, count)]
+        if _checks.is_concrete([s.ctrl for s in surfaces]):
+            _MEMO.put(surfaces, count, edges)
+    return edges
 
 
 def _oriented_edge(edges: dict, op: Orientation, direction: str, end: int) -> np.ndarray:
