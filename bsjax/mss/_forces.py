@@ -177,4 +177,7 @@ RigidPlane = collide.Plane
 def behind_plane(positions: Float[Array, "N 3"], point, normal) -> Array:
     """Boolean mask of nodes on the solid side of a plane (`(x − p)·n ≤ 0`) — e.g. the nodes a
     clamp holds, for `Lattice(fixed=...)`."""
-    return jnp.sum((jnp.asarray(positions) - jnp.asarray(point)) * jnp.asarray(normal), axis=-1) <= 0
+    positions = jnp.asarray(positions)
+    lead = (1,) * (positions.ndim - 1)
+    point, normal = jnp.reshape(jnp.asarray(point), (*lead, 3)), jnp.reshape(jnp.asarray(normal), (*lead, 3))
+    return jnp.sum((positions - point) * normal, axis=-1) <= 0
