@@ -19,6 +19,7 @@ nets' values too; `degrees="reduce"` recomputes `reduction_error` at every call.
 
 from __future__ import annotations
 
+import weakref
 from collections import OrderedDict
 from collections.abc import Sequence
 
@@ -375,6 +376,7 @@ class _PlanCache:
     def clear_cache(self) -> None:
         self.layouts.clear()
         self.trims.clear()
+        _KEY_MEMO.clear()
         self.builds = self.hits = 0
 
 
@@ -417,7 +419,23 @@ def _bytes(x, name):
 
 def basis_key(s: BSplineSurface, name: str) -> tuple:
     """The static key of a patch's basis: net size, dtype, degrees, periodicity, and the values
-    of its knot vectors and weights (as bytes: equal values, equal key)."""
+    of its knot vectors and weights (as bytes: equal values, equal key). Remembered for the same
+    (immutable) surface object, by weak reference."""
+    hit = _KEY_MEMO.get(id(s))
+    if hit is not None and hit[0]() is s:
+        return hit[1]
+    key = _basis_key(s, name)
+    if _checks.is_concrete(s.ctrl):
+        _KEY_MEMO[id(s)] = (weakref.ref(s), key)
+        if len(_KEY_MEMO) > 256:
+            _KEY_MEMO.pop(next(iter(_KEY_MEMO)))
+    return key
+
+
+_KEY_MEMO: dict = {}
+
+
+def _basis_key(s: BSplineSurface, name: str) -> tuple:
     return (
         s.shape,
         str(s.ctrl.dtype),

@@ -156,6 +156,17 @@ def orient_row(surfaces: list[BSplineSurface], direction: str, samples=None) -> 
     accepted for compatibility and unused).
     """
     del samples
+    surfaces = tuple(surfaces)
+    known = _MEMO.get(surfaces, ("row", direction))
+    if known is not None:
+        return list(known)
+    ops = _orient_row(surfaces, direction)
+    if _checks.is_concrete([s.ctrl for s in surfaces]):
+        _MEMO.put(surfaces, ("row", direction), tuple(ops))
+    return ops
+
+
+def _orient_row(surfaces, direction: str) -> list[Orientation]:
     edges = _edge_dicts(surfaces)
     gaps = _gaps(_all_oriented(edges[0], direction, 1), _all_oriented(edges[1], direction, 0))
     pairs = list(itertools.product(ALL, repeat=2))  # row-major over (first, second): as gaps.ravel()
