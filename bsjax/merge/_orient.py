@@ -189,6 +189,17 @@ def orient_grid(rows: list[list[BSplineSurface]], samples=None) -> list[list[Ori
     """
     del samples
     R, C = len(rows), len(rows[0])
+    surfaces = tuple(s for row in rows for s in row)
+    known = _MEMO.get(surfaces, ("grid", R, C))
+    if known is not None:
+        return [list(row) for row in known]
+    ops = _orient_grid(rows, R, C)
+    if _checks.is_concrete([s.ctrl for s in surfaces]):
+        _MEMO.put(surfaces, ("grid", R, C), tuple(tuple(row) for row in ops))
+    return ops
+
+
+def _orient_grid(rows, R: int, C: int) -> list[list[Orientation]]:
     if R == 1:
         return [orient_row(rows[0], "v")]
     if C == 1:
