@@ -417,8 +417,10 @@ def _(q):
     pts = teardrop_points(q)
     shape, cycles = (q.som,) * 3, q.cycles
     call = lambda p, k: vsofm.fit(p, shape, cycles=cycles, key=k)
-    size = f"{q.som}^3, {cycles} cycles, {pts.shape[0]} samples"
-    return Case(call, (pts, jax.random.PRNGKey(0)), size)
+    size = f"{q.som}^3, {cycles} cycles, {pts.shape[0]} samples, no jitted twin (see README)"
+    # Inside a caller's jit the teardrop's repeated samples (pole, seam) cannot be dropped, and
+    # that run crashes XLA:CPU (a known defect, issue #10 note): no hand-jitted twin here.
+    return Case(call, (pts, jax.random.PRNGKey(0)), size, jit=False)
 
 
 @entry("vsofm.report")
