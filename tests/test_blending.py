@@ -257,3 +257,21 @@ def test_float32_stays_float32(kind):
     assert all(x.dtype == jnp.float32 for x in out)
     np.testing.assert_allclose(out[0], _grid_reference(s64, b, 0, 0), atol=2e-5)
     np.testing.assert_allclose(out[2], s32.ctrl, atol=5e-4)
+
+
+def test_periodic_refit_round_trip_with_as_many_samples_as_control_points():
+    """SPEC §2: `refit(points(P)) == P` to 1e-10 whenever m ≥ r and n ≥ s. In a closed
+    direction the default `linspace(0, 1, n)` samples the seam twice (u = 0 ≡ u = 1), so with
+    n == s the stored pseudo-inverse is rank-deficient and the refit is silently wrong (error
+    O(1)). Either sample [0, 1) in closed directions or refuse (rank check) in `Blending`."""
+    rng = np.random.default_rng(1)
+    r, s = 6, 5
+    surface = BSplineSurface(rng.normal(size=(r, s, 3)), clamped_knots(r, 3), None, 3, 3, periodic_v=True)
+    b = surface.blending(r + 4, s)
+    ctrl = jnp.asarray(rng.normal(size=(r, s, 3)))
+    try:
+        back = b.refit(b.points(ctrl))
+    except ValueError as error:  # refusing with a clear message also satisfies the contract
+        assert "n" in str(error)
+        return
+    np.testing.assert_allclose(back, ctrl, rtol=0, atol=1e-10)

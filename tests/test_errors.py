@@ -1,11 +1,13 @@
 """Bad input → `ValueError` naming the argument, the expected and the received value (SPEC §11)."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from bsjax.basis import (
     BSplineSurface,
+    basis_functions,
     blending_matrix,
     clamped_knots,
     periodic_blending_matrix,
@@ -186,3 +188,43 @@ def test_refit_with_fewer_samples_than_control_points(surface, m, n):
 def test_basis_function_errors(call, name):
     with pytest.raises(ValueError, match=f"^{name}: expected"):
         call()
+
+
+def test_rational_evaluate_rejects_bad_derivative_order():
+    """SPEC §11: a bad `nu` is a ValueError naming `nu`. The polynomial path does this; the
+    NURBS path builds `range(nu + 1)` first and dies with KeyError (nu < 0) / TypeError (float)."""
+    surface = random_surface(np.random.default_rng(0), 6, 5, 3, 2, weights=True)
+    with pytest.raises(ValueError, match="^nu"):
+        surface.evaluate(0.5, 0.5, -1, 0)
+    with pytest.raises(ValueError, match="^nu"):
+        surface.evaluate(0.5, 0.5, 1.5, 0)
+    with pytest.raises(ValueError, match="^nv"):
+        surface.evaluate(0.5, 0.5, 0, -1)
+
+
+def test_blending_matrix_rejects_decreasing_knots():
+    """SPEC §11: "non-monotone … knot vectors" → clear error. `blending_matrix` (a public
+    contract name) only checks ndim and the degree, so a decreasing vector gives a silent matrix."""
+    with pytest.raises(ValueError, match="^knots"):
+        blending_matrix(np.array([0.0, 0.0, 0.6, 0.3, 1.0, 1.0]), 1, np.array([0.5]))
+
+
+def test_basis_functions_rejects_negative_derivative_order():
+    """`basis_functions` is public (`basis.__all__`); nu = −1 runs degree + 1 Cox–de Boor steps
+    and returns a vector one entry short, silently."""
+    knots = clamped_knots(6, 3)
+    try:
+        out = basis_functions(knots, 3, jnp.asarray(0.5), nu=-1)
+    except ValueError as error:
+        assert str(error).startswith("nu")
+        return
+    assert out.shape == (6,), out.shape
+
+
+def test_blending_params_outside_the_domain_are_refused():
+    """SPEC §11 / STYLE ("silent dropping of bad input"): explicit `params_u` outside [0, 1]
+    are clipped to the ends without a word; a concrete check (like the finite check next to it)
+    would name `params_u` and the range."""
+    surface = random_surface(np.random.default_rng(2), 6, 5, 3, 2)
+    with pytest.raises(ValueError, match="^params_u"):
+        surface.blending(params_u=np.array([-0.5, 0.5, 1.5]), n=9)
