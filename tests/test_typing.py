@@ -1,6 +1,5 @@
 """The jaxtyping annotations hold while tests run: the numeric tests of the basis (surfaces and
-blending matrices, the kernels everything else is built on) and of the mass-spring physics run
-again in a subprocess under jaxtyping's import hook with beartype, so every annotated argument
+blending matrices, the kernels everything else is built on) run again in a subprocess under jaxtyping's import hook with beartype, so every annotated argument
 and return value of `bsjax` — array shapes by name, dtypes, pytree types — is checked on every
 call. (The bad-input tests are left out of this run: there a wrong type or shape is refused by
 the annotation check first, with jaxtyping's message instead of bsjax's own.)"""
@@ -22,7 +21,7 @@ def test_annotations_hold_under_jaxtyping_and_beartype():
     cmd = [
         sys.executable, "-m", "pytest", "-q", "-p", "no:xdist", "-p", "no:cacheprovider",
         "--jaxtyping-packages=bsjax,beartype.beartype",
-        "tests/test_surface.py", "tests/test_blending.py", "tests/test_mss.py",
+        "tests/test_surface.py", "tests/test_blending.py",
         "-k", "not error and not raise and not bad and not refuse",
     ]  # fmt: skip
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1500)
