@@ -1,5 +1,6 @@
 """The jaxtyping annotations hold while tests run: the numeric tests of the basis (surfaces and
-blending matrices, the kernels everything else is built on) run again in a subprocess under jaxtyping's import hook with beartype, so every annotated argument
+blending matrices, the kernels everything else is built on) run again in a subprocess under
+jaxtyping's import hook with beartype, so every annotated argument
 and return value of `bsjax` — array shapes by name, dtypes, pytree types — is checked on every
 call. (The bad-input tests are left out of this run: there a wrong type or shape is refused by
 the annotation check first, with jaxtyping's message instead of bsjax's own.)"""

@@ -156,13 +156,13 @@ def orient_row(surfaces: list[BSplineSurface], direction: str, samples=None) -> 
     accepted for compatibility and unused).
     """
     del samples
-    surfaces = tuple(surfaces)
-    known = _MEMO.get(surfaces, ("row", direction))
+    patches = tuple(surfaces)
+    known = _MEMO.get(patches, ("row", direction))
     if known is not None:
         return list(known)
-    ops = _orient_row(surfaces, direction)
-    if _checks.is_concrete([s.ctrl for s in surfaces]):
-        _MEMO.put(surfaces, ("row", direction), tuple(ops))
+    ops = _orient_row(patches, direction)
+    if _checks.is_concrete([s.ctrl for s in patches]):
+        _MEMO.put(patches, ("row", direction), tuple(ops))
     return ops
 
 
