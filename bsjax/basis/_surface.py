@@ -26,6 +26,18 @@ from bsjax.basis._knots import float_dtype
 _ORDERS = 3  # basis, first and second derivative matrices are stored
 
 
+def _direction_properties() -> tuple[property, ...]:
+    """`knots_u, knots_v, degree_u, degree_v, periodic_u, periodic_v`: read from the object's
+    `direction_u` / `direction_v` (shared by `BSplineSurface` and `Blending`)."""
+
+    def read(field: str, side: str) -> property:
+        return property(
+            lambda self: getattr(getattr(self, f"direction_{side}"), field), doc=f"{field} along {side}"
+        )
+
+    return tuple(read(field, side) for field in ("knots", "degree", "periodic") for side in ("u", "v"))
+
+
 def _direction_of(name, knots, degree, periodic, n_ctrl, dtype) -> SplineDirection:
     return SplineDirection(knots, degree, n_ctrl=n_ctrl, periodic=periodic, name=f"knots_{name}", dtype=dtype)
 
@@ -88,12 +100,7 @@ class BSplineSurface(eqx.Module):
         _checks.fail("direction", "'u' or 'v'", repr(name))
         raise AssertionError
 
-    knots_u = property(lambda self: self.direction_u.knots, doc="Knots along u (None when periodic).")
-    knots_v = property(lambda self: self.direction_v.knots, doc="Knots along v (None when periodic).")
-    degree_u = property(lambda self: self.direction_u.degree, doc="Degree k along u.")
-    degree_v = property(lambda self: self.direction_v.degree, doc="Degree l along v.")
-    periodic_u = property(lambda self: self.direction_u.periodic, doc="Closed along u.")
-    periodic_v = property(lambda self: self.direction_v.periodic, doc="Closed along v.")
+    knots_u, knots_v, degree_u, degree_v, periodic_u, periodic_v = _direction_properties()
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -216,12 +223,7 @@ class Blending(eqx.Module):
         _checks.check_ndim(pv, "params_v", 1)
         return _blending(direction_u, direction_v, pu, pv, weights)
 
-    knots_u = property(lambda self: self.direction_u.knots, doc="Knots along u (None when periodic).")
-    knots_v = property(lambda self: self.direction_v.knots, doc="Knots along v (None when periodic).")
-    degree_u = property(lambda self: self.direction_u.degree, doc="Degree k along u.")
-    degree_v = property(lambda self: self.direction_v.degree, doc="Degree l along v.")
-    periodic_u = property(lambda self: self.direction_u.periodic, doc="Closed along u.")
-    periodic_v = property(lambda self: self.direction_v.periodic, doc="Closed along v.")
+    knots_u, knots_v, degree_u, degree_v, periodic_u, periodic_v = _direction_properties()
 
     @property
     def grid_shape(self) -> tuple[int, int]:
