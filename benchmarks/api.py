@@ -414,13 +414,13 @@ def _(q):
 # --- vsofm ---------------------------------------------------------------------------------------
 @entry("vsofm.fit")
 def _(q):
-    pts = teardrop_points(q)
+    # distinct samples: a direct call drops repeats (pole, seam) first, a jitted one cannot, so
+    # both get the same distinct cloud and do the same work
+    pts = np.unique(teardrop_points(q), axis=0)
     shape, cycles = (q.som,) * 3, q.cycles
     call = lambda p, k: vsofm.fit(p, shape, cycles=cycles, key=k)
-    size = f"{q.som}^3, {cycles} cycles, {pts.shape[0]} samples, no jitted twin (see README)"
-    # Inside a caller's jit the teardrop's repeated samples (pole, seam) cannot be dropped, and
-    # that run crashes XLA:CPU (a known defect, issue #10 note): no hand-jitted twin here.
-    return Case(call, (pts, jax.random.PRNGKey(0)), size, jit=False)
+    size = f"{q.som}^3, {cycles} cycles, {pts.shape[0]} distinct samples"
+    return Case(call, (pts, jax.random.PRNGKey(0)), size)
 
 
 @entry("vsofm.report")

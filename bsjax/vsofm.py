@@ -112,10 +112,10 @@ def fit(
     quadric fits), interior nodes inside. Check `report(points, nodes).inverted == 0`.
 
     The training is compiled at the boundary (`bsjax._boundary.compiled`, once per sample count,
-    `shape`, `cycles` and `settings`), the samples' 16 nearest neighbours found by a k-d tree on
-    the host (`jax.pure_callback`). Called with concrete samples, repeated samples are dropped
-    first; inside the caller's `jit` the samples are used as given (the count of distinct
-    samples is not known there).
+    `shape`, `cycles` and `settings`), the samples' 16 nearest distinct neighbours found by a
+    k-d tree on the host (`jax.pure_callback`). Called with concrete samples, repeated samples
+    are dropped first; inside the caller's `jit` (where the count of distinct samples is not
+    known) the copies of a sample share one quadric patch and one sample's draw weight.
     """
     pts, shape = _check_fit_input(points, shape)  # pyright: ignore[reportAssignmentType]
     cycles = _checks.check_count(cycles, "cycles")
@@ -150,11 +150,12 @@ def _distinct(points):
 @compiled
 def _fit(points, key, shape, cycles, settings):
     dtype = points.dtype
-    nbr = _neighbours(points, _NEAR)
+    nbr, copies = _neighbours(points, _NEAR)
     # draw probability of each sample ∝ the surface area it stands for (squared mean distance to
-    # its 6 nearest samples), so a parameter grid crowded at the poles does not crowd the lattice
+    # its 6 nearest distinct samples, shared among its copies), so a parameter grid crowded at the
+    # poles does not crowd the lattice
     gap = jnp.linalg.norm(points[nbr[:, 1:7]] - points[:, None], axis=-1)
-    weights = jnp.mean(gap, axis=1) ** 2
+    weights = jnp.mean(gap, axis=1) ** 2 / copies.astype(dtype)
     weights = weights / jnp.sum(weights)
     n = int(np.prod(shape))
     bmask = boundary_mask(shape)
@@ -256,11 +257,17 @@ _NEAR = 16  # samples per quadric patch (6 coefficients)
 
 
 def _neighbours(points, k):
-    """`(P, k)` indices of each sample's `k` nearest samples (itself first), from a k-d tree on
-    the host (`scipy.spatial.cKDTree`, O(P log P)); a `jax.pure_callback`, so the same search
-    runs inside the caller's `jit` and `vmap` (integer indices: no gradient flows through)."""
+    """`(P, k)` indices of each sample's `k` nearest distinct samples (itself first) and `(P,)` how
+    many times each sample occurs, from a k-d tree on the host (`scipy.spatial.cKDTree`,
+    O(P log P)); a `jax.pure_callback`, so the same search runs inside the caller's `jit` and
+    `vmap` (integer indices: no gradient flows through). Repeated samples (a parameter grid's
+    poles and seams) share one entry of the tree, so no quadric patch is built from copies of
+    one point."""
     k = min(k, points.shape[0])
-    shape = jax.ShapeDtypeStruct((points.shape[0], k), jnp.int32)
+    shape = (
+        jax.ShapeDtypeStruct((points.shape[0], k), jnp.int32),
+        jax.ShapeDtypeStruct((points.shape[0],), jnp.int32),
+    )
     search = functools.partial(_kd_neighbours, k=k)
     return jax.pure_callback(search, shape, jax.lax.stop_gradient(points), vmap_method="sequential")
 
@@ -269,7 +276,18 @@ def _kd_neighbours(points, k):
     from scipy.spatial import cKDTree
 
     p = np.asarray(points, dtype=np.float64)
-    return cKDTree(p).query(p, k=k)[1].astype(np.int32)
+    distinct, first, inverse, counts = np.unique(
+        p, axis=0, return_index=True, return_inverse=True, return_counts=True
+    )
+    inverse = inverse.reshape(-1)
+    # sliding-midpoint splits: the median-split build crashes XLA's callback thread on inputs
+    # with many repeated coordinates (scipy 1.17), and is not needed for a one-off query
+    tree = cKDTree(distinct, balanced_tree=False)
+    near = tree.query(distinct, k=min(k, len(distinct)))[1].reshape(len(distinct), -1)
+    near = np.pad(near, ((0, 0), (0, k - near.shape[1])), mode="edge")  # fewer distinct than k
+    nbr = first[near][inverse]
+    nbr[:, 0] = np.arange(len(p))
+    return nbr.astype(np.int32), counts[inverse].astype(np.int32)
 
 
 def _patches(points, nbr):
@@ -407,7 +425,7 @@ def _quality(nodes, points):
     jac = corner_jacobians(nodes)
     bad = jnp.any(jac <= 0, axis=-1)
     b = nodes[boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
-    dist = _safe.norm(b - _project(b, points, *_patches(points, _neighbours(points, _NEAR))))
+    dist = _safe.norm(b - _project(b, points, *_patches(points, _neighbours(points, _NEAR)[0])))
     return jnp.sum(bad), jnp.asarray(bad.size), jnp.min(jac), jnp.mean(jac), jnp.max(dist), jnp.mean(dist)
 
 
