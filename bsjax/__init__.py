@@ -19,7 +19,9 @@ Sources cited in the docstrings:
 
 from bsjax._boundary import clear_caches as clear_caches
 from bsjax.basis import Blending as Blending
+from bsjax.basis import BSplineCurve as BSplineCurve
 from bsjax.basis import BSplineSurface as BSplineSurface
+from bsjax.basis import CurveBlending as CurveBlending
 from bsjax.basis import SplineDirection as SplineDirection
 from bsjax.basis import blending_matrix as blending_matrix
 from bsjax.basis import clamped_knots as clamped_knots
@@ -28,8 +30,10 @@ from bsjax.basis import periodic_blending_matrix as periodic_blending_matrix
 __version__ = "0.1.0"
 
 __all__ = [
+    "BSplineCurve",
     "BSplineSurface",
     "Blending",
+    "CurveBlending",
     "SplineDirection",
     "blending_matrix",
     "clamped_knots",

@@ -1,11 +1,13 @@
-"""Knots, spline directions, basis functions, blending matrices, surfaces and their refits
-(thesis ch. 3, SPEC §2).
+"""Knots, spline directions, basis functions, blending matrices, curves, surfaces and their
+refits (thesis ch. 3, SPEC §2).
 
 A blending matrix holds every basis function (or its derivative) of one direction at a list of
 parameters, `A[a, i] = B_{i,k}(u_a)` (thesis eq. 3.6); a surface sampled on a grid is then
 `M = A_u P A_v^T`, and the least-squares control net of a grid `P = A_u^+ M A_v^{+T}` (eq. 3.7).
 """
 
+from bsjax.basis._curve import BSplineCurve as BSplineCurve
+from bsjax.basis._curve import CurveBlending as CurveBlending
 from bsjax.basis._direction import SplineDirection as SplineDirection
 from bsjax.basis._functions import basis_functions as basis_functions
 from bsjax.basis._functions import blending_matrix as blending_matrix
@@ -25,8 +27,10 @@ from bsjax.basis._surface import Blending as Blending
 from bsjax.basis._surface import BSplineSurface as BSplineSurface
 
 __all__ = [
+    "BSplineCurve",
     "BSplineSurface",
     "Blending",
+    "CurveBlending",
     "Projection",
     "ProjectionSolver",
     "SplineDirection",

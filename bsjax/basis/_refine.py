@@ -1,10 +1,12 @@
-"""Knot insertion, degree elevation (exact) and degree reduction (least squares).
+"""Knot insertion, degree elevation (exact) and degree reduction (least squares), for surfaces
+(one direction at a time) and curves.
 
-One mechanism serves all three: a change of basis in one direction. When the new spline space
-contains the old one (insertion, elevation), the matrix `T` with `B_old = B_new T` is found
-exactly by collocation at more parameters than basis functions, and the new control net is
-`T P` (in homogeneous coordinates for NURBS). For reduction the same solve is a least-squares
-approximation, and its error is measured and returned.
+One mechanism serves all three and both kinds of spline: a change of basis along one axis of the
+control net. When the new spline space contains the old one (insertion, elevation), the matrix
+`T` with `B_old = B_new T` is found exactly by collocation at more parameters than basis
+functions, and the new control net is `T P` along that axis (in homogeneous coordinates for
+NURBS). For reduction the same solve is a least-squares approximation, and its error is
+measured and returned.
 """
 
 from __future__ import annotations
@@ -14,44 +16,61 @@ import numpy as np
 
 from bsjax import _checks
 from bsjax.basis import _tensor
+from bsjax.basis._curve import BSplineCurve
 from bsjax.basis._direction import SplineDirection
 from bsjax.basis._knots import greville
 from bsjax.basis._surface import BSplineSurface
 
+Spline = BSplineSurface | BSplineCurve
 
-def insert_knots(surface: BSplineSurface, direction: str, values) -> BSplineSurface:
-    """Insert knot `values` in `direction` ('u' or 'v'); the surface is unchanged (NURBS Book §5.2)."""
-    knots, degree, _ = _direction(surface, direction, "insert_knots")
+
+def insert_knots(spline: Spline, direction=None, values=None) -> Spline:
+    """Insert knot `values` (strictly inside (0, 1)); the geometry is unchanged (NURBS Book §5.2).
+
+    Surfaces: `insert_knots(surface, direction, values)` with `direction` 'u' or 'v'.
+    Curves: `insert_knots(curve, values)` (no direction).
+    **Returns:** the refined surface or curve (one more control point per inserted value).
+    """
+    direction, values = _curve_args(spline, direction, values, "values", "insert_knots")
+    if values is None:
+        _checks.fail("values", "knot values to insert", None)
+    knots, degree = _clamped(spline, direction, "insert_knots")
     values = np.atleast_1d(np.asarray(values, dtype=np.float64))
     if np.any(~np.isfinite(values)) or np.any((values <= 0) | (values >= 1)):
         _checks.fail("values", "knot values strictly inside (0, 1)", values.tolist())
     new = np.sort(np.concatenate([knots, values]))
     SplineDirection(new, degree, name="values (resulting knot vector)")
-    return _rebase(surface, direction, new, degree)[0]
+    return _rebase(spline, direction, new, degree)[0]
 
 
-def elevate_degree(surface: BSplineSurface, direction: str, times: int = 1) -> BSplineSurface:
-    """Raise the degree in `direction` by `times`, geometry unchanged (NURBS Book §5.5).
+def elevate_degree(spline: Spline, direction=None, times: int | None = None) -> Spline:
+    """Raise the degree by `times` (default 1), geometry unchanged (NURBS Book §5.5).
 
+    Surfaces: `elevate_degree(surface, direction, times=1)`; curves: `elevate_degree(curve, times=1)`.
     Every distinct knot gains `times` in multiplicity, so continuity is kept exactly.
     """
-    knots, degree, _ = _direction(surface, direction, "elevate_degree")
+    direction, times = _curve_args(spline, direction, times, "times", "elevate_degree")
+    times = 1 if times is None else times
+    knots, degree = _clamped(spline, direction, "elevate_degree")
     _check_times(times)
     values, counts = np.unique(knots, return_counts=True)
     new = np.repeat(values, counts + times)
-    return _rebase(surface, direction, new, degree + times)[0]
+    return _rebase(spline, direction, new, degree + times)[0]
 
 
-def reduce_degree(surface: BSplineSurface, direction: str, times: int = 1) -> tuple[BSplineSurface, float]:
-    """Lower the degree in `direction` by `times` as a least-squares approximation.
+def reduce_degree(spline: Spline, direction=None, times: int | None = None) -> tuple[Spline, float]:
+    """Lower the degree by `times` (default 1) as a least-squares approximation.
 
+    Surfaces: `reduce_degree(surface, direction, times=1)`; curves: `reduce_degree(curve, times=1)`.
     The end multiplicities drop by `times` (so the control count drops by `times`, thesis §4.3);
     interior knots are kept, their multiplicity capped at the new degree.
 
-    **Returns:** `(surface, max_error)`: the reduced surface and the largest distance between
-    the two surfaces over a dense sample grid.
+    **Returns:** `(spline, max_error)`: the reduced surface or curve and the largest distance
+    between old and new over a dense sample grid (64 × 64 for surfaces, 1024 for curves).
     """
-    knots, degree, _ = _direction(surface, direction, "reduce_degree")
+    direction, times = _curve_args(spline, direction, times, "times", "reduce_degree")
+    times = 1 if times is None else times
+    knots, degree = _clamped(spline, direction, "reduce_degree")
     _check_times(times)
     if degree - times < 1:
         _checks.fail("times", f"at most {degree - 1} (degree {degree} cannot go below 1)", times)
@@ -59,16 +78,33 @@ def reduce_degree(surface: BSplineSurface, direction: str, times: int = 1) -> tu
     values, counts = np.unique(knots, return_counts=True)
     counts = np.minimum(counts, new_degree)
     counts[0] = counts[-1] = new_degree + 1
-    return _rebase(surface, direction, np.repeat(values, counts), new_degree)
+    return _rebase(spline, direction, np.repeat(values, counts), new_degree)
 
 
-def _direction(surface, direction, caller):
+def _curve_args(spline, direction, second, second_name, caller):
+    """`(direction, second)`: for a curve the direction is omitted, so a second positional
+    argument arrives in `direction`'s place."""
+    if isinstance(spline, BSplineCurve):
+        if second is not None and direction is not None:
+            _checks.fail(f"{caller}: direction", "no direction for a curve", repr(direction))
+        return None, direction if second is None else second
+    if not isinstance(spline, BSplineSurface):
+        _checks.fail(f"{caller}: spline", "a BSplineSurface or a BSplineCurve", type(spline).__name__)
     if direction not in ("u", "v"):
         _checks.fail("direction", "'u' or 'v'", repr(direction))
-    d = surface.direction(direction)
+    return direction, second
+
+
+def _basis(spline, direction) -> SplineDirection:
+    return spline.direction if direction is None else spline.direction(direction)
+
+
+def _clamped(spline, direction, caller):
+    d = _basis(spline, direction)
     if d.periodic:
-        _checks.fail(f"{caller}: direction", "a clamped direction (the periodic basis is uniform)", direction)
-    return np.asarray(d.knots, dtype=np.float64), d.degree, d.n_ctrl
+        where = f"{caller}: direction" if direction is not None else f"{caller}: curve"
+        _checks.fail(where, "a clamped direction (the periodic basis is uniform)", direction or "periodic")
+    return np.asarray(d.knots, dtype=np.float64), d.degree
 
 
 def _check_times(times):
@@ -76,28 +112,39 @@ def _check_times(times):
         _checks.fail("times", "an int >= 1", times)
 
 
-def _rebase(surface, direction, new_knots, new_degree):
-    """Re-express `surface` in the basis (new_knots, new_degree) along `direction`: the change of
-    basis `T` with `B_old ≈ B_new T` by least-squares collocation (exact when the new space
-    contains the old), applied to the (homogeneous) control net."""
-    old = surface.direction(direction)
-    new = SplineDirection(new_knots, new_degree)
-    t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (new.n_ctrl + 1)), greville(new_knots, new_degree)]))
-    a_old = np.asarray(old.matrix(jnp.asarray(t, surface.ctrl.dtype)), dtype=np.float64)
-    a_new = np.asarray(new.matrix(jnp.asarray(t, surface.ctrl.dtype)), dtype=np.float64)
-    transform = np.linalg.lstsq(a_new, a_old, rcond=None)[0]  # (n_new, n_old)
-    dtype = surface.ctrl.dtype
-    w = surface.weights
-    net = _tensor.homogeneous(surface.ctrl, w)
-    axis = 0 if direction == "u" else 1
-    net = jnp.moveaxis(
-        jnp.tensordot(jnp.asarray(transform, dtype), jnp.moveaxis(net, axis, 0), axes=1), 0, axis
-    )
-    ctrl, weights = (net, None) if w is None else (net[..., :3] / net[..., 3:], net[..., 3])
-    directions = {"u": surface.direction_u, "v": surface.direction_v}
-    directions[direction] = new.astype(dtype)
+def _change_of_basis(old: SplineDirection, new: SplineDirection) -> np.ndarray:
+    """`T (n_new, n_old)` with `B_old ≈ B_new T`, by least-squares collocation at more
+    parameters than basis functions (exact when the new space contains the old one)."""
+    t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (new.n_ctrl + 1)), greville(new.knots, new.degree)]))
+    a_old = np.asarray(old.matrix(jnp.asarray(t)), dtype=np.float64)
+    a_new = np.asarray(new.matrix(jnp.asarray(t)), dtype=np.float64)
+    return np.linalg.lstsq(a_new, a_old, rcond=None)[0]
+
+
+def _rebase_net(ctrl, weights, transform, axis: int):
+    """Apply `transform` along `axis` of the (homogeneous) net: `(ctrl, weights)` in the new basis."""
+    net = _tensor.homogeneous(ctrl, weights)
+    t = jnp.asarray(transform, ctrl.dtype)
+    net = jnp.moveaxis(jnp.tensordot(t, jnp.moveaxis(net, axis, 0), axes=1), 0, axis)
+    if weights is None:
+        return net, None
+    return net[..., :-1] / net[..., -1:], net[..., -1]
+
+
+def _rebase(spline, direction, new_knots, new_degree):
+    """Re-express `spline` in the basis (new_knots, new_degree) along `direction` (the curve's
+    only direction when None): `(new spline, max distance between old and new)`."""
+    old = _basis(spline, direction)
+    dtype = spline.ctrl.dtype
+    new = SplineDirection(new_knots, new_degree, dtype=dtype)
+    axis = 1 if direction == "v" else 0
+    ctrl, weights = _rebase_net(spline.ctrl, spline.weights, _change_of_basis(old, new), axis)
+    if direction is None:
+        result = BSplineCurve.from_direction(ctrl, new, weights)
+        return result, _max_curve_distance(spline, result)
+    directions = {"u": spline.direction_u, "v": spline.direction_v, direction: new}
     result = BSplineSurface.from_directions(ctrl, directions["u"], directions["v"], weights)
-    return result, _max_distance(surface, result)
+    return result, _max_distance(spline, result)
 
 
 def _max_distance(a, b, count: int = 64):
@@ -105,3 +152,9 @@ def _max_distance(a, b, count: int = 64):
     g = jnp.linspace(0.0, 1.0, count, dtype=a.ctrl.dtype)
     u, v = jnp.meshgrid(g, g, indexing="ij")
     return float(jnp.max(jnp.linalg.norm(a.evaluate(u, v) - b.evaluate(u, v), axis=-1)))
+
+
+def _max_curve_distance(a, b, count: int = 1024):
+    """Largest distance between two curves at `count` common parameters."""
+    t = jnp.linspace(0.0, 1.0, count, dtype=a.ctrl.dtype)
+    return float(jnp.max(jnp.linalg.norm(a.evaluate(t) - b.evaluate(t), axis=-1)))

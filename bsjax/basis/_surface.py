@@ -19,6 +19,7 @@ from bsjax import _checks
 from bsjax._boundary import compiled
 from bsjax._typing import ArrayLike
 from bsjax.basis import _tensor
+from bsjax.basis._curve import BSplineCurve
 from bsjax.basis._direction import SplineDirection
 from bsjax.basis._functions import check_order
 from bsjax.basis._knots import float_dtype
@@ -150,6 +151,27 @@ class BSplineSurface(eqx.Module):
         if np.shape(ctrl) != self.ctrl.shape:
             _checks.fail("ctrl", f"shape {self.ctrl.shape}", np.shape(ctrl))
         return BSplineSurface.from_directions(ctrl, self.direction_u, self.direction_v, self.weights)
+
+    @compiled
+    def iso_curve(self, direction: str, value: ArrayLike) -> BSplineCurve:
+        """The exact `BSplineCurve` of an iso-line (the iso-curve network of eq. 5-3 in *Interactive
+        shape modeling and dynamic deformation based on spline sculpting*; The NURBS Book §4.5).
+
+        `direction="u"`: the curve `v ↦ S(value, v)`, in the basis of `direction_v`, with control
+        points `Q_j = Σ_i B_i(value) w_ij P_ij / Σ_i B_i(value) w_ij` and weights
+        `Σ_i B_i(value) w_ij` (rational when the surface is); `"v"`: `u ↦ S(u, value)`.
+        **Arguments:** `value` a scalar in [0, 1] (periodic: taken modulo 1).
+        """
+        fixed = self.direction(direction)
+        other = self.direction_v if direction == "u" else self.direction_u
+        value = self._params(value, "value")
+        _checks.check_ndim(value, "value", 0)
+        value = fixed.check_params(value, "value")
+        net = jnp.moveaxis(_tensor.homogeneous(self.ctrl, self.weights), 0 if direction == "u" else 1, 0)
+        h = jnp.tensordot(fixed.matrix(value[None])[0], net, axes=1)
+        if self.weights is None:
+            return BSplineCurve.from_direction(h, other)
+        return BSplineCurve.from_direction(h[:, :3] / h[:, 3:], other, h[:, 3])
 
 
 def _evaluate(surface: BSplineSurface, u, v, nu: int, nv: int):
