@@ -8,12 +8,30 @@ from __future__ import annotations
 
 import math
 
+_INF = math.inf
+
+
+def fresh(now_ns: int, arrived_ns: float, limit_ns: int) -> bool:
+    """True when something that arrived at `arrived_ns` is at most `limit_ns` old at `now_ns`.
+
+    Both times are on the servo's own monotonic clock (`time.perf_counter_ns`). A non-finite
+    arrival (never arrived, NaN) or one in the future is stale: the watchdog never trusts a time
+    it cannot order against its own clock.
+    """
+    age = now_ns - arrived_ns
+    return 0 <= age <= limit_ns  # False for NaN and for ±inf arrivals
+
 
 class ForceShaper:
     """Clamp `|F| ≤ max_force`, then limit the change per tick to `|ΔF| ≤ step_max`.
 
-    Non-finite input becomes zero. Both operations keep the force inside the ball of radius
-    `max_force` (the rate limiter moves along a segment between two points of the ball).
+    - A force with a NaN component is replaced by zero and counted in `nonfinite`.
+    - A force whose magnitude overflows (an infinite component, or finite components whose norm
+      is beyond the float range: a very stiff wall) keeps its direction — the signs of the
+      infinite components, or the direction of the finite vector, computed scaled — and is
+      saturated at `max_force` (counted in `clamped`).
+    - Both operations keep the force inside the ball of radius `max_force` (the rate limiter
+      moves along a segment between two points of the ball), so the output is always finite.
     """
 
     __slots__ = ("clamped", "last", "limited", "max_force", "nonfinite", "step_max")
@@ -24,14 +42,7 @@ class ForceShaper:
         self.clamped = self.limited = self.nonfinite = 0
 
     def __call__(self, gx: float, gy: float, gz: float) -> tuple[float, float, float]:
-        norm = math.sqrt(gx * gx + gy * gy + gz * gz)
-        if not math.isfinite(norm):
-            self.nonfinite += 1
-            gx = gy = gz = norm = 0.0
-        if norm > self.max_force:
-            self.clamped += 1
-            s = self.max_force / norm
-            gx, gy, gz = gx * s, gy * s, gz * s
+        gx, gy, gz = self._clamp(gx, gy, gz)
         fx, fy, fz = self.last
         dx, dy, dz = gx - fx, gy - fy, gz - fz
         d = math.sqrt(dx * dx + dy * dy + dz * dz)
@@ -41,6 +52,24 @@ class ForceShaper:
             dx, dy, dz = dx * s, dy * s, dz * s
         self.last = (fx + dx, fy + dy, fz + dz)
         return self.last
+
+    def _clamp(self, gx: float, gy: float, gz: float) -> tuple[float, float, float]:
+        if gx != gx or gy != gy or gz != gz:  # NaN: no direction to keep
+            self.nonfinite += 1
+            return 0.0, 0.0, 0.0
+        m = max(abs(gx), abs(gy), abs(gz))
+        if m == 0.0:
+            return 0.0, 0.0, 0.0
+        if m == _INF:  # overflowed: the direction of the infinite components, saturated
+            ux, uy, uz = (math.copysign(1.0, g) if abs(g) == _INF else 0.0 for g in (gx, gy, gz))
+        else:
+            ux, uy, uz = gx / m, gy / m, gz / m  # scaled: the norm cannot overflow or underflow
+        r = math.sqrt(ux * ux + uy * uy + uz * uz)
+        if m * r <= self.max_force:
+            return gx, gy, gz
+        self.clamped += 1
+        s = self.max_force / r
+        return ux * s, uy * s, uz * s
 
 
 class Watchdog:
@@ -55,11 +84,12 @@ class Watchdog:
         self.trips = self.attenuated = 0
 
     def __call__(self, fresh: bool, elapsed: float) -> float:
+        step = elapsed * self.rate if elapsed > 0 else 0.0  # NaN or negative elapsed: no step
         if fresh:
-            self.gain = min(1.0, self.gain + elapsed * self.rate)
+            self.gain = min(1.0, self.gain + step)
             self.tripped = False
         else:
-            self.gain = max(0.0, self.gain - elapsed * self.rate)
+            self.gain = max(0.0, self.gain - step)
             if not self.tripped:
                 self.trips += 1
             self.tripped = True
@@ -69,23 +99,35 @@ class Watchdog:
 
 
 class VelocityFilter:
-    """Stylus velocity: finite differences on device timestamps, first-order low-pass `tau`."""
+    """Stylus velocity: finite differences on device timestamps, first-order low-pass `tau`.
 
-    __slots__ = ("tau", "v")
+    Only a new sample (another sequence number) with a later, finite device timestamp updates
+    the estimate; an update that would make it non-finite (a zero-length time step, an
+    overflowing difference) is skipped, so one bad timestamp cannot poison the damping term.
+    """
+
+    __slots__ = ("skipped", "tau", "v")
 
     def __init__(self, tau: float):
         self.tau, self.v = tau, (0.0, 0.0, 0.0)
+        self.skipped = 0
 
     def __call__(self, sample, prev) -> tuple[float, float, float]:
-        if sample is not None and prev is not None and sample.sequence != prev.sequence:
-            h = sample.timestamp - prev.timestamp
-            if h > 0:
-                a = 1.0 - math.exp(-h / self.tau)
-                p, q = sample.position, prev.position
-                vx, vy, vz = self.v
-                self.v = (
-                    vx + a * ((p[0] - q[0]) / h - vx),
-                    vy + a * ((p[1] - q[1]) / h - vy),
-                    vz + a * ((p[2] - q[2]) / h - vz),
-                )
+        if sample is None or prev is None or sample.sequence == prev.sequence:
+            return self.v
+        h = sample.timestamp - prev.timestamp
+        if not 0.0 < h < _INF:
+            return self.v
+        a = 1.0 - math.exp(-h / self.tau)
+        p, q = sample.position, prev.position
+        vx, vy, vz = self.v
+        v = (
+            vx + a * ((p[0] - q[0]) / h - vx),
+            vy + a * ((p[1] - q[1]) / h - vy),
+            vz + a * ((p[2] - q[2]) / h - vz),
+        )
+        if math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2]):
+            self.v = v
+        else:
+            self.skipped += 1
         return self.v

@@ -149,21 +149,24 @@ def parse_report(
     layout: HidLayout, report
 ) -> tuple[np.ndarray, np.ndarray, int, float | None, int | None] | None:
     """Input report → `(position, orientation, buttons, timestamp, sequence)`, or None when the
-    report is short or carries another report id."""
-    data = bytes(report)
-    if len(data) < layout.report_length or (layout.report_id is not None and data[0] != layout.report_id):
-        return None
-    position = np.array([f.get(data) for f in layout.position])
-    if layout.orientation is None:
-        orientation = np.array([1.0, 0.0, 0.0, 0.0])
-    else:
-        q = np.array([f.get(data) for f in layout.orientation])
-        n = np.linalg.norm(q)
-        orientation = q / n if n > 0 else np.array([1.0, 0.0, 0.0, 0.0])
-    buttons = int(layout.buttons.get(data)) if layout.buttons else 0
-    stamp = layout.timestamp.get(data) if layout.timestamp else None
-    seq = int(layout.sequence.get(data)) if layout.sequence else None
-    if not np.all(np.isfinite(position)):
+    report is short, carries another report id, or its buttons/sequence are not integers (a NaN
+    in a float field). Never raises. Position and orientation are returned as read (they may be
+    non-finite): the device's `_sample` gate drops such poses and counts them as `bad_pose`."""
+    try:
+        data = bytes(report)
+        if len(data) < layout.report_length or (layout.report_id is not None and data[0] != layout.report_id):
+            return None
+        position = np.array([f.get(data) for f in layout.position])
+        if layout.orientation is None:
+            orientation = np.array([1.0, 0.0, 0.0, 0.0])
+        else:
+            q = np.array([f.get(data) for f in layout.orientation])
+            n = np.linalg.norm(q)
+            orientation = q / n if n > 0 else np.array([1.0, 0.0, 0.0, 0.0])
+        buttons = int(layout.buttons.get(data)) if layout.buttons else 0
+        stamp = layout.timestamp.get(data) if layout.timestamp else None
+        seq = int(layout.sequence.get(data)) if layout.sequence else None
+    except (TypeError, ValueError, OverflowError, struct.error):
         return None
     return position, orientation, buttons, stamp, seq
 
@@ -268,8 +271,10 @@ class HidDevice(DeviceBase):
                 return
             self._last_seq = seq
         stamp = time.perf_counter() if stamp is None else stamp
-        self._last = self._sample(position, orientation, buttons, stamp, seq if seq is not None else 0)
-        self._count("frames")
+        sample = self._sample(position, orientation, buttons, stamp, seq if seq is not None else 0)
+        if sample is not None:  # else counted as bad_pose: non-finite or out of reach
+            self._last = sample
+            self._count("frames")
 
     def read(self) -> DeviceSample:
         self._poll()

@@ -3,10 +3,17 @@
 A device reports its stylus pose in its own coordinates (metres); `Workspace` maps positions into
 model coordinates (`x_model = scale · R x_device + offset`) and forces back (`f_device = Rᵀ f`;
 forces are not scaled, so a proxy stiffness `k` in N per model unit feels like `k · scale` N/m).
+
+Every transport builds its samples through `DeviceBase._sample`, the one gate a pose passes on
+its way in: a pose with a non-finite position, orientation or timestamp, or a position outside
+the device's reach (`Workspace.reach`, device units), is dropped and counted
+(`counters["bad_pose"]`), so it never reaches the servo or the physics.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 import time
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
@@ -31,7 +38,9 @@ class DeviceSample:
     - `position (3,)`: tool centre; `orientation (4,)`: unit quaternion `w x y z`.
     - `buttons`: bit mask (`BUTTON_PRESS` = stylus button).
     - `timestamp`: seconds on the device's clock; `sequence`: the device's sample counter.
-    - `received`: host `time.perf_counter()` when the sample arrived (drives the watchdog).
+    - `received`: host `time.perf_counter()` when the transport built the sample. Informational:
+      the servo's watchdog does not trust it (a device may stamp on another clock); it times the
+      arrival of each new sample (new `sequence` or `timestamp`) on its own monotonic clock.
     """
 
     position: np.ndarray
@@ -50,21 +59,30 @@ class DeviceSample:
 class Workspace:
     """Device → model coordinates: `x_model = scale · R x_device + offset`.
 
-    **Arguments:** `scale > 0` (model units per metre), `offset (3,)`, `rotation (3, 3)` orthonormal.
+    **Arguments:** `scale > 0` (model units per metre), `offset (3,)`, `rotation (3, 3)` orthonormal,
+    `reach > 0` (device units, default 10): a position with a coordinate beyond `±reach` is outside
+    the workspace and dropped by the transports (a haptic arm reaches well under a metre; the
+    default only catches garbage such as 1e30 or 1e300 from a corrupted frame).
     """
 
     scale: float = 1.0
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    reach: float = 10.0
 
     def __post_init__(self):
-        if not (np.isfinite(self.scale) and self.scale > 0):
-            raise ValueError(f"scale: expected a finite value > 0, got {self.scale}")
+        object.__setattr__(self, "scale", positive_number(self.scale, "scale"))
+        object.__setattr__(self, "reach", positive_number(self.reach, "reach"))
         object.__setattr__(self, "offset", _vector(self.offset, "offset", 3))
         rot = np.asarray(self.rotation, dtype=np.float64)
         if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6):
             raise ValueError(f"rotation: expected an orthonormal (3, 3) matrix, got {rot.tolist()}")
         object.__setattr__(self, "rotation", rot)
+
+    def contains(self, position) -> bool:
+        """True when a device-frame `position (3,)` is finite and within `±reach` on every axis."""
+        a = np.asarray(position, dtype=np.float64)
+        return a.shape == (3,) and bool(np.all(np.abs(a) <= self.reach))  # False for NaN
 
     def to_model(self, position) -> np.ndarray:
         return self.scale * (self.rotation @ np.asarray(position, dtype=np.float64)) + self.offset
@@ -111,15 +129,23 @@ class DeviceBase:
         if n:
             self.counters[name] = self.counters.get(name, 0) + n
 
-    def _sample(self, position, orientation, buttons, timestamp, sequence) -> DeviceSample:
-        return DeviceSample(
-            self.workspace.to_model(position),
-            np.asarray(orientation, dtype=np.float64),
-            int(buttons),
-            float(timestamp),
-            int(sequence),
-            time.perf_counter(),
-        )
+    def _sample(self, position, orientation, buttons, timestamp, sequence) -> DeviceSample | None:
+        """The model-frame sample of a device-frame pose, or None (counted as `bad_pose`) when the
+        position, orientation or timestamp is not finite or the position is out of reach."""
+        try:
+            q = np.asarray(orientation, dtype=np.float64)
+            stamp = float(timestamp)
+            ok = self.workspace.contains(position) and q.shape == (4,) and bool(np.all(np.isfinite(q)))
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not (ok and math.isfinite(stamp)):
+            self._count("bad_pose")
+            return None
+        x = self.workspace.to_model(position)
+        if not np.all(np.isfinite(x)):  # a huge scale or offset can still overflow
+            self._count("bad_pose")
+            return None
+        return DeviceSample(x, q, int(buttons), stamp, int(sequence), time.perf_counter())
 
     def __enter__(self):
         return self
@@ -133,6 +159,17 @@ def _vector(x, name: str, size: int) -> np.ndarray:
     if a.shape != (size,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{name}: expected {size} finite numbers, got {np.asarray(x).tolist()}")
     return a
+
+
+def positive_number(value, name: str, allow_zero: bool = False) -> float:
+    """`value` as a float when it is a real number (Python or numpy, not bool), finite and `> 0`
+    (`>= 0` with `allow_zero`); `TypeError`/`ValueError` naming the argument otherwise."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: expected a real number, got {type(value).__name__} {value!r}")
+    x = float(value)
+    if not (math.isfinite(x) and (x >= 0 if allow_zero else x > 0)):
+        raise ValueError(f"{name}: expected a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
+    return x
 
 
 def force_vector(force, name: str = "force") -> np.ndarray:

@@ -8,16 +8,21 @@ tool position — the "intermediate representation" of two-rate haptics (Adachi 
 Force (paper 002 §3.2.2, a penalty spring with damping): depth `s` of the tool into the proxy,
 `F = max(0, k s + d ṡ) n` along the proxy normal `n`, zero when out of contact. The damper
 opposes the penetration rate `ṡ` (the paper's `F = k s − d ṡ` measures ṡ on the surface point,
-which moves the other way); the clip at 0 keeps the wall from pulling the tool in.
+which moves the other way); the clip at 0 keeps the wall from pulling the tool in. A magnitude
+beyond the float range (a very stiff wall, a tool far inside) saturates at the largest float, so
+the force keeps its direction and the servo's clamp saturates it at `max_force`; a NaN magnitude
+is passed on as NaN, which the servo zeroes and counts.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass
 
 PLANE, SPHERE, NONE = "plane", "sphere", "none"
+_FLOAT_MAX = sys.float_info.max
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,7 +34,9 @@ class Proxy:
     - `tool_radius`: the tool's extent along the contact normal (for an ellipsoid tool the physics
       puts its support distance here).
     - `stiffness` (N per model unit), `damping` (N·s per model unit), both ≥ 0.
-    - `stamp`: `time.perf_counter()` when the physics made it (the watchdog checks its age).
+    - `stamp`: `time.perf_counter()` when the physics made it — informational only (recordings,
+      debugging): the servo's watchdog never reads it, it times each proxy's *arrival* on its
+      own monotonic clock, so a stamp on another clock, in the future or non-finite is harmless.
     """
 
     kind: str = NONE
@@ -52,7 +59,7 @@ class Proxy:
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}: expected a value >= 0, got {getattr(self, name)}")
         if self.kind == PLANE:
-            n = math.sqrt(sum(c * c for c in self.normal))
+            n = math.hypot(*self.normal)  # scaled: (1e300, 1e300, 0) and (1e-160, 0, 0) normalise
             if n == 0:
                 raise ValueError("normal: expected a non-zero vector for a plane proxy, got (0, 0, 0)")
             object.__setattr__(self, "normal", tuple(float(c) / n for c in self.normal))
@@ -95,7 +102,7 @@ class Proxy:
             return self.tool_radius - ((x - px) * nx + (y - py) * ny + (z - pz) * nz), nx, ny, nz
         if self.kind == SPHERE:
             dx, dy, dz = x - self.point[0], y - self.point[1], z - self.point[2]
-            dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+            dist = math.hypot(dx, dy, dz)  # scaled: no overflow for a tool far away
             if dist == 0.0:
                 dx, dy, dz, dist = 0.0, 0.0, 1.0, 1.0  # any direction: the centre is symmetric
             nx, ny, nz = dx / dist, dy / dist, dz / dist
@@ -111,7 +118,10 @@ class Proxy:
             return 0.0, 0.0, 0.0
         # ṡ = −v·n (depth grows when moving against the normal); the spring never pulls.
         rate = -(velocity[0] * nx + velocity[1] * ny + velocity[2] * nz)
-        magnitude = max(0.0, self.stiffness * depth + self.damping * rate)
+        magnitude = self.stiffness * depth + self.damping * rate
+        if magnitude != magnitude:  # NaN (e.g. inf − inf): the servo zeroes and counts it
+            return math.nan, math.nan, math.nan
+        magnitude = min(max(0.0, magnitude), _FLOAT_MAX)  # saturate: keep the direction finite
         return magnitude * nx, magnitude * ny, magnitude * nz
 
 

@@ -3,7 +3,9 @@
 The device streams POSE frames; the host answers with FORCE frames. Reads are non-blocking (the
 servo thread calls `read()` 1000 times a second), every byte that arrives is decoded, bad frames
 are counted and dropped, POSE frames that are not newer than the last one (sequence numbers,
-serial-number arithmetic) are counted as `out_of_order` and dropped. When the port fails (unplugged,
+serial-number arithmetic) are counted as `out_of_order` and dropped, and POSE frames whose floats are
+not finite or out of the workspace's reach (a device bug: the CRC was valid) are counted as
+`bad_pose` and dropped. When the port fails (unplugged,
 the other end closed) the device closes it and re-opens it every `reconnect_interval` seconds;
 meanwhile `read()` returns the last sample, whose growing age makes the servo watchdog ramp the force
 to zero.
@@ -125,8 +127,11 @@ class SerialDevice(DeviceBase):
             else:
                 self._last_seq = frame.seq
                 position, orientation, buttons, stamp_us = frames.parse_pose(frame.payload)
-                self._last = self._sample(position, orientation, buttons, stamp_us * 1e-6, frame.seq)
-                self._count("frames")
+                # a valid CRC says nothing about the floats: NaN or out-of-reach poses are dropped
+                sample = self._sample(position, orientation, buttons, stamp_us * 1e-6, frame.seq)
+                if sample is not None:
+                    self._last = sample
+                    self._count("frames")
 
     def read(self) -> DeviceSample:
         """The newest pose; waits up to `timeout` only while no sample has ever arrived."""

@@ -4,9 +4,28 @@ Servo thread (every `1/rate_hz` s, paper 002 §4.2: haptics needs 1 kHz):
 read the device → estimate velocity → render the current `Proxy` (pure Python, never a jitted
 call) → clamp `|F| ≤ max_force` → rate-limit `|ΔF| ≤ max_force_rate / rate_hz` per tick →
 multiply by the watchdog gain → write. The watchdog gain ramps linearly to 0 within `ramp_time`
-when the proxy is older than `proxy_timeout` or the newest device sample is older than
-`device_timeout`, and back to 1 when both are fresh again (it also ramps up at start). Zero force
-is written when the loop stops, when either thread raises, and at interpreter exit.
+when the proxy arrived more than `proxy_timeout` ago or the newest device sample more than
+`device_timeout` ago, and back to 1 when both are fresh again (it also ramps up at start). Zero
+force is written when the loop stops, when either thread raises, and at interpreter exit.
+
+Safety chain (paper 002 §4.2's servo contract; issue #16):
+
+* **The watchdog uses only the servo's own monotonic clock** (`perf_counter_ns`). The servo stamps
+  the *arrival* of each new proxy (a new version swapped in by the physics thread) and of each new
+  device sample (a new `sequence` or device `timestamp`) itself; it never reads `Proxy.stamp` or
+  `DeviceSample.received`, so a producer stamping on another clock (`time.time()`), in the future
+  or with `inf` cannot keep the force on. An arrival that is not finite or lies in the future is
+  stale. Once the physics thread dies or hangs, or the device stops answering, the force is zero
+  within `timeout + ramp_time` plus one tick (defaults 50 + 20 ms; measured ≤ 71 ms).
+* **Force shaping** (`_shaping.ForceShaper`): `|F| ≤ max_force` always; a force whose magnitude
+  overflows (a very stiff wall) saturates at `max_force` along its direction; a NaN force is zero
+  and counted (`stats.nonfinite`).
+* **Poses**: a device sample with a non-finite position is not rendered and not handed to the
+  physics (counted in `stats.bad_samples`; the transports already drop them, this guards any
+  other device); the last good sample ages and the watchdog acts.
+* **A dead servo is visible**: every argument is validated at construction; everything the servo
+  thread does runs inside its `try`; if it dies, zero force is written, `running` is False,
+  `error` holds the exception and `stop()` raises `DeviceError` naming it.
 
 Physics thread (every `1/physics_hz` s): hands the newest sample to `model.update(sample)` (JAX:
 collision, mass-spring, refit) and swaps in the `Proxy` it returns with one reference assignment.
@@ -28,6 +47,7 @@ from __future__ import annotations
 import atexit
 import gc
 import math
+import numbers
 import os
 import sys
 import threading
@@ -35,13 +55,14 @@ import time
 
 import numpy as np
 
-from bsjax.device._shaping import ForceShaper, VelocityFilter, Watchdog
-from bsjax.device.protocol import DeviceError, DeviceSample
+from bsjax.device._shaping import ForceShaper, VelocityFilter, Watchdog, fresh
+from bsjax.device.protocol import DeviceError, DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
 from bsjax.device.record import Recorder, Recording
 from bsjax.device.telemetry import DROPPED_COUNTERS, ServoStats, log, percentiles
 
 _WINDOW = 1 << 17  # ticks kept for percentiles (about two minutes at 1 kHz)
+_MAX_RATE_HZ = 1e5  # a period of 10 µs: beyond that the tick's own work cannot keep up
 _SERVO_PRIORITY, _PHYSICS_PRIORITY = 10, 5  # SCHED_FIFO priorities (1..99), where permitted
 
 
@@ -55,14 +76,20 @@ class ServoLoop:
     - `rate_hz`: servo rate (1000). `physics_hz`: physics rate (100).
     - `max_force`: newtons, the hard bound on `|F|` written. `max_force_rate`: N/s (default
       `100 · max_force`: full scale in 10 ms).
-    - `proxy_timeout`, `device_timeout`: seconds before the watchdog ramps the force to zero;
-      `ramp_time`: seconds of that ramp.
+    - `proxy_timeout`, `device_timeout`: seconds since the last arrival of a new proxy / device
+      sample (timed on the servo's clock) before the watchdog ramps the force to zero;
+      `ramp_time`: seconds of that ramp. The force is zero at most `timeout + ramp_time` plus one
+      tick after the last arrival.
     - `velocity_tau`: seconds, time constant of the velocity low-pass (damping term).
     - `record`: False, True (keep a `Recording`, see `recording()`) or a path (saved on stop).
-    - `realtime`: try `SCHED_FIFO` for the servo thread; `cpu`: pin it to this CPU (None: don't).
-    - `spin_us`: busy-wait margin before each deadline; `switch_interval`: GIL switch interval
-      while running (None: leave the interpreter's); `freeze_gc`: `gc.freeze()` the objects alive
-      at start so that a garbage collection cannot stall a tick (undone on stop).
+    - `realtime`: try `SCHED_FIFO` for the servo thread; `cpu`: pin it to this CPU (an int the
+      process may run on, or None: don't pin).
+    - `spin_us`: busy-wait margin (≥ 0 µs) before each deadline; `switch_interval`: GIL switch
+      interval while running (None: leave the interpreter's); `freeze_gc`: `gc.freeze()` the
+      objects alive at start so that a garbage collection cannot stall a tick (undone on stop).
+
+    Every number must be a finite real (Python or numpy scalar, not bool) and > 0 (`spin_us`
+    ≥ 0, `rate_hz` ≤ 100 kHz); a bad argument raises `TypeError`/`ValueError` naming it.
     """
 
     def __init__(
@@ -91,30 +118,47 @@ class ServoLoop:
             proxy_timeout=proxy_timeout,
             device_timeout=device_timeout,
             ramp_time=ramp_time,
+            velocity_tau=velocity_tau,
         )
-        for name, value in positive.items():
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
-        max_force_rate = 100.0 * max_force if max_force_rate is None else max_force_rate
-        if not (math.isfinite(max_force_rate) and max_force_rate > 0):
-            raise ValueError(f"max_force_rate: expected a finite number > 0, got {max_force_rate!r}")
+        v = {name: positive_number(value, name) for name, value in positive.items()}
+        if v["rate_hz"] > _MAX_RATE_HZ:
+            raise ValueError(f"rate_hz: expected a rate <= {_MAX_RATE_HZ:.0f} Hz, got {rate_hz!r}")
+        max_force_rate = 100.0 * v["max_force"] if max_force_rate is None else max_force_rate
+        max_force_rate = positive_number(max_force_rate, "max_force_rate")
+        spin_us = positive_number(spin_us, "spin_us", allow_zero=True)
+        if switch_interval is not None:
+            switch_interval = positive_number(switch_interval, "switch_interval")
+        for name, flag in (("realtime", realtime), ("freeze_gc", freeze_gc)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise TypeError(f"{name}: expected a bool, got {type(flag).__name__} {flag!r}")
+        if not isinstance(record, (bool, np.bool_, str, os.PathLike)):
+            raise TypeError(f"record: expected a bool or a file path, got {type(record).__name__}")
+        cpu = _check_cpu(cpu)
+        for method in ("read", "write"):
+            if not callable(getattr(device, method, None)):
+                raise TypeError(
+                    f"device: expected a HapticDevice with read() and write(force), got "
+                    f"{type(device).__name__}"
+                )
         if not (isinstance(model, Proxy) or callable(getattr(model, "update", None))):
             raise TypeError(
                 "model: expected a Proxy or an object with update(sample) -> Proxy, got "
                 f"{type(model).__name__}"
             )
         self.device, self.model = device, model
-        self.rate_hz, self.physics_hz = float(rate_hz), float(physics_hz)
-        self.max_force, self.max_force_rate = float(max_force), float(max_force_rate)
-        self.proxy_timeout, self.device_timeout, self.ramp_time = proxy_timeout, device_timeout, ramp_time
-        self.velocity_tau = velocity_tau
-        self.realtime, self.cpu, self.spin_ns = realtime, cpu, int(spin_us * 1e3)
+        self.rate_hz, self.physics_hz = v["rate_hz"], v["physics_hz"]
+        self.max_force, self.max_force_rate = v["max_force"], max_force_rate
+        self.proxy_timeout, self.device_timeout = v["proxy_timeout"], v["device_timeout"]
+        self.ramp_time, self.velocity_tau = v["ramp_time"], v["velocity_tau"]
+        self.realtime, self.cpu, self.spin_ns = bool(realtime), cpu, int(spin_us * 1e3)
         self.switch_interval = switch_interval
-        self.freeze_gc = freeze_gc
+        self.freeze_gc = bool(freeze_gc)
         self._record_path = record if isinstance(record, (str, os.PathLike)) else None
-        self._recorder = Recorder(int(rate_hz) * 16) if record else None
+        self._recorder = Recorder(int(self.rate_hz) * 16) if record else None
         self._static = isinstance(model, Proxy)
-        self._proxy: Proxy = model if self._static else Proxy(stamp=-math.inf)
+        # (version, proxy), swapped as one reference by the physics thread; the servo stamps the
+        # arrival of each new version on its own clock (version 0: nothing arrived yet)
+        self._proxy_slot: tuple[int, Proxy] = (0, model if self._static else Proxy())
         self._sample: DeviceSample | None = None
         self._running = False
         self._servo: threading.Thread | None = None
@@ -132,7 +176,7 @@ class ServoLoop:
         self._physics_ns = np.zeros(4096, np.int64)
         self._ticks = self._physics_updates = 0
         self._missed = self._max_late = 0
-        self._device_errors = self._physics_errors = 0
+        self._device_errors = self._physics_errors = self._bad_samples = 0
         self._shaper = ForceShaper(self.max_force, math.inf)
         self._watchdog = Watchdog(self.ramp_time)
         self._force_sum = self._force_max = 0.0
@@ -237,8 +281,8 @@ class ServoLoop:
                 self._realtime_ok = False
 
     def _servo_main(self) -> None:
-        self._configure_thread()
-        try:
+        try:  # everything, thread configuration included: a failure here must be visible
+            self._configure_thread()
             self._servo_loop()
         except BaseException as err:
             self.error = err
@@ -253,6 +297,7 @@ class ServoLoop:
         self._shaper = ForceShaper(self.max_force, self.max_force_rate * period * 1e-9)
         self._watchdog = Watchdog(self.ramp_time)
         velocity = VelocityFilter(self.velocity_tau)
+        clock = _Arrivals(self.proxy_timeout, self.device_timeout, self._static)
         prev: DeviceSample | None = None
         self._t_start = deadline = last_start = time.perf_counter_ns()
         while self._running:
@@ -273,7 +318,11 @@ class ServoLoop:
             except Exception:
                 self._device_errors += 1
                 sample = prev
-            out = self._render(sample, velocity(sample, prev), (start - last_start) * 1e-9)
+            if sample is not prev and sample is not None and not _good(sample):
+                self._bad_samples += 1
+                sample = prev  # never rendered, never handed to the physics; prev ages
+            proxy = clock.see(start, self._proxy_slot, sample)
+            out = self._render(proxy, sample, velocity(sample, prev), clock.fresh(start), start - last_start)
             self._write(out, sample, start)
             prev, last_start = sample, start
             self._ticks += 1
@@ -281,19 +330,15 @@ class ServoLoop:
             self._work[i] = time.perf_counter_ns() - start
             _wait_until(deadline, self.spin_ns)
 
-    def _render(self, sample, velocity, elapsed: float) -> tuple[float, float, float]:
+    def _render(self, proxy, sample, velocity, fresh: bool, elapsed_ns: int) -> tuple[float, float, float]:
         """Proxy force (pure Python, never JAX) → clamp → rate limit → watchdog gain."""
-        proxy = self._proxy  # one read of the reference the physics thread swaps
         if sample is None:
             force = (0.0, 0.0, 0.0)
         else:
-            self._sample = sample
+            self._sample = sample  # what the physics thread reads next
             force = proxy.force(sample.position, velocity)
         fx, fy, fz = self._shaper(*force)
-        now = time.perf_counter()
-        fresh = sample is not None and now - sample.received <= self.device_timeout
-        fresh = fresh and (self._static or now - proxy.stamp <= self.proxy_timeout)
-        gain = self._watchdog(fresh, elapsed)
+        gain = self._watchdog(fresh, elapsed_ns * 1e-9)
         return fx * gain, fy * gain, fz * gain
 
     def _write(self, out, sample, start: int) -> None:
@@ -335,9 +380,12 @@ class ServoLoop:
                 log.error("physics update failed, force ramps to zero: %r", err)
                 self.physics_error = err
                 return
-            self._proxy = proxy  # one reference swap: the servo sees the old or the new proxy
-            self._physics_ns[self._physics_updates % len(self._physics_ns)] = time.perf_counter_ns() - t0
             self._physics_updates += 1
+            # one reference swap: the servo sees the old or the new (version, proxy) pair
+            self._proxy_slot = (self._physics_updates, proxy)
+            self._physics_ns[(self._physics_updates - 1) % len(self._physics_ns)] = (
+                time.perf_counter_ns() - t0
+            )
             next_t += period
             pause = next_t - time.perf_counter()
             if pause > 0:
@@ -387,6 +435,7 @@ class ServoLoop:
             physics_p99=f99,
             physics_errors=self._physics_errors,
             device_errors=self._device_errors,
+            bad_samples=self._bad_samples,
             dropped_frames=sum(int(counters.get(k, 0)) for k in DROPPED_COUNTERS),
             watchdog_trips=self._watchdog.trips,
             watchdog_ticks=self._watchdog.attenuated,
@@ -398,6 +447,64 @@ class ServoLoop:
             realtime=self._realtime_ok,
             device_counters=counters,
         )
+
+
+class _Arrivals:
+    """Arrival times of the newest proxy and device sample, on the servo's own clock.
+
+    A proxy arrives when the physics thread swaps in a new version; a device sample arrives when
+    its `(sequence, timestamp)` differs from the last one seen. Producers' own stamps are never
+    read. `fresh(now)` holds while both arrivals are within their limits (`_shaping.fresh`).
+    """
+
+    __slots__ = ("device_at", "device_key", "device_limit", "proxy_at", "proxy_limit", "static", "version")
+
+    def __init__(self, proxy_timeout: float, device_timeout: float, static: bool):
+        self.proxy_limit, self.device_limit = int(proxy_timeout * 1e9), int(device_timeout * 1e9)
+        self.static, self.version = static, 0
+        self.proxy_at = self.device_at = -math.inf
+        self.device_key: tuple | None = None
+
+    def see(self, now: int, slot: tuple[int, Proxy], sample) -> Proxy:
+        version, proxy = slot
+        if version != self.version:
+            self.version, self.proxy_at = version, now
+        if sample is not None:
+            t = sample.timestamp
+            key = (sample.sequence, t if t == t else None)  # NaN ≠ NaN would look new every tick
+            if key != self.device_key:
+                self.device_key, self.device_at = key, now
+        return proxy
+
+    def fresh(self, now: int) -> bool:
+        return fresh(now, self.device_at, self.device_limit) and (
+            self.static or fresh(now, self.proxy_at, self.proxy_limit)
+        )
+
+
+def _good(sample) -> bool:
+    """A sample the servo may render: a finite `(3,)` position (and a sequence number)."""
+    try:
+        p = sample.position
+        x, y, z = float(p[0]), float(p[1]), float(p[2])
+        hash(sample.sequence)
+    except Exception:
+        return False
+    return math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
+
+
+def _check_cpu(cpu) -> int | None:
+    """`cpu` as an int the process may run on, or None; `TypeError`/`ValueError` naming it."""
+    if cpu is None:
+        return None
+    if isinstance(cpu, (bool, np.bool_)) or not isinstance(cpu, numbers.Integral):
+        raise TypeError(f"cpu: expected an int or None, got {type(cpu).__name__} {cpu!r}")
+    allowed = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    if cpu < 0 or (allowed is not None and int(cpu) not in allowed):
+        raise ValueError(
+            f"cpu: expected one of the CPUs this process may use {sorted(allowed or [])}, got {cpu}"
+        )
+    return int(cpu)
 
 
 def _wait_until(deadline_ns: int, spin_ns: int) -> None:

@@ -5,12 +5,17 @@ a smooth 1 kHz pose stream), or, for a replay, returns the recorded sample due a
 `realtime=False` replays tick by tick instead (one recorded sample per `read()`), which makes
 the force sequence of a replay reproducible exactly. `pause()`/`resume()` emulate a device that
 stops answering (the last sample is returned again and ages).
+
+A scripted or recorded pose that is not finite or out of the workspace's reach is dropped and
+counted (`counters["bad_pose"]`) like a bad frame on a real transport: `read()` returns the last
+good sample again (None before the first one), whose age makes the servo's watchdog act.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from collections.abc import Callable
 
@@ -59,7 +64,8 @@ class SimulatedDevice(DeviceBase):
         rec = recording if isinstance(recording, Recording) else Recording.load(recording)
         if len(rec) == 0:
             raise ValueError("recording: expected at least one sample, got an empty recording")
-        dev = cls(script=lambda t: (np.zeros(3), 0), workspace=Workspace())
+        # positions are model coordinates already: identity map, any finite position in reach
+        dev = cls(script=lambda t: (np.zeros(3), 0), workspace=Workspace(reach=sys.float_info.max))
         dev._recording, dev._realtime, dev._loop = rec, realtime, loop
         return dev
 
@@ -70,7 +76,8 @@ class SimulatedDevice(DeviceBase):
     def resume(self) -> None:
         self._paused = False
 
-    def read(self) -> DeviceSample:
+    def read(self) -> DeviceSample | None:
+        """The pose due now; the last good one again while paused or when the new one is bad."""
         if self._paused and self._last is not None:
             return self._last
         now = time.perf_counter()
@@ -79,16 +86,18 @@ class SimulatedDevice(DeviceBase):
         t = now - self._t0
         if self.duration is not None and t > self.duration:
             raise EOFError("simulated session finished")
-        self._last = self._from_recording(t) if self._recording is not None else self._from_script(t)
+        sample = self._from_recording(t) if self._recording is not None else self._from_script(t)
+        if sample is not None:
+            self._last = sample
         return self._last
 
-    def _from_script(self, t: float) -> DeviceSample:
+    def _from_script(self, t: float) -> DeviceSample | None:
         out = self.script(t)
         position, orientation, buttons = (out[0], (1.0, 0.0, 0.0, 0.0), out[1]) if len(out) == 2 else out
         self._seq += 1
         return self._sample(position, orientation, buttons, t, self._seq)
 
-    def _from_recording(self, t: float) -> DeviceSample:
+    def _from_recording(self, t: float) -> DeviceSample | None:
         rec = self._recording
         if self._realtime:
             span = rec.time[-1] - rec.time[0]
@@ -104,13 +113,9 @@ class SimulatedDevice(DeviceBase):
                     raise EOFError("replay finished")
                 i %= len(rec)
             self._seq += 1
-        return DeviceSample(
-            rec.position[i].copy(),
-            rec.orientation[i].copy(),
-            int(rec.buttons[i]),
-            float(rec.device_time[i]),
-            int(rec.sequence[i]),
-            time.perf_counter(),
+        # recorded positions are in model coordinates: through the identity workspace of replay()
+        return self._sample(
+            rec.position[i], rec.orientation[i], rec.buttons[i], rec.device_time[i], rec.sequence[i]
         )
 
     def write(self, force, torque=None) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 
 log = logging.getLogger("bsjax.device")
 
-DROPPED_COUNTERS = ("crc_errors", "truncated", "malformed", "out_of_order", "unexpected_kind")
+DROPPED_COUNTERS = ("crc_errors", "truncated", "malformed", "out_of_order", "unexpected_kind", "bad_pose")
 
 
 @dataclass(frozen=True)
@@ -21,7 +21,9 @@ class ServoStats:
     `missed_deadlines`: ticks that started more than one whole period late (a slot was lost);
     `max_late_ms`: the latest any tick started after its scheduled time; `work_*`: time spent
     inside a tick (read, render, write). Percentiles cover the last `window` ticks, counts the
-    whole session.
+    whole session. Safety counters: `nonfinite` (NaN forces written as zero), `clamped`
+    (forces saturated at `max_force`, overflowing ones included), `bad_samples` (device samples
+    with a non-finite position, not rendered), `watchdog_trips` / `watchdog_ticks`.
     """
 
     ticks: int = 0
@@ -46,6 +48,7 @@ class ServoStats:
     physics_p99: float = 0.0
     physics_errors: int = 0
     device_errors: int = 0
+    bad_samples: int = 0
     dropped_frames: int = 0
     watchdog_trips: int = 0
     watchdog_ticks: int = 0
@@ -80,7 +83,8 @@ class ServoStats:
                 f"clamped {s.clamped}, "
                 f"rate-limited {s.rate_limited}, non-finite {s.nonfinite}",
                 f"force    mean {s.force_mean:.3f} N, max {s.force_max:.3f} N",
-                f"device   dropped frames {s.dropped_frames}, errors {s.device_errors}, counters "
+                f"device   dropped frames {s.dropped_frames}, errors {s.device_errors}, bad samples "
+                f"{s.bad_samples}, counters "
                 f"{s.device_counters}",
             ]
         )
