@@ -30,20 +30,29 @@ tool came from, latched while in contact (so passing through the wall keeps push
 button is held, the plane is moved back by the nodes' summed reaction on the tool (times
 `reaction_gain`, over the proxy stiffness), so the user feels the material give way but push back.
 
+Safety (issue #16): a pose is validated where it enters `update` — a non-finite position or
+orientation, or a tool centre farther than `reach` from the body, is dropped and counted
+(`dropped_poses`) and never fed to the physics. After every tick the new lattice state, rest
+lengths, control net and proxy data are checked inside the same jitted call; if anything went
+non-finite the tick is rolled back (the last good state is kept, counted in `rollbacks`), so one
+bad pose cannot poison the model: the next good pose renders the normal force. Either way
+`update` returns the last good proxy.
+
 `SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`).
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 import threading
-import time
 from typing import Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bsjax import _safe, collide, mss, shapes
+from bsjax import _checks, _safe, collide, mss, shapes
 from bsjax.device.protocol import DeviceSample
 from bsjax.device.proxy import Proxy
 
@@ -136,6 +145,12 @@ class SculptModel:
     - `contact_stiffness`: N per model unit of depth per contact sample of the `proxy_grid`
       (the distributed springs of 002 §3.2; the force grows with the contact area, Fig. 4).
     - `thickness`: lattice depth of an open (not closed-in-v) surface.
+    - `reach`: model units; a tool centre farther than this from the centre of the surface's
+      control-net bounding box is out of the workspace and dropped (default: 10 × the box's
+      diagonal; `math.inf` turns the check off, non-finite poses are still dropped).
+    - `max_rollbacks`: bad ticks in a row (rolled back) before `update` raises.
+
+    Counters: `ticks` (physics ticks run), `dropped_poses`, `rollbacks`.
     """
 
     def __init__(
@@ -159,6 +174,8 @@ class SculptModel:
         contact_stiffness: float = 4.0,
         fixed_layers: int = 2,
         thickness: float = 0.2,
+        reach: float | None = None,
+        max_rollbacks: int = 10,
     ):
         surface = shapes.teardrop() if surface is None else surface
         m, n = grid
@@ -180,6 +197,13 @@ class SculptModel:
         ).items():
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: expected a finite value > 0, got {value}")
+        net = np.asarray(surface.ctrl, dtype=np.float64).reshape(-1, 3)
+        lo, hi = net.min(axis=0), net.max(axis=0)
+        self.centre = (lo + hi) / 2
+        reach = 10.0 * float(np.linalg.norm(hi - lo)) if reach is None else reach
+        if isinstance(reach, bool) or not isinstance(reach, numbers.Real) or not reach > 0:
+            raise ValueError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
+        self.reach = float(reach)
         self.dtype = surface.ctrl.dtype
         self.grid, self.layers, self.substeps = (m, n), layers, int(substeps)
         self.dt = 1.0 / (physics_hz * substeps)
@@ -225,7 +249,9 @@ class SculptModel:
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
         self._lock = threading.Lock()
-        self.ticks = 0
+        self.ticks = self.dropped_poses = self.rollbacks = self._bad_ticks = 0
+        self.max_rollbacks = _checks.check_count(max_rollbacks, "max_rollbacks")
+        self._last_proxy = Proxy()  # what update returns until a first good tick
 
     # --- run-time tool ------------------------------------------------------------------------
     def set_tool(self, radius: float | None = None, axes=None) -> None:
@@ -293,7 +319,10 @@ class SculptModel:
         contact = collide.contacts(self.dense, ctrl, tool, method="dense")
         spring = self.sign * collide.contact_force(contact, self.contact_stiffness)
         hit = contact.hit.astype(x.dtype)
-        return carry, ctrl, jnp.concatenate([q, nq, support[None], reaction[None], spring, hit[None]])
+        out = jnp.concatenate([q, nq, support[None], reaction[None], spring, hit[None]])
+        # checked here, in the same program: the host rolls the tick back when this is False
+        ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves((carry, ctrl, out))]))
+        return carry, ctrl, jnp.concatenate([out, ok.astype(x.dtype)[None]])
 
     def _settled(self, carry, settle):
         """Plastic set (on button release): rest lengths ← current lengths when `settle`."""
@@ -336,32 +365,73 @@ class SculptModel:
         `set_tool` compiles the other kind, sphere or ellipsoid, when it first changes to it)."""
         self._compile(self._sphere())
 
+    def accepts(self, sample) -> bool:
+        """True when `sample`'s pose may be fed to the physics: a finite `(3,)` position within
+        `reach` of the body's centre and a finite `(4,)` orientation."""
+        try:
+            x = np.asarray(sample.position, dtype=np.float64)
+            q = np.asarray(sample.orientation, dtype=np.float64)
+        except (AttributeError, TypeError, ValueError):
+            return False
+        if x.shape != (3,) or q.shape != (4,) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
+            return False
+        return math.hypot(*(x - self.centre)) <= self.reach  # scaled: no overflow for 1e300
+
     def update(self, sample: DeviceSample) -> Proxy:
-        """One physics tick with the tool at `sample`; returns the plane proxy for the servo."""
+        """One physics tick with the tool at `sample`; returns the plane proxy for the servo.
+
+        A pose `accepts` refuses is dropped (`dropped_poses`), and a tick whose result is not
+        finite is rolled back (`rollbacks`); both return the last good proxy.
+        """
+        if not self.accepts(sample):
+            self.dropped_poses += 1
+            return self._last_proxy
         pressed = sample.pressed
         with self._lock:
             centre, axes, rot = self._tool_args(sample.position, sample.orientation)
             settle = jnp.asarray(self._was_pressed and not pressed)  # released: set the shape first
-            state, ctrl, out = self._tick(
-                self._state,
-                centre,
-                axes,
-                rot,
-                jnp.asarray(float(pressed), self.dtype),
-                self._sphere(),
-                settle,
-            )
+            try:
+                state, ctrl, out = self._tick(
+                    self._state,
+                    centre,
+                    axes,
+                    rot,
+                    jnp.asarray(float(pressed), self.dtype),
+                    self._sphere(),
+                    settle,
+                )
+                out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
+            except Exception as err:  # a value check inside the tick fired (a non-finite state)
+                return self._rolled_back(err)
+            if not (out[-1] > 0 and np.all(np.isfinite(out))):
+                return self._rolled_back(None)
+            self._bad_ticks = 0
             self._was_pressed = pressed
-            out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
             self._state, self.ctrl = state, ctrl
             self.ticks += 1
+        self._last_proxy = self._proxy(sample, out)
+        return self._last_proxy
+
+    def _rolled_back(self, cause: Exception | None) -> Proxy:
+        """Keep the last good state (the tick's result is dropped) and return the last good proxy;
+        after `max_rollbacks` bad ticks in a row raise `FloatingPointError`, which stops the
+        servo's physics thread (its watchdog then ramps the force to zero)."""
+        self.rollbacks += 1
+        self._bad_ticks += 1
+        if self._bad_ticks > self.max_rollbacks:
+            raise FloatingPointError(
+                f"SculptModel.update: {self._bad_ticks} ticks in a row went non-finite "
+                f"(max_rollbacks = {self.max_rollbacks}); the model cannot recover"
+            ) from cause
+        return self._last_proxy
+
+    def _proxy(self, sample: DeviceSample, out: np.ndarray) -> Proxy:
+        """The plane proxy of one (finite) tick output."""
         q, normal, support, reaction = out[:3], out[3:6], float(out[6]), float(out[7])
         spring, hit = out[8:11], out[11] > 0
         gap = float(np.dot(np.asarray(sample.position) - q, normal))
         if self._side is None or abs(gap) >= support:  # out of contact: the tool's side may change
             self._side = 1.0 if gap >= 0 else -1.0
-        if not np.all(np.isfinite(out)):
-            return Proxy(stamp=time.perf_counter())  # no contact model rather than a NaN force
         n = self._side * normal
         magnitude = float(np.linalg.norm(spring))
         if hit and magnitude > 0:
@@ -373,7 +443,10 @@ class SculptModel:
         # While sculpting, the surface yields under the tool; shifting the plane back by
         # reaction / k makes the servo render the nodes' reaction on top of the contact force.
         q = q - n * (self.reaction_gain * reaction / self.proxy_stiffness)
-        return Proxy.plane(q, n, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
+        try:
+            return Proxy.plane(q, n, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
+        except ValueError:  # a degenerate plane (zero normal): no contact model rather than a bad one
+            return Proxy()
 
     def surface(self):
         """The current surface (refit of the lattice's outer layer)."""
@@ -382,4 +455,4 @@ class SculptModel:
     def reset(self) -> None:
         with self._lock:
             self._state, self.ctrl, self._was_pressed = self._initial, self.surface0.ctrl, False
-            self._side = None
+            self._side, self._last_proxy = None, Proxy()
