@@ -1,11 +1,13 @@
-"""Surface files: lossless JSON, Rhino `.3dm` (rhino3dm), and tessellated meshes (trimesh).
+"""Surface and curve files: lossless JSON, Rhino `.3dm` (rhino3dm), and tessellated meshes (trimesh).
 
-* `save(surface_or_list, path)` / `load(path)` / `load_all(path)` pick the format by extension:
-  `.json` and `.3dm` keep the exact B-spline (degrees, knots, control points, weights,
-  periodicity); `.obj`, `.stl`, `.ply`, `.glb` write the tessellated sample grid.
+* `save(spline_or_list, path)` / `load(path)` / `load_all(path)` pick the format by extension:
+  `.json` and `.3dm` keep the exact B-spline surfaces and curves (degrees, knots, control points,
+  weights, periodicity); `.obj`, `.stl`, `.ply`, `.glb` write the tessellated sample grid of
+  surfaces.
 * `.3dm`: a periodic direction is written as Rhino writes a periodic NURBS — uniform unclamped
   knots with the first `degree` control columns repeated at the end — and read back as periodic,
-  so the round trip is exact and Rhino shows a closed surface.
+  so the round trip is exact and Rhino shows a closed surface. Curves are `NurbsCurve`s of
+  dimension 2 or 3 (control points stored homogeneous, `[w P, w]`, as for surfaces).
 * From the shell: `bsjax convert IN OUT` (`bsjax.cli.convert`).
 
 rhino3dm and trimesh are imported by the functions that use them, so `import bsjax.io` stays light.
@@ -19,21 +21,36 @@ from pathlib import Path
 import numpy as np
 
 from bsjax import _checks, collide
-from bsjax.basis import BSplineSurface, periodic_knots
+from bsjax.basis import BSplineCurve, BSplineSurface, periodic_knots
 
 __all__ = ["MESH_FORMATS", "from_dict", "load", "load_all", "save", "tessellate", "to_dict"]
 
 MESH_FORMATS = (".obj", ".stl", ".ply", ".glb")
 _FORMAT = "bsjax.surface"
+_CURVE_FORMAT = "bsjax.curve"
+_MIXED_FORMAT = "bsjax.splines"  # a list holding curves (a list of surfaces only: "bsjax.surfaces")
+_KINDS = {"surface": BSplineSurface, "curve": BSplineCurve, None: (BSplineSurface, BSplineCurve)}
 
 
 # --- JSON ---------------------------------------------------------------------------------
-def to_dict(surface: BSplineSurface) -> dict:
-    """A JSON-ready dict holding every field of `surface` exactly (floats round-trip by repr)."""
+def _listed(x):
+    return None if x is None else np.asarray(x).tolist()
 
-    def listed(x):
-        return None if x is None else np.asarray(x).tolist()
 
+def to_dict(spline: BSplineSurface | BSplineCurve) -> dict:
+    """A JSON-ready dict holding every field of a surface or curve exactly (floats round-trip by repr)."""
+    if isinstance(spline, BSplineCurve):
+        return {
+            "format": _CURVE_FORMAT,
+            "version": 1,
+            "dtype": str(spline.ctrl.dtype),
+            "degree": spline.degree,
+            "periodic": spline.periodic,
+            "knots": _listed(spline.knots),
+            "ctrl": _listed(spline.ctrl),
+            "weights": _listed(spline.weights),
+        }
+    surface = spline
     return {
         "format": _FORMAT,
         "version": 1,
@@ -42,19 +59,21 @@ def to_dict(surface: BSplineSurface) -> dict:
         "degree_v": surface.degree_v,
         "periodic_u": surface.periodic_u,
         "periodic_v": surface.periodic_v,
-        "knots_u": listed(surface.knots_u),
-        "knots_v": listed(surface.knots_v),
-        "ctrl": listed(surface.ctrl),
-        "weights": listed(surface.weights),
+        "knots_u": _listed(surface.knots_u),
+        "knots_v": _listed(surface.knots_v),
+        "ctrl": _listed(surface.ctrl),
+        "weights": _listed(surface.weights),
     }
 
 
-def from_dict(data: dict, source: str = "data") -> BSplineSurface:
+def from_dict(data: dict, source: str = "data") -> BSplineSurface | BSplineCurve:
     """Inverse of `to_dict`; errors name `source` and the field at fault."""
+    if isinstance(data, dict) and data.get("format") == _CURVE_FORMAT:
+        return _curve_from_dict(data, source)
     if not isinstance(data, dict) or data.get("format") != _FORMAT:
         _checks.fail(
             source,
-            f"a JSON object with format {_FORMAT!r}",
+            f"a JSON object with format {_FORMAT!r} or {_CURVE_FORMAT!r}",
             type(data).__name__ if not isinstance(data, dict) else data.get("format"),
         )
     missing = [k for k in ("degree_u", "degree_v", "ctrl", "knots_u", "knots_v") if k not in data]
@@ -80,6 +99,23 @@ def from_dict(data: dict, source: str = "data") -> BSplineSurface:
         raise ValueError(f"{source}: {err}") from err
 
 
+def _curve_from_dict(data: dict, source: str) -> BSplineCurve:
+    missing = [k for k in ("degree", "ctrl", "knots") if k not in data]
+    if missing:
+        _checks.fail(source, "the fields degree, ctrl, knots", f"missing {missing}")
+    dtype = np.dtype(data.get("dtype", "float64"))
+
+    def arr(key):
+        return None if data.get(key) is None else np.asarray(data[key], dtype=dtype)
+
+    try:
+        return BSplineCurve(
+            arr("ctrl"), arr("knots"), int(data["degree"]), bool(data.get("periodic", False)), arr("weights")
+        )
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{source}: {err}") from err
+
+
 # --- Rhino .3dm -----------------------------------------------------------------------------
 def _to_rhino(surface: BSplineSurface):
     import rhino3dm
@@ -92,10 +128,7 @@ def _to_rhino(surface: BSplineSurface):
         if periodic:  # wrap: n + p control points over the unclamped uniform knots
             wrap = np.arange(ctrl.shape[axis] + degree) % ctrl.shape[axis]
             ctrl, w = np.take(ctrl, wrap, axis=axis), np.take(w, wrap, axis=axis)
-            full = np.asarray(periodic_knots(surface.shape[axis], degree), dtype=np.float64)
-        else:
-            full = np.asarray(getattr(surface, f"knots_{d}"), dtype=np.float64)
-        knots.append(full[1:-1])  # Rhino omits the two superfluous end knots
+        knots.append(_rhino_knots(getattr(surface, f"knots_{d}"), degree, periodic, surface.shape[axis]))
     r, s = ctrl.shape[:2]
     srf = rhino3dm.NurbsSurface.Create(
         3, surface.weights is not None, surface.degree_u + 1, surface.degree_v + 1, r, s
@@ -109,6 +142,41 @@ def _to_rhino(surface: BSplineSurface):
             x, y, z = ctrl[i, j] * w[i, j]
             srf.Points[i, j] = rhino3dm.Point4d(float(x), float(y), float(z), float(w[i, j]))
     return srf
+
+
+def _rhino_knots(knots, degree: int, periodic: bool, n: int) -> np.ndarray:
+    """Rhino's knots: ours (or the unclamped uniform ones of a periodic direction) without the
+    two superfluous end knots."""
+    full = np.asarray(periodic_knots(n, degree) if periodic else knots, dtype=np.float64)
+    return full[1:-1]
+
+
+def _curve_to_rhino(curve: BSplineCurve):
+    import rhino3dm
+
+    ctrl = np.asarray(curve.ctrl, dtype=np.float64)
+    n, dim = ctrl.shape
+    w = np.ones(n) if curve.weights is None else np.asarray(curve.weights, dtype=np.float64)
+    if curve.periodic:  # n + p control points over the unclamped uniform knots, as Rhino's own
+        wrap = np.arange(n + curve.degree) % n
+        ctrl, w = ctrl[wrap], w[wrap]
+    out = rhino3dm.NurbsCurve(dim, curve.weights is not None, curve.degree + 1, ctrl.shape[0])
+    for i, k in enumerate(_rhino_knots(curve.knots, curve.degree, curve.periodic, n)):
+        out.Knots[i] = float(k)
+    hom = np.concatenate([ctrl * w[:, None], np.zeros((ctrl.shape[0], 3 - dim)), w[:, None]], axis=1)
+    for i, (x, y, z, wi) in enumerate(hom):
+        out.Points[i] = rhino3dm.Point4d(float(x), float(y), float(z), float(wi))
+    return out
+
+
+def _curve_from_rhino(crv, source: str) -> BSplineCurve:
+    hom = np.array([_point4(crv.Points[i]) for i in range(len(crv.Points))])
+    w = hom[:, 3]
+    ctrl = hom[:, : crv.Dimension] / w[:, None]
+    inner = np.array(list(crv.Knots), dtype=np.float64)
+    ctrl, w, knots, periodic = _direction_from_rhino(ctrl, w, inner, crv.Order - 1, 0, source)
+    weights = None if np.allclose(w, 1.0, rtol=0, atol=0) else w
+    return BSplineCurve(ctrl, knots, crv.Order - 1, periodic, weights)
 
 
 def _from_rhino(srf, source: str) -> BSplineSurface:
@@ -130,7 +198,8 @@ def _from_rhino(srf, source: str) -> BSplineSurface:
 
 
 def _direction_from_rhino(ctrl, w, inner, degree, axis, source):
-    """Rhino's knots (no superfluous ends) → ours on [0, 1], detecting the periodic layout."""
+    """Rhino's knots (no superfluous ends) → ours on [0, 1], detecting the periodic layout
+    (`ctrl` and `w` hold the control points along `axis`: a surface net or a curve's points)."""
     clamped = np.all(inner[:degree] == inner[0]) and np.all(inner[-degree:] == inner[-1])
     if clamped:
         full = np.concatenate([[inner[0]], inner, [inner[-1]]])
@@ -140,7 +209,7 @@ def _direction_from_rhino(ctrl, w, inner, degree, axis, source):
     uniform = np.allclose(np.diff(inner), np.diff(inner)[0], rtol=1e-9, atol=0)
     if not (uniform and n > degree and np.allclose(head, tail, rtol=0, atol=1e-12)):
         _checks.fail(
-            source, "clamped knots, or a uniform periodic surface", f"unclamped knots {inner.tolist()}"
+            source, "clamped knots, or a uniform periodic spline", f"unclamped knots {inner.tolist()}"
         )
     keep = range(n)
     return np.take(ctrl, keep, axis=axis), np.take(w, keep, axis=axis), None, True
@@ -150,18 +219,21 @@ def _point4(p):
     return (p.X, p.Y, p.Z, p.W)
 
 
-def _save_3dm(surfaces, path: Path) -> None:
+def _save_3dm(splines, path: Path) -> None:
     import rhino3dm
 
     model = rhino3dm.File3dm()
     model.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
-    for surface in surfaces:
-        model.Objects.AddSurface(_to_rhino(surface))
+    for spline in splines:
+        if isinstance(spline, BSplineCurve):
+            model.Objects.AddCurve(_curve_to_rhino(spline))
+        else:
+            model.Objects.AddSurface(_to_rhino(spline))
     if not model.Write(str(path), 7):
         raise OSError(f"{path}: rhino3dm could not write the file")
 
 
-def _load_3dm(path: Path) -> list[BSplineSurface]:
+def _load_3dm(path: Path) -> list[BSplineSurface | BSplineCurve]:
     import rhino3dm
 
     model = rhino3dm.File3dm.Read(str(path))
@@ -170,6 +242,9 @@ def _load_3dm(path: Path) -> list[BSplineSurface]:
     surfaces = []
     for index, obj in enumerate(model.Objects):
         geometry = obj.Geometry
+        if isinstance(geometry, rhino3dm.Curve):
+            surfaces.append(_curve_from_rhino(geometry.ToNurbsCurve(), f"{path} object {index}"))
+            continue
         faces = list(geometry.Surfaces) if isinstance(geometry, rhino3dm.Brep) else [geometry]
         for face in faces:
             if isinstance(face, rhino3dm.Surface):
@@ -200,24 +275,27 @@ def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
 
 # --- dispatch -----------------------------------------------------------------------------
 def save(surfaces, path, m: int = 82, n: int = 82) -> Path:
-    """Write one surface or a list of surfaces; the format follows the extension of `path`."""
+    """Write one surface or curve, or a list of them; the format follows the extension of `path`
+    (meshes: surfaces only)."""
     path = Path(path)
-    items = [surfaces] if isinstance(surfaces, BSplineSurface) else list(surfaces)
-    if not items or not all(isinstance(s, BSplineSurface) for s in items):
-        _checks.fail("surfaces", "a BSplineSurface or a non-empty list of them", type(surfaces).__name__)
+    splines = (BSplineSurface, BSplineCurve)
+    items = [surfaces] if isinstance(surfaces, splines) else list(surfaces)
+    if not items or not all(isinstance(s, splines) for s in items):
+        _checks.fail(
+            "surfaces",
+            "a BSplineSurface or BSplineCurve, or a non-empty list of them",
+            type(surfaces).__name__,
+        )
     ext = path.suffix.lower()
     if ext == ".json":
-        data = (
-            to_dict(items[0])
-            if len(items) == 1
-            else {"format": _FORMAT + "s", "surfaces": [to_dict(s) for s in items]}
-        )
-        path.write_text(json.dumps(data))
+        path.write_text(json.dumps(_json_document(items)))
     elif ext == ".3dm":
         _save_3dm(items, path)
     elif ext in MESH_FORMATS:
         import trimesh
 
+        if any(isinstance(s, BSplineCurve) for s in items):
+            _checks.fail("surfaces", f"only surfaces for a mesh format ({ext})", "a BSplineCurve")
         meshes = [tessellate(s, m, n) for s in items]
         (meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)).export(str(path))
     else:
@@ -225,9 +303,23 @@ def save(surfaces, path, m: int = 82, n: int = 82) -> Path:
     return path
 
 
-def load_all(path) -> list[BSplineSurface]:
-    """Every surface in a `.json` or `.3dm` file."""
-    path = Path(path)
+def _json_document(items) -> dict:
+    if len(items) == 1:
+        return to_dict(items[0])
+    if all(isinstance(s, BSplineSurface) for s in items):
+        return {"format": _FORMAT + "s", "surfaces": [to_dict(s) for s in items]}
+    return {"format": _MIXED_FORMAT, "splines": [to_dict(s) for s in items]}
+
+
+def load_all(path, kind: str | None = None) -> list[BSplineSurface | BSplineCurve]:
+    """Every surface and curve in a `.json` or `.3dm` file, in file order; `kind="surface"` or
+    `"curve"` keeps only those."""
+    if kind not in _KINDS:
+        _checks.fail("kind", "None, 'surface' or 'curve'", repr(kind))
+    return [s for s in _read_all(Path(path)) if isinstance(s, _KINDS[kind])]
+
+
+def _read_all(path: Path) -> list:
     ext = path.suffix.lower()
     if ext == ".3dm":
         return _load_3dm(path)
@@ -239,14 +331,18 @@ def load_all(path) -> list[BSplineSurface]:
         raise ValueError(f"{path}: not valid JSON ({err})") from err
     if isinstance(data, dict) and data.get("format") == _FORMAT + "s":
         return [from_dict(d, f"{path} surface {k}") for k, d in enumerate(data.get("surfaces", []))]
+    if isinstance(data, dict) and data.get("format") == _MIXED_FORMAT:
+        return [from_dict(d, f"{path} item {k}") for k, d in enumerate(data.get("splines", []))]
     return [from_dict(data, str(path))]
 
 
-def load(path) -> BSplineSurface:
-    """The single surface in a `.json` or `.3dm` file (use `load_all` for several)."""
-    surfaces = load_all(path)
-    if len(surfaces) != 1:
+def load(path, kind: str | None = None) -> BSplineSurface | BSplineCurve:
+    """The single surface or curve in a `.json` or `.3dm` file (use `load_all` for several);
+    `kind="surface"` or `"curve"` looks only at those."""
+    items = load_all(path, kind)
+    what = {None: "surface or curve", "surface": "surface", "curve": "curve"}[kind]
+    if len(items) != 1:
         _checks.fail(
-            str(path), "exactly one surface (use bsjax.io.load_all for several)", f"{len(surfaces)} surfaces"
+            str(path), f"exactly one {what} (use bsjax.io.load_all for several)", f"{len(items)} items"
         )
-    return surfaces[0]
+    return items[0]
