@@ -89,7 +89,8 @@ class Watchdog:
             self.gain = min(1.0, self.gain + step)
             self.tripped = False
         else:
-            self.gain = max(0.0, self.gain - step)
+            gain = self.gain - step
+            self.gain = gain if gain > 1e-9 else 0.0  # exactly zero, not a rounding residue
             if not self.tripped:
                 self.trips += 1
             self.tripped = True
@@ -121,11 +122,14 @@ class VelocityFilter:
         a = 1.0 - math.exp(-h / self.tau)
         p, q = sample.position, prev.position
         vx, vy, vz = self.v
-        v = (
-            vx + a * ((p[0] - q[0]) / h - vx),
-            vy + a * ((p[1] - q[1]) / h - vy),
-            vz + a * ((p[2] - q[2]) / h - vz),
-        )
+        try:  # Python floats: an overflow is an OverflowError or inf, never a numpy warning
+            v = (
+                vx + a * ((float(p[0]) - float(q[0])) / h - vx),
+                vy + a * ((float(p[1]) - float(q[1])) / h - vy),
+                vz + a * ((float(p[2]) - float(q[2])) / h - vz),
+            )
+        except (OverflowError, ZeroDivisionError):
+            v = (math.nan, 0.0, 0.0)
         if math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2]):
             self.v = v
         else:

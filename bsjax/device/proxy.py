@@ -113,11 +113,12 @@ class Proxy:
 
     def force(self, position, velocity=(0.0, 0.0, 0.0)) -> tuple[float, float, float]:
         """Penalty force on the tool: `max(0, k s + d ṡ) n` (002 §3.2.2), zero out of contact."""
-        depth, nx, ny, nz = self.contact(position[0], position[1], position[2])
+        # Python floats: faster than numpy scalars, and an overflow saturates below without a warning
+        depth, nx, ny, nz = self.contact(float(position[0]), float(position[1]), float(position[2]))
         if depth <= 0.0:
             return 0.0, 0.0, 0.0
         # ṡ = −v·n (depth grows when moving against the normal); the spring never pulls.
-        rate = -(velocity[0] * nx + velocity[1] * ny + velocity[2] * nz)
+        rate = -(float(velocity[0]) * nx + float(velocity[1]) * ny + float(velocity[2]) * nz)
         magnitude = self.stiffness * depth + self.damping * rate
         if magnitude != magnitude:  # NaN (e.g. inf − inf): the servo zeroes and counts it
             return math.nan, math.nan, math.nan
