@@ -1,13 +1,24 @@
-"""Knot insertion, degree elevation and degree reduction against geomdl and scipy."""
+"""Knot insertion, degree elevation and degree reduction of surfaces and curves against geomdl
+and scipy."""
 
 import copy
 
 import numpy as np
 import pytest
+from geomdl import NURBS as GNURBS
+from geomdl import BSpline as GBSpline
 from geomdl import helpers as ghelpers
 from geomdl import operations
+from scipy.interpolate import BSpline
 
-from bsjax.basis import BSplineSurface, clamped_knots, elevate_degree, insert_knots, reduce_degree
+from bsjax.basis import (
+    BSplineCurve,
+    BSplineSurface,
+    clamped_knots,
+    elevate_degree,
+    insert_knots,
+    reduce_degree,
+)
 from tests.helpers import random_knots
 from tests.oracles import geomdl_surface, ndbspline_surface
 
@@ -198,3 +209,120 @@ def test_refine_argument_errors():
     closed = BSplineSurface(surface.ctrl, surface.knots_u, None, 3, 2, periodic_v=True)
     with pytest.raises(ValueError, match="direction"):
         insert_knots(closed, "v", [0.5])
+
+
+# --- curves: the same change of basis along the curve's only axis ------------------------------
+def _curve(rng, n=8, k=3, d=3, weights=False):
+    w = rng.uniform(0.5, 2.0, n) if weights else None
+    return BSplineCurve(rng.normal(size=(n, d)), random_knots(rng, n, k), k, weights=w)
+
+
+def _scipy_curve(curve, t, nu=0):
+    """Points (nu = 0) or the first derivative (nu = 1) from scipy, through homogeneous
+    coordinates when rational (independent of bsjax's evaluator)."""
+    ctrl, w = np.asarray(curve.ctrl), curve.weights
+    if w is None:
+        return BSpline(np.asarray(curve.knots), ctrl, curve.degree)(t, nu)
+    w = np.asarray(w)
+    h = BSpline(np.asarray(curve.knots), np.c_[ctrl * w[:, None], w], curve.degree)
+    h0, c0 = h(t), h(t)[:, :-1] / h(t)[:, -1:]
+    if nu == 0:
+        return c0
+    h1 = h(t, 1)
+    return (h1[:, :-1] - h1[:, -1:] * c0) / h0[:, -1:]
+
+
+def _same_curve(a, b, atol=1e-12):
+    t = np.concatenate([np.linspace(0, 1, 301), np.random.default_rng(7).uniform(0, 1, 100)])
+    for nu in (0, 1):
+        ra = _scipy_curve(a, t, nu)
+        np.testing.assert_allclose(_scipy_curve(b, t, nu), ra, rtol=0, atol=atol * max(1.0, np.abs(ra).max()))
+
+
+@pytest.mark.parametrize("d, weights", [(2, False), (3, True)])
+def test_curve_insert_knots_matches_geomdl_and_keeps_the_curve(d, weights):
+    rng = np.random.default_rng(60 + d)
+    curve = _curve(rng, d=d, weights=weights)
+    values = [0.31, 0.77, 0.77]
+    refined = insert_knots(curve, values)
+    assert isinstance(refined, BSplineCurve) and refined.n_ctrl == curve.n_ctrl + 3
+    np.testing.assert_array_equal(refined.knots, np.sort(np.r_[np.asarray(curve.knots), values]))
+    _same_curve(curve, refined)
+    g = GNURBS.Curve() if weights else GBSpline.Curve()
+    g.degree = curve.degree
+    ctrl = np.asarray(curve.ctrl)
+    if weights:
+        w = np.asarray(curve.weights)
+        g.ctrlptsw = np.c_[ctrl * w[:, None], w].tolist()
+    else:
+        g.ctrlpts = ctrl.tolist()
+    g.knotvector = np.asarray(curve.knots).tolist()
+    for value, count in ((0.31, 1), (0.77, 2)):
+        operations.insert_knot(g, [value], [count])
+    np.testing.assert_allclose(refined.ctrl, np.asarray(g.ctrlpts), rtol=0, atol=1e-12)
+    if weights:
+        np.testing.assert_allclose(refined.weights, np.asarray(g.weights), rtol=0, atol=1e-12)
+    assert insert_knots(curve, values=[0.5]).n_ctrl == curve.n_ctrl + 1  # keyword form
+
+
+@pytest.mark.parametrize("weights, times", [(False, 1), (True, 2)])
+def test_curve_elevate_bezier_matches_geomdl(weights, times):
+    rng = np.random.default_rng(70 + times)
+    k = 3
+    w = rng.uniform(0.5, 2.0, k + 1) if weights else np.ones(k + 1)
+    curve = BSplineCurve(
+        rng.normal(size=(k + 1, 2)), clamped_knots(k + 1, k), k, weights=w if weights else None
+    )
+    up = elevate_degree(curve, times)
+    assert up.degree == k + times and up.n_ctrl == k + 1 + times
+    hom = np.c_[np.asarray(curve.ctrl) * w[:, None], w]
+    ref = np.asarray(ghelpers.degree_elevation(k, hom.tolist(), num=times))
+    np.testing.assert_allclose(up.ctrl, ref[:, :2] / ref[:, 2:], rtol=0, atol=1e-12)
+    if weights:
+        np.testing.assert_allclose(up.weights, ref[:, 2], rtol=0, atol=1e-12)
+    _same_curve(curve, up)
+
+
+@pytest.mark.parametrize("d, weights", [(2, True), (3, False)])
+def test_curve_elevate_keeps_the_curve_and_reduce_undoes_it(d, weights):
+    rng = np.random.default_rng(80 + d)
+    curve = _curve(rng, k=2, d=d, weights=weights)
+    up = elevate_degree(curve, times=2)
+    values, counts = np.unique(np.asarray(curve.knots), return_counts=True)
+    np.testing.assert_array_equal(up.knots, np.repeat(values, counts + 2))
+    _same_curve(curve, up, atol=1e-11)
+    t = np.linspace(0, 1, 50)
+    np.testing.assert_allclose(up.evaluate(t, 2), curve.evaluate(t, 2), rtol=0, atol=1e-9)
+    down, err = reduce_degree(up, times=2)
+    assert down.degree == 2 and err < 1e-12
+    _same_curve(curve, down, atol=1e-11)
+
+
+def test_curve_reduce_degree_reports_the_measured_error():
+    rng = np.random.default_rng(90)
+    curve = _curve(rng, n=9, k=4)
+    down, err = reduce_degree(curve)
+    assert down.degree == 3 and down.n_ctrl == 8
+    t = np.linspace(0, 1, 4001)
+    dense = np.linalg.norm(_scipy_curve(curve, t) - _scipy_curve(down, t), axis=1).max()
+    assert 1e-4 < err <= dense * (1 + 1e-12) and dense <= 1.05 * err
+
+
+def test_curve_refine_argument_errors():
+    rng = np.random.default_rng(0)
+    curve = _curve(rng)
+    with pytest.raises(ValueError, match="no direction for a curve"):
+        insert_knots(curve, "u", [0.5])
+    with pytest.raises(ValueError, match="values"):
+        insert_knots(curve, [1.0])
+    with pytest.raises(ValueError, match="values"):
+        insert_knots(curve, [0.5, 0.5, 0.5, 0.5])  # multiplicity 4 > degree 3
+    with pytest.raises(ValueError, match="times"):
+        elevate_degree(curve, 0)
+    with pytest.raises(ValueError, match="times"):
+        reduce_degree(curve, 3)
+    closed = BSplineCurve(curve.ctrl, None, 3, periodic=True)
+    with pytest.raises(ValueError, match="insert_knots: curve: expected a clamped direction"):
+        insert_knots(closed, [0.5])
+    with pytest.raises(ValueError, match="spline"):
+        elevate_degree(np.zeros((4, 3)))
