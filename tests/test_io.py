@@ -1,4 +1,5 @@
-"""File formats: exact JSON/.3dm round trips, Rhino's own evaluator as an oracle, meshes."""
+"""File formats: exact JSON/.3dm round trips of surfaces and curves, Rhino's own evaluator as an
+oracle, meshes."""
 
 import json
 
@@ -9,8 +10,8 @@ import rhino3dm
 import trimesh
 
 from bsjax import io, shapes
-from bsjax.basis import BSplineSurface, clamped_knots
-from tests.helpers import random_surface
+from bsjax.basis import BSplineCurve, BSplineSurface, clamped_knots
+from tests.helpers import random_knots, random_surface
 
 GRID = np.linspace(0.0, 1.0, 9)
 U, V = np.meshgrid(GRID, GRID, indexing="ij")
@@ -141,3 +142,92 @@ def test_bad_files_name_the_file(tmp_path):
 
 def _xyz(p):
     return (p.X, p.Y, p.Z)
+
+
+# --- curves -----------------------------------------------------------------------------------
+def _curves():
+    rng = np.random.default_rng(4)
+    p = np.array([[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1], [1, 0]], float)
+    circle_knots = [0, 0, 0, 0.25, 0.25, 0.5, 0.5, 0.75, 0.75, 1, 1, 1]
+    return {
+        "planar nonuniform": BSplineCurve(rng.normal(size=(7, 2)), random_knots(rng, 7, 3), 3),
+        "spatial rational": BSplineCurve(
+            rng.normal(size=(6, 3)), random_knots(rng, 6, 2), 2, weights=rng.uniform(0.5, 2, 6)
+        ),
+        "rational circle": BSplineCurve(2 * p, circle_knots, 2, weights=np.array([1, 2**-0.5] * 4 + [1])),
+        "periodic spatial": BSplineCurve(rng.normal(size=(8, 3)), None, 3, periodic=True),
+    }
+
+
+@pytest.mark.parametrize("name", list(_curves()))
+@pytest.mark.parametrize("ext", [".json", ".3dm"])
+def test_curve_round_trip_is_exact(tmp_path, name, ext):
+    curve = _curves()[name]
+    back = io.load(io.save(curve, tmp_path / f"c{ext}"))
+    assert isinstance(back, BSplineCurve)
+    assert (back.degree, back.periodic, back.dim, back.n_ctrl) == (
+        curve.degree,
+        curve.periodic,
+        curve.dim,
+        curve.n_ctrl,
+    )
+    tol = 0.0 if ext == ".json" else 1e-15  # .3dm stores w·P: one rounding on the way back
+    np.testing.assert_allclose(back.ctrl, curve.ctrl, rtol=0, atol=tol * 10)
+    for a, b in ((back.knots, curve.knots), (back.weights, curve.weights)):
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_allclose(a, b, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("name", list(_curves()))
+def test_rhino_evaluates_the_same_curve(tmp_path, name):
+    """OpenNURBS `PointAt` (through rhino3dm) evaluates the `.3dm` curve bsjax wrote."""
+    curve = _curves()[name]
+    io.save(curve, tmp_path / "c.3dm")
+    crv = rhino3dm.File3dm.Read(str(tmp_path / "c.3dm")).Objects[0].Geometry
+    assert isinstance(crv, rhino3dm.NurbsCurve) and crv.Dimension == curve.dim
+    t0, t1 = crv.Domain.T0, crv.Domain.T1
+    theirs = np.array([_xyz(crv.PointAt(t0 + (t1 - t0) * a)) for a in GRID])[:, : curve.dim]
+    np.testing.assert_allclose(theirs, np.asarray(curve.evaluate(GRID)), rtol=0, atol=1e-12)
+    assert crv.IsClosed == (curve.periodic or name == "rational circle")
+    assert crv.IsPeriodic == curve.periodic
+    if name == "rational circle":
+        assert crv.IsCircle()
+
+
+def test_rhino_own_curves_read_back(tmp_path):
+    """A periodic curve made by rhino3dm itself (its own layout of wrapped points) reads as periodic."""
+    pts = [rhino3dm.Point3d(np.cos(a), np.sin(a), 0.1 * a) for a in np.linspace(0, 5, 6)]
+    crv = rhino3dm.NurbsCurve.Create(True, 3, pts)
+    model = rhino3dm.File3dm()
+    model.Objects.AddCurve(crv)
+    model.Write(str(tmp_path / "r.3dm"), 7)
+    back = io.load(tmp_path / "r.3dm")
+    assert back.periodic and back.n_ctrl == 6 and back.degree == 3
+    t0, t1 = crv.Domain.T0, crv.Domain.T1
+    theirs = np.array([_xyz(crv.PointAt(t0 + (t1 - t0) * a)) for a in GRID])
+    np.testing.assert_allclose(theirs, np.asarray(back.evaluate(GRID)), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("ext", [".json", ".3dm"])
+def test_surfaces_and_curves_in_one_file(tmp_path, ext):
+    surface, curves = shapes.plate(), list(_curves().values())
+    path = io.save([surface, *curves], tmp_path / f"mixed{ext}")
+    items = io.load_all(path)
+    assert isinstance(items[0], BSplineSurface) and all(isinstance(c, BSplineCurve) for c in items[1:])
+    assert len(io.load_all(path, kind="curve")) == len(curves)
+    np.testing.assert_allclose(io.load(path, kind="surface").ctrl, surface.ctrl, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="exactly one curve"):
+        io.load(path, kind="curve")
+    with pytest.raises(ValueError, match="kind"):
+        io.load_all(path, kind="mesh")
+
+
+def test_curves_refuse_mesh_formats(tmp_path):
+    with pytest.raises(ValueError, match="only surfaces for a mesh format"):
+        io.save(_curves()["planar nonuniform"], tmp_path / "c.stl")
+    bad = tmp_path / "bad.json"
+    data = io.to_dict(_curves()["planar nonuniform"])
+    bad.write_text(json.dumps({**data, "knots": data["knots"][:-1]}))
+    with pytest.raises(ValueError, match="bad.json.*knots"):
+        io.load(bad)
