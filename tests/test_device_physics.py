@@ -1,5 +1,6 @@
 """The JAX sculpting model behind the servo loop, and a 2-second run of the two-rate loop."""
 
+import dataclasses
 import threading
 import time
 
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from bsjax import mss
-from bsjax.device import ServoLoop, SimulatedDevice
+from bsjax.device import ServoLoop, SimulatedDevice, Workspace
 from bsjax.device.physics import SculptModel, check_step
 from bsjax.device.protocol import DeviceSample
 
@@ -161,3 +162,94 @@ def test_two_second_simulated_session_meets_the_rate(model):
     assert stats.physics_updates >= 40 and threads == {"bsjax-physics"}, stats.report()
     assert 0 < stats.force_max <= 3.0 and stats.nonfinite == 0
     assert np.abs(displacement(model)).max() > 1e-3  # the scripted press sculpted the surface
+
+
+def contact_proxy(model):
+    """The proxy of a tool 0.07 into the wall after an approach from outside (a fresh model)."""
+    model.update(at(0.95))
+    return model.update(at(0.8))
+
+
+def test_bad_poses_are_dropped_and_never_reach_the_physics(model):
+    model.reset()
+    reference = contact_proxy(model)
+    model.reset()
+    model.update(at(0.95))
+    ticks, dropped, ctrl = model.ticks, model.dropped_poses, np.asarray(model.ctrl).copy()
+    bad = [at(np.nan, True), at(np.inf, True), at(1e300, True), at(0.8, True, y=-1e30)]
+    bad.append(DeviceSample(np.array([0.8, 0, 0]), np.array([np.nan, 0, 0, 0]), 1, 0.0, 0, 0.0))
+    for sample in bad:
+        assert model.update(sample) is model._last_proxy  # the last good proxy, unchanged
+    assert model.dropped_poses == dropped + 5 and model.ticks == ticks and model.rollbacks == 0
+    np.testing.assert_array_equal(np.asarray(model.ctrl), ctrl)
+    after = model.update(at(0.8))  # the next good pose renders the normal force
+    np.testing.assert_allclose(after.force((0.8, 0.0, 0.0)), reference.force((0.8, 0.0, 0.0)), rtol=1e-12)
+    assert np.linalg.norm(reference.force((0.8, 0.0, 0.0))) > 0.05
+    assert model.accepts(at(3.0)) and not model.accepts(at(model.reach + 1.0))
+
+
+def test_a_non_finite_tick_is_rolled_back(model):
+    """A tool so large that the lattice forces overflow makes the tick non-finite: the state is
+    rolled back, the last good proxy returned; the next good tick is as if nothing happened."""
+    model.reset()
+    reference = contact_proxy(model)
+    model.reset()
+    model.update(at(0.95))
+    last = model.update(at(0.8))
+    state, ctrl = model._state, np.asarray(model.ctrl).copy()
+    try:
+        model.set_tool(radius=1e300)
+        assert model.update(at(0.8, pressed=True)) is last
+        assert model.rollbacks == 1 and model._state is state
+        np.testing.assert_array_equal(np.asarray(model.ctrl), ctrl)
+    finally:
+        model.set_tool(radius=0.25)
+    after = model.update(at(0.8))
+    assert np.all(np.isfinite(np.asarray(model.ctrl)))
+    np.testing.assert_allclose(after.force((0.8, 0.0, 0.0)), reference.force((0.8, 0.0, 0.0)), rtol=1e-9)
+
+
+def test_a_model_that_keeps_failing_raises(model):
+    model.reset()
+    try:
+        model.set_tool(radius=1e300)
+        for _ in range(model.max_rollbacks):
+            model.update(at(0.8, pressed=True))
+        with pytest.raises(FloatingPointError, match="in a row went non-finite"):
+            model.update(at(0.8, pressed=True))
+    finally:
+        model.set_tool(radius=0.25)
+        model.reset()
+    with pytest.raises(ValueError, match="^reach: expected"):
+        SculptModel(reach=-1.0)
+
+
+class Glitching(SimulatedDevice):
+    """A driver without the pose gate: 1e300 / NaN positions for 60 ms from t = 0.3 s."""
+
+    def read(self):
+        sample = super().read()
+        if 0.3 <= sample.timestamp < 0.36:
+            bad = 1e300 if sample.sequence % 2 else np.nan
+            return dataclasses.replace(sample, position=np.array([bad, 0.0, 0.0]))
+        return sample
+
+
+def test_servo_with_glitching_device_keeps_the_model_sane(model):
+    """A wild but finite pose rendered once would also have poisoned the servo's velocity
+    estimate (1e300 / 1 ms decays over seconds): after the glitch the force is the one before."""
+    model.reset()
+    dev = Glitching(lambda t: ((0.8 if t > 0.1 else 0.95, 0.0, 0.0), 0), workspace=Workspace())
+    loop = ServoLoop(dev, model, physics_hz=100, record=True)
+    dropped = model.dropped_poses
+    loop.start()
+    time.sleep(0.6)
+    stats = loop.stop()
+    rec = loop.recording()
+    force = np.linalg.norm(rec.force, axis=1)
+    assert np.all(np.isfinite(rec.force)) and stats.physics_errors == 0 and stats.bad_samples > 5
+    # the servo asked model.accepts: neither the NaN nor the 1e300 poses reached the physics
+    assert model.dropped_poses == dropped and np.all(np.isfinite(np.asarray(model.ctrl)))
+    t = rec.device_time
+    before, after = force[(t > 0.2) & (t < 0.3)], force[t > 0.5]
+    assert before.min() > 0.05 and after.min() == pytest.approx(before.mean(), rel=0.05)

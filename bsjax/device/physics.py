@@ -200,6 +200,7 @@ class SculptModel:
         net = np.asarray(surface.ctrl, dtype=np.float64).reshape(-1, 3)
         lo, hi = net.min(axis=0), net.max(axis=0)
         self.centre = (lo + hi) / 2
+        self._centre = tuple(float(c) for c in self.centre)
         reach = 10.0 * float(np.linalg.norm(hi - lo)) if reach is None else reach
         if isinstance(reach, bool) or not isinstance(reach, numbers.Real) or not reach > 0:
             raise ValueError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
@@ -367,15 +368,21 @@ class SculptModel:
 
     def accepts(self, sample) -> bool:
         """True when `sample`'s pose may be fed to the physics: a finite `(3,)` position within
-        `reach` of the body's centre and a finite `(4,)` orientation."""
+        `reach` of the body's centre and a `(4,)` orientation whose squared norm is finite.
+
+        Pure Python (about a microsecond): the servo thread asks it too, for every new sample, so
+        that a pose the physics refuses is not rendered either (`ServoLoop`)."""
         try:
-            x = np.asarray(sample.position, dtype=np.float64)
-            q = np.asarray(sample.orientation, dtype=np.float64)
+            x, y, z = map(float, sample.position)
+            w, a, b, c = map(float, sample.orientation)
         except (AttributeError, TypeError, ValueError):
             return False
-        if x.shape != (3,) or q.shape != (4,) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             return False
-        return math.hypot(*(x - self.centre)) <= self.reach  # scaled: no overflow for 1e300
+        if not math.isfinite(w * w + a * a + b * b + c * c):  # NaN, inf, or a norm that overflows
+            return False
+        cx, cy, cz = self._centre
+        return math.hypot(x - cx, y - cy, z - cz) <= self.reach
 
     def update(self, sample: DeviceSample) -> Proxy:
         """One physics tick with the tool at `sample`; returns the plane proxy for the servo.
@@ -455,4 +462,4 @@ class SculptModel:
     def reset(self) -> None:
         with self._lock:
             self._state, self.ctrl, self._was_pressed = self._initial, self.surface0.ctrl, False
-            self._side, self._last_proxy = None, Proxy()
+            self._side, self._last_proxy, self._bad_ticks = None, Proxy(), 0

@@ -20,9 +20,11 @@ Safety chain (paper 002 §4.2's servo contract; issue #16):
 * **Force shaping** (`_shaping.ForceShaper`): `|F| ≤ max_force` always; a force whose magnitude
   overflows (a very stiff wall) saturates at `max_force` along its direction; a NaN force is zero
   and counted (`stats.nonfinite`).
-* **Poses**: a device sample with a non-finite position is not rendered and not handed to the
-  physics (counted in `stats.bad_samples`; the transports already drop them, this guards any
-  other device); the last good sample ages and the watchdog acts.
+* **Poses**: a device sample with a non-finite position, or one the model's optional
+  `accepts(sample)` refuses (`SculptModel`: out of its reach), is not rendered and not handed to
+  the physics (counted in `stats.bad_samples`; the transports already drop non-finite and
+  out-of-reach poses, this guards any other device — a wild pose would also poison the velocity
+  estimate); the last good sample ages and the watchdog acts.
 * **A dead servo is visible**: every argument is validated at construction; everything the servo
   thread does runs inside its `try`; if it dies, zero force is written, `running` is False,
   `error` holds the exception and `stop()` raises `DeviceError` naming it.
@@ -71,8 +73,10 @@ class ServoLoop:
 
     **Arguments:**
     - `device`: a `HapticDevice` (`SimulatedDevice`, `SerialDevice`, `HidDevice`).
-    - `model`: a physics model with `update(sample) -> Proxy` (and optionally `warmup()`), e.g.
-      `bsjax.device.physics.SculptModel`; or a fixed `Proxy` (no physics thread, never stale).
+    - `model`: a physics model with `update(sample) -> Proxy` (and optionally `warmup()`, and
+      `accepts(sample) -> bool`, asked in the servo thread for every new sample: keep it to a
+      few microseconds), e.g. `bsjax.device.physics.SculptModel`; or a fixed `Proxy` (no
+      physics thread, never stale).
     - `rate_hz`: servo rate (1000). `physics_hz`: physics rate (100).
     - `max_force`: newtons, the hard bound on `|F|` written. `max_force_rate`: N/s (default
       `100 · max_force`: full scale in 10 ms).
@@ -298,6 +302,8 @@ class ServoLoop:
         self._watchdog = Watchdog(self.ramp_time)
         velocity = VelocityFilter(self.velocity_tau)
         clock = _Arrivals(self.proxy_timeout, self.device_timeout, self._static)
+        accepts = getattr(self.model, "accepts", None) if not self._static else None
+        accepts = accepts if callable(accepts) else _always
         prev: DeviceSample | None = None
         self._t_start = deadline = last_start = time.perf_counter_ns()
         while self._running:
@@ -318,7 +324,7 @@ class ServoLoop:
             except Exception:
                 self._device_errors += 1
                 sample = prev
-            if sample is not prev and sample is not None and not _good(sample):
+            if sample is not prev and sample is not None and not (_good(sample) and accepts(sample)):
                 self._bad_samples += 1
                 sample = prev  # never rendered, never handed to the physics; prev ages
             proxy = clock.see(start, self._proxy_slot, sample)
@@ -480,6 +486,10 @@ class _Arrivals:
         return fresh(now, self.device_at, self.device_limit) and (
             self.static or fresh(now, self.proxy_at, self.proxy_limit)
         )
+
+
+def _always(sample) -> bool:
+    return True
 
 
 def _good(sample) -> bool:
