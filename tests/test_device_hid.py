@@ -119,3 +119,36 @@ def test_layout_from_json_and_validation():
 def test_real_hidapi_reports_a_missing_device():
     with pytest.raises(OSError):
         HidDevice(HidLayout.generic(0xFFFF, 0xFFFE))
+
+
+def float_layout():
+    f = [{"offset": 4 * k, "fmt": "<f"} for k in range(3)]
+    return HidLayout.from_dict(
+        {
+            "vendor_id": 1,
+            "product_id": 2,
+            "report_length": 16,
+            "position": f,
+            "buttons": {"offset": 12, "fmt": "<f"},
+            "force": [{"offset": 1 + 4 * k, "fmt": "<f"} for k in range(3)],
+            "force_length": 13,
+        }
+    )
+
+
+def test_non_finite_and_out_of_reach_reports_are_dropped_and_counted():
+    fake = FakeHid()
+    dev = HidDevice(float_layout(), device=fake, workspace=Workspace(reach=1.0))
+    fake.queue.append(struct.pack("<4f", 0.1, 0.0, 0.0, 1.0))
+    first = dev.read()
+    assert first.position[0] == pytest.approx(0.1) and first.pressed
+    fake.queue += [
+        struct.pack("<4f", float("nan"), 0.0, 0.0, 0.0),
+        struct.pack("<4f", 0.0, float("inf"), 0.0, 0.0),
+        struct.pack("<4f", 0.0, 0.0, 1e30, 0.0),  # finite, out of reach
+        struct.pack("<4f", 0.0, 0.0, 0.0, float("nan")),  # NaN buttons: not an int
+    ]
+    assert dev.read() is first  # nothing new: the last good sample ages (the watchdog acts)
+    assert dev.counters == {"frames": 1, "bad_pose": 3, "malformed": 1}
+    assert parse_report(float_layout(), struct.pack("<4f", 0.0, 0.0, 0.0, float("inf"))) is None
+    assert parse_report(float_layout(), "not bytes") is None
