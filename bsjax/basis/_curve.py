@@ -1,4 +1,4 @@
-"""`BSplineCurve` (The NURBS Book eq. 2.4 / 4.1) and `CurveBlending`, its pre-computed sampled form.
+"""`BSplineCurve` (The NURBS Book eqs. 3.1 and 4.1) and `CurveBlending`, its pre-computed sampled form.
 
 A curve is a control polygon `(n, d)` (d = 2 or 3), one `SplineDirection` and optional NURBS
 weights: `C(t) = Σ_i B_{i,k}(t) w_i P_i / Σ_i B_{i,k}(t) w_i`. It is the one-direction case of
@@ -27,7 +27,7 @@ _ORDERS = 3  # points, first and second derivatives
 
 class BSplineCurve(eqx.Module):
     """`C(t) = Σ_i B_{i,k}(t) w_i P_i / Σ_i B_{i,k}(t) w_i` on [0, 1] (The NURBS Book eq. 4.1;
-    without weights the polynomial B-spline of eq. 2.4, thesis eq. 3.1 in one direction).
+    without weights the polynomial B-spline of eq. 3.1; thesis eq. 3.1 in one direction).
 
     **Arguments:**
     - `ctrl`: control points `(n, d)`, d = 2 (planar) or 3, finite.
@@ -230,7 +230,7 @@ class CurveBlending(eqx.Module):
     @compiled
     def points(self, ctrl: Float[Array, "n d"]) -> Float[Array, "m d"]:
         """The samples `A P` (thesis eq. 3.6; rational: `A (w P) / A w`)."""
-        return self.derivative(ctrl, 0)
+        return _contract(self.a, self._checked_ctrl(ctrl, "ctrl"), self.weights, 0)[0]
 
     @compiled
     def derivative(self, ctrl: Float[Array, "n d"], nu: int) -> Float[Array, "m d"]:
