@@ -78,11 +78,9 @@ class Workspace:
         if rot.shape != (3, 3) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6):
             raise ValueError(f"rotation: expected an orthonormal (3, 3) matrix, got {rot.tolist()}")
         object.__setattr__(self, "rotation", rot)
-
-    def contains(self, position) -> bool:
-        """True when a device-frame `position (3,)` is finite and within `±reach` on every axis."""
-        a = np.asarray(position, dtype=np.float64)
-        return a.shape == (3,) and bool(np.all(np.abs(a) <= self.reach))  # False for NaN
+        # positions within reach map to finite model positions (|R x| <= √3 reach): no check needed
+        bound = self.scale * self.reach * 2.0 + float(np.abs(self.offset).max())
+        object.__setattr__(self, "bounded", math.isfinite(bound))
 
     def to_model(self, position) -> np.ndarray:
         return self.scale * (self.rotation @ np.asarray(position, dtype=np.float64)) + self.offset
@@ -131,21 +129,29 @@ class DeviceBase:
 
     def _sample(self, position, orientation, buttons, timestamp, sequence) -> DeviceSample | None:
         """The model-frame sample of a device-frame pose, or None (counted as `bad_pose`) when the
-        position, orientation or timestamp is not finite or the position is out of reach."""
+        position, orientation or timestamp is not finite or the position is out of reach.
+
+        Pure-Python checks (a few hundred nanoseconds: transports call this up to 1000 times a
+        second in the servo thread)."""
         try:
-            q = np.asarray(orientation, dtype=np.float64)
+            x, y, z = map(float, position)
+            w, a, b, c = map(float, orientation)
             stamp = float(timestamp)
-            ok = self.workspace.contains(position) and q.shape == (4,) and bool(np.all(np.isfinite(q)))
         except (TypeError, ValueError, OverflowError):
-            ok = False
-        if not (ok and math.isfinite(stamp)):
             self._count("bad_pose")
             return None
-        x = self.workspace.to_model(position)
-        if not np.all(np.isfinite(x)):  # a huge scale or offset can still overflow
+        r = self.workspace.reach
+        ok = abs(x) <= r and abs(y) <= r and abs(z) <= r  # False for NaN
+        if not (ok and math.isfinite(w + a + b + c) and math.isfinite(stamp)):
             self._count("bad_pose")
             return None
-        return DeviceSample(x, q, int(buttons), stamp, int(sequence), time.perf_counter())
+        p = self.workspace.to_model((x, y, z))
+        if not self.workspace.bounded and not math.isfinite(p[0] + p[1] + p[2]):
+            self._count("bad_pose")  # a huge scale or offset overflowed
+            return None
+        return DeviceSample(
+            p, np.array((w, a, b, c)), int(buttons), stamp, int(sequence), time.perf_counter()
+        )
 
     def __enter__(self):
         return self
