@@ -1,6 +1,7 @@
 """The JAX sculpting model behind the servo loop, and a 2-second run of the two-rate loop."""
 
 import dataclasses
+import math
 import threading
 import time
 
@@ -253,3 +254,24 @@ def test_servo_with_glitching_device_keeps_the_model_sane(model):
     t = rec.device_time
     before, after = force[(t > 0.2) & (t < 0.3)], force[t > 0.5]
     assert before.min() > 0.05 and after.min() == pytest.approx(before.mean(), rel=0.05)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "name"),
+    [
+        (dict(substeps=0), ValueError, "substeps"),
+        (dict(substeps=2.5), TypeError, "substeps"),
+        (dict(layers=1), ValueError, "layers"),
+        (dict(grid=12), ValueError, "grid"),
+        (dict(grid=(12.0, 12)), TypeError, "grid"),
+        (dict(physics_hz=-100.0), ValueError, "physics_hz"),
+        (dict(damping=math.nan), ValueError, "damping"),
+        (dict(tool_radius="big"), TypeError, "tool_radius"),
+        (dict(tool_axes=(0.1, 0.0, 0.1)), ValueError, "axes"),
+        (dict(reach="far"), TypeError, "reach"),
+        (dict(max_rollbacks=0), ValueError, "max_rollbacks"),
+    ],
+)
+def test_sculpt_model_arguments_are_checked(kwargs, error, name):
+    with pytest.raises(error, match=f"^{name}: expected"):
+        SculptModel(**kwargs)

@@ -525,3 +525,37 @@ def test_simulated_device_drops_out_of_reach_poses():
         Workspace(reach=-1.0)
     with pytest.raises(TypeError, match="^scale: expected"):
         Workspace(scale="2")
+
+
+# --- constructors of the other public device objects --------------------------------------------
+@pytest.mark.parametrize(
+    ("make", "error", "name"),
+    [
+        (lambda: Proxy.plane((0, 0), (1, 0, 0), 1.0), ValueError, "point"),
+        (lambda: Proxy.plane((0, 0, 0), (1, 0, math.nan), 1.0), ValueError, "normal"),
+        (lambda: Proxy.plane((0, 0, 0), (1, 0, 0), "30"), TypeError, "stiffness"),
+        (lambda: Proxy.plane((0, 0, 0), (1, 0, 0), 30.0, damping=-1.0), ValueError, "damping"),
+        (lambda: Proxy.sphere(5.0, 1.0, 1.0), TypeError, "centre"),
+        (lambda: Proxy.sphere((0, 0, 0), math.inf, 1.0), ValueError, "radius"),
+        (lambda: Proxy.sphere((0, 0, 0), 1.0, 1.0, tool_radius=1j), TypeError, "tool_radius"),
+        (lambda: SimulatedDevice(script=3), TypeError, "script"),
+        (lambda: SimulatedDevice(duration=-1.0), ValueError, "duration"),
+        (lambda: SimulatedDevice(workspace={"scale": 2}), TypeError, "workspace"),
+        (lambda: SerialDevice("/dev/null", timeout=math.nan), ValueError, "timeout"),
+        (lambda: SerialDevice("/dev/null", baudrate=115200.0), TypeError, "baudrate"),
+        (lambda: SerialDevice("/dev/null", baudrate=0), ValueError, "baudrate"),
+        (lambda: SerialDevice(3), TypeError, "port"),
+        (lambda: Workspace(reach=math.nan), ValueError, "reach"),
+    ],
+)
+def test_device_constructors_name_the_bad_argument(make, error, name):
+    with pytest.raises(error, match=f"^{name}: expected"):
+        make()
+
+
+def test_plane_normals_of_extreme_magnitude_normalise():
+    for normal in ((1e300, 1e300, 0.0), (1e-160, 0.0, 0.0), (np.float32(3.0), 0, 4)):
+        n = Proxy.plane((0, 0, 0), normal, 1.0).normal
+        assert math.hypot(*n) == pytest.approx(1.0) and all(map(math.isfinite, n))
+    far = Proxy.sphere((0, 0, 0), 1.0, 1.0, tool_radius=0.5)
+    assert far.force((1e200, 1e200, 0.0)) == (0.0, 0.0, 0.0)  # distance computed without overflow

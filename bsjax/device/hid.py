@@ -13,7 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bsjax.device.protocol import DeviceBase, DeviceSample, DeviceTimeout, Workspace, force_vector
+from bsjax.device.protocol import (
+    DeviceBase,
+    DeviceSample,
+    DeviceTimeout,
+    Workspace,
+    force_vector,
+    positive_number,
+)
 
 
 @dataclass(frozen=True)
@@ -201,6 +208,8 @@ class HidDevice(DeviceBase):
         super().__init__(workspace)
         if not isinstance(layout, HidLayout):
             raise TypeError(f"layout: expected a HidLayout, got {type(layout).__name__}")
+        timeout = positive_number(timeout, "timeout", allow_zero=True)
+        reconnect_interval = positive_number(reconnect_interval, "reconnect_interval", allow_zero=True)
         self.layout, self.path, self.timeout, self.reconnect_interval = (
             layout,
             path,

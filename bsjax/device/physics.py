@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks, _safe, collide, mss, shapes
-from bsjax.device.protocol import DeviceSample
+from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
 
 
@@ -178,13 +178,19 @@ class SculptModel:
         max_rollbacks: int = 10,
     ):
         surface = shapes.teardrop() if surface is None else surface
-        m, n = grid
+        if not isinstance(grid, (tuple, list)) or len(grid) != 2:
+            raise ValueError(f"grid: expected (m, n), two ints, got {grid!r}")
+        m, n = (_checks.check_count(g, "grid") for g in grid)
+        layers = _checks.check_count(layers, "layers", minimum=2)
+        substeps = _checks.check_count(substeps, "substeps")
+        proxy_grid = _checks.check_count(proxy_grid, "proxy_grid", minimum=2)
+        fixed_layers = _checks.check_count(fixed_layers, "fixed_layers")
         r, s = surface.shape
         if m < r or n < s:
             raise ValueError(
                 f"grid: expected at least the control net {surface.shape} for the refit, got {grid}"
             )
-        if not 1 <= fixed_layers < layers:
+        if not fixed_layers < layers:
             raise ValueError(
                 f"fixed_layers: expected 1 <= fixed_layers < layers = {layers}, got {fixed_layers}"
             )
@@ -194,15 +200,25 @@ class SculptModel:
             stiffness=stiffness,
             tool_stiffness=tool_stiffness,
             proxy_stiffness=proxy_stiffness,
+            thickness=thickness,
         ).items():
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: expected a finite value > 0, got {value}")
+            positive_number(value, name)
+        for name, value in dict(
+            damping=damping,
+            drag=drag,
+            proxy_damping=proxy_damping,
+            reaction_gain=reaction_gain,
+            contact_stiffness=contact_stiffness,
+        ).items():
+            positive_number(value, name, allow_zero=True)
         net = np.asarray(surface.ctrl, dtype=np.float64).reshape(-1, 3)
         lo, hi = net.min(axis=0), net.max(axis=0)
         self.centre = (lo + hi) / 2
         self._centre = tuple(float(c) for c in self.centre)
         reach = 10.0 * float(np.linalg.norm(hi - lo)) if reach is None else reach
-        if isinstance(reach, bool) or not isinstance(reach, numbers.Real) or not reach > 0:
+        if isinstance(reach, bool) or not isinstance(reach, numbers.Real):
+            raise TypeError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
+        if not reach > 0:
             raise ValueError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
         self.reach = float(reach)
         self.dtype = surface.ctrl.dtype
@@ -243,8 +259,10 @@ class SculptModel:
         self._state = (mss.init(self.lattice), self.lattice.rest_length, rest_seam)
         self._initial = self._state
         self.ctrl = surface.ctrl
-        self.tool_axes = np.full(3, float(tool_radius)) if tool_axes is None else np.asarray(tool_axes, float)
-        self.set_tool(axes=self.tool_axes)
+        if tool_axes is None:
+            self.set_tool(radius=positive_number(tool_radius, "tool_radius"))
+        else:
+            self.set_tool(axes=tool_axes)
         self._tick = jax.jit(self._tick_impl, static_argnums=5)  # one program per tool kind
         self._compiled: set[bool] = set()
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
@@ -257,9 +275,15 @@ class SculptModel:
     # --- run-time tool ------------------------------------------------------------------------
     def set_tool(self, radius: float | None = None, axes=None) -> None:
         """Change the tool at run time: a sphere of `radius` or an ellipsoid of semi-`axes` (3,)."""
-        a = np.full(3, float(radius)) if radius is not None else np.asarray(axes, dtype=np.float64)
-        if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a <= 0):
-            raise ValueError(f"tool: expected a radius or 3 semi-axes, finite and > 0, got {a.tolist()}")
+        if radius is not None:
+            a = np.full(3, positive_number(radius, "radius"))
+        else:
+            try:
+                a = np.asarray(axes, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise TypeError(f"axes: expected 3 real tool semi-axes, got {axes!r}") from None
+            if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a <= 0):
+                raise ValueError(f"axes: expected 3 tool semi-axes, finite and > 0, got {a.tolist()}")
         if hasattr(self, "_tick"):
             self._compile(_is_sphere(a))  # a new tool kind compiles here, not in the physics thread
         self.tool_axes = a  # one reference swap, picked up at the next tick

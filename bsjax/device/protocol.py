@@ -120,6 +120,8 @@ class DeviceBase:
     workspace: Workspace
 
     def __init__(self, workspace: Workspace | None = None):
+        if workspace is not None and not isinstance(workspace, Workspace):
+            raise TypeError(f"workspace: expected a Workspace or None, got {type(workspace).__name__}")
         self.workspace = workspace if workspace is not None else Workspace()
         self.counters: dict[str, int] = {}
 

@@ -17,6 +17,7 @@ is passed on as NaN, which the servo zeroes and counts.
 from __future__ import annotations
 
 import math
+import numbers
 import sys
 import time
 from dataclasses import dataclass
@@ -52,12 +53,15 @@ class Proxy:
     def __post_init__(self):
         if self.kind not in (PLANE, SPHERE, NONE):
             raise ValueError(f"kind: expected 'plane', 'sphere' or 'none', got {self.kind!r}")
-        nums = (*self.point, *self.normal, self.radius, self.tool_radius, self.stiffness, self.damping)
-        if not all(math.isfinite(x) for x in nums):
-            raise ValueError(f"Proxy: expected finite numbers, got {self}")
+        for name in ("point", "normal"):
+            object.__setattr__(self, name, _vec(getattr(self, name), name))
+            if not all(math.isfinite(c) for c in getattr(self, name)):
+                raise ValueError(f"{name}: expected 3 finite numbers, got {getattr(self, name)}")
         for name in ("radius", "tool_radius", "stiffness", "damping"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: expected a value >= 0, got {getattr(self, name)}")
+            value = _real(getattr(self, name), name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: expected a finite number >= 0, got {value}")
+            object.__setattr__(self, name, value)
         if self.kind == PLANE:
             n = math.hypot(*self.normal)  # scaled: (1e300, 1e300, 0) and (1e-160, 0, 0) normalise
             if n == 0:
@@ -68,13 +72,13 @@ class Proxy:
     def plane(cls, point, normal, stiffness, damping=0.0, tool_radius=0.0, stamp=None) -> "Proxy":
         return cls(
             PLANE,
-            _vec(point),
-            _vec(normal),
+            point,
+            normal,
             0.0,
             False,
-            float(tool_radius),
-            float(stiffness),
-            float(damping),
+            tool_radius,
+            stiffness,
+            damping,
             time.perf_counter() if stamp is None else stamp,
         )
 
@@ -84,13 +88,13 @@ class Proxy:
     ) -> "Proxy":
         return cls(
             SPHERE,
-            _vec(centre),
+            _vec(centre, "centre"),
             (0.0, 0.0, 1.0),
-            float(radius),
+            radius,
             bool(inside),
-            float(tool_radius),
-            float(stiffness),
-            float(damping),
+            tool_radius,
+            stiffness,
+            damping,
             time.perf_counter() if stamp is None else stamp,
         )
 
@@ -126,6 +130,20 @@ class Proxy:
         return magnitude * nx, magnitude * ny, magnitude * nz
 
 
-def _vec(x) -> tuple[float, float, float]:
-    a, b, c = (float(v) for v in x)
+def _real(x, name: str) -> float:
+    """A real number (Python or numpy scalar; not bool, complex or str) as a float."""
+    if isinstance(x, bool) or not isinstance(x, numbers.Real):
+        raise TypeError(f"{name}: expected a real number, got {type(x).__name__} {x!r}")
+    return float(x)
+
+
+def _vec(x, name: str) -> tuple[float, float, float]:
+    """Three real numbers as a tuple of floats; `TypeError`/`ValueError` naming `name`."""
+    try:
+        values = tuple(x)
+    except TypeError:
+        raise TypeError(f"{name}: expected 3 real numbers, got {type(x).__name__} {x!r}") from None
+    if len(values) != 3:
+        raise ValueError(f"{name}: expected 3 numbers, got {len(values)}: {values}")
+    a, b, c = (_real(v, name) for v in values)
     return a, b, c

@@ -13,13 +13,22 @@ to zero.
 
 from __future__ import annotations
 
+import numbers
+import os
 import time
 
 import numpy as np
 import serial as pyserial
 
 from bsjax.device import frames
-from bsjax.device.protocol import DeviceBase, DeviceSample, DeviceTimeout, Workspace, force_vector
+from bsjax.device.protocol import (
+    DeviceBase,
+    DeviceSample,
+    DeviceTimeout,
+    Workspace,
+    force_vector,
+    positive_number,
+)
 
 _READ_CHUNK = 4096
 
@@ -47,15 +56,16 @@ class SerialDevice(DeviceBase):
         workspace: Workspace | None = None,
     ):
         super().__init__(workspace)
-        for name, value in (
-            ("timeout", timeout),
-            ("write_timeout", write_timeout),
-            ("reconnect_interval", reconnect_interval),
-        ):
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: expected a finite number of seconds >= 0, got {value}")
-        if not isinstance(baudrate, int) or baudrate <= 0:
+        timeout = positive_number(timeout, "timeout", allow_zero=True)
+        write_timeout = positive_number(write_timeout, "write_timeout", allow_zero=True)
+        reconnect_interval = positive_number(reconnect_interval, "reconnect_interval", allow_zero=True)
+        if isinstance(baudrate, (bool, np.bool_)) or not isinstance(baudrate, numbers.Integral):
+            raise TypeError(f"baudrate: expected a positive int, got {type(baudrate).__name__} {baudrate!r}")
+        if baudrate <= 0:
             raise ValueError(f"baudrate: expected a positive int, got {baudrate!r}")
+        if not isinstance(port, (str, os.PathLike)):
+            raise TypeError(f"port: expected a device path or pyserial URL, got {type(port).__name__}")
+        baudrate, port = int(baudrate), os.fspath(port)
         self.port_name = port
         self.baudrate, self.timeout, self.write_timeout = baudrate, timeout, write_timeout
         self.reconnect_interval = reconnect_interval

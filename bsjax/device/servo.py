@@ -16,7 +16,7 @@ Safety chain (paper 002 §4.2's servo contract; issue #16):
   `DeviceSample.received`, so a producer stamping on another clock (`time.time()`), in the future
   or with `inf` cannot keep the force on. An arrival that is not finite or lies in the future is
   stale. Once the physics thread dies or hangs, or the device stops answering, the force is zero
-  within `timeout + ramp_time` plus one tick (defaults 50 + 20 ms; measured ≤ 71 ms).
+  within `timeout + ramp_time` plus one tick (defaults 50 + 20 ms; measured 69–72 ms).
 * **Force shaping** (`_shaping.ForceShaper`): `|F| ≤ max_force` always; a force whose magnitude
   overflows (a very stiff wall) saturates at `max_force` along its direction; a NaN force is zero
   and counted (`stats.nonfinite`).
@@ -291,7 +291,10 @@ class ServoLoop:
         except BaseException as err:
             self.error = err
         finally:
-            self._zero()
+            try:
+                self._zero()
+            except BaseException as err:  # even then the death must be visible
+                self.error = self.error or err
             self._running = False
             self._t_end = time.perf_counter_ns()
             self.finished.set()
@@ -381,7 +384,7 @@ class ServoLoop:
                 proxy = self.model.update(sample)
                 if not isinstance(proxy, Proxy):
                     raise TypeError(f"model.update: expected a Proxy, got {type(proxy).__name__}")
-            except Exception as err:
+            except BaseException as err:  # any failure: the thread ends, the watchdog zeroes the force
                 self._physics_errors += 1
                 log.error("physics update failed, force ramps to zero: %r", err)
                 self.physics_error = err

@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from bsjax.device.protocol import DeviceBase, DeviceSample, Workspace, force_vector
+from bsjax.device.protocol import DeviceBase, DeviceSample, Workspace, force_vector, positive_number
 from bsjax.device.record import Recording
 
 Script = Callable[[float], tuple]  # t → (position (3,), buttons) or (position, orientation, buttons)
@@ -43,8 +43,12 @@ class SimulatedDevice(DeviceBase):
         super().__init__(
             workspace if workspace is not None else (DEFAULT_WORKSPACE if script is None else None)
         )
+        if script is not None and not callable(script):
+            raise TypeError(
+                f"script: expected a function t -> (position, buttons), got {type(script).__name__}"
+            )
         self.script = script if script is not None else sculpt_script()
-        self.duration = duration
+        self.duration = None if duration is None else positive_number(duration, "duration")
         self._recording: Recording | None = None
         self._realtime, self._loop = True, False
         self._t0: float | None = None
