@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks
+from bsjax._boundary import compiled
 from bsjax.basis import _tensor
 from bsjax.basis._curve import BSplineCurve
 from bsjax.basis._direction import SplineDirection
@@ -40,7 +41,7 @@ def insert_knots(spline: Spline, direction=None, values=None) -> Spline:
         _checks.fail("values", "knot values strictly inside (0, 1)", values.tolist())
     new = np.sort(np.concatenate([knots, values]))
     SplineDirection(new, degree, name="values (resulting knot vector)")
-    return _rebase(spline, direction, new, degree)[0]
+    return _rebase(spline, direction, new, degree)
 
 
 def elevate_degree(spline: Spline, direction=None, times: int | None = None) -> Spline:
@@ -55,7 +56,7 @@ def elevate_degree(spline: Spline, direction=None, times: int | None = None) -> 
     _check_times(times)
     values, counts = np.unique(knots, return_counts=True)
     new = np.repeat(values, counts + times)
-    return _rebase(spline, direction, new, degree + times)[0]
+    return _rebase(spline, direction, new, degree + times)
 
 
 def reduce_degree(spline: Spline, direction=None, times: int | None = None) -> tuple[Spline, float]:
@@ -78,7 +79,10 @@ def reduce_degree(spline: Spline, direction=None, times: int | None = None) -> t
     values, counts = np.unique(knots, return_counts=True)
     counts = np.minimum(counts, new_degree)
     counts[0] = counts[-1] = new_degree + 1
-    return _rebase(spline, direction, np.repeat(values, counts), new_degree)
+    reduced = _rebase(spline, direction, np.repeat(values, counts), new_degree)
+    if direction is None:
+        return reduced, _max_curve_distance(spline, reduced)
+    return reduced, _max_distance(spline, reduced)
 
 
 def _curve_args(spline, direction, second, second_name, caller):
@@ -116,9 +120,14 @@ def _change_of_basis(old: SplineDirection, new: SplineDirection) -> np.ndarray:
     """`T (n_new, n_old)` with `B_old ≈ B_new T`, by least-squares collocation at more
     parameters than basis functions (exact when the new space contains the old one)."""
     t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (new.n_ctrl + 1)), greville(new.knots, new.degree)]))
-    a_old = np.asarray(old.matrix(jnp.asarray(t)), dtype=np.float64)
-    a_new = np.asarray(new.matrix(jnp.asarray(t)), dtype=np.float64)
+    a_old, a_new = (np.asarray(a, dtype=np.float64) for a in _collocation(old, new, jnp.asarray(t)))
     return np.linalg.lstsq(a_new, a_old, rcond=None)[0]
+
+
+@compiled
+def _collocation(old: SplineDirection, new: SplineDirection, t):
+    """Both bases at the collocation parameters, in one compiled call (not op by op)."""
+    return old.matrix(t), new.matrix(t)
 
 
 def _rebase_net(ctrl, weights, transform, axis: int):
@@ -133,18 +142,16 @@ def _rebase_net(ctrl, weights, transform, axis: int):
 
 def _rebase(spline, direction, new_knots, new_degree):
     """Re-express `spline` in the basis (new_knots, new_degree) along `direction` (the curve's
-    only direction when None): `(new spline, max distance between old and new)`."""
+    only direction when None)."""
     old = _basis(spline, direction)
     dtype = spline.ctrl.dtype
     new = SplineDirection(new_knots, new_degree, dtype=dtype)
     axis = 1 if direction == "v" else 0
     ctrl, weights = _rebase_net(spline.ctrl, spline.weights, _change_of_basis(old, new), axis)
     if direction is None:
-        result = BSplineCurve.from_direction(ctrl, new, weights)
-        return result, _max_curve_distance(spline, result)
+        return BSplineCurve.from_direction(ctrl, new, weights)
     directions = {"u": spline.direction_u, "v": spline.direction_v, direction: new}
-    result = BSplineSurface.from_directions(ctrl, directions["u"], directions["v"], weights)
-    return result, _max_distance(spline, result)
+    return BSplineSurface.from_directions(ctrl, directions["u"], directions["v"], weights)
 
 
 def _max_distance(a, b, count: int = 64):
