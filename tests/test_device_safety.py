@@ -559,3 +559,16 @@ def test_plane_normals_of_extreme_magnitude_normalise():
         assert math.hypot(*n) == pytest.approx(1.0) and all(map(math.isfinite, n))
     far = Proxy.sphere((0, 0, 0), 1.0, 1.0, tool_radius=0.5)
     assert far.force((1e200, 1e200, 0.0)) == (0.0, 0.0, 0.0)  # distance computed without overflow
+
+
+def test_a_restarted_loop_does_not_trust_the_previous_runs_proxy():
+    model = StampingModel(time.perf_counter)
+    loop = ServoLoop(still(), model, physics_hz=200, proxy_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop.start()
+    time.sleep(0.15)
+    loop.stop()
+    model.die.set()  # the physics is dead from the start of the second run
+    loop.start()
+    time.sleep(0.15)
+    loop.stop()
+    assert np.all(loop.recording().force == 0.0) and loop.physics_error is not None

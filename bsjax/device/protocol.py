@@ -98,7 +98,8 @@ class HapticDevice(Protocol):
     `HidDevice`.
 
     `read()` never blocks for long once a first sample has arrived: it returns the newest sample
-    (the same one again when nothing new came; `received` tells its age). `write(force, torque)`
+    (the same one again when nothing new came: the servo sees no new `sequence`/`timestamp`, and
+    the sample ages on the servo's own clock). `write(force, torque)`
     sends a force in model coordinates (newtons). `close()` releases the device; every
     implementation sends zero force first. Devices are context managers.
     """

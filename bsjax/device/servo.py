@@ -194,6 +194,8 @@ class ServoLoop:
         if not self._static and callable(getattr(self.model, "warmup", None)):
             self.model.warmup()
         self._reset_counters()
+        if not self._static:  # a proxy or sample of an earlier run must not count as fresh
+            self._proxy_slot, self._sample = (0, Proxy()), None
         if self._recorder is not None:
             self._recorder = Recorder(int(self.rate_hz) * 16)  # one recording per start()
         self.error = self.physics_error = None
