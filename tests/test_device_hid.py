@@ -152,3 +152,44 @@ def test_non_finite_and_out_of_reach_reports_are_dropped_and_counted():
     assert dev.counters == {"frames": 1, "bad_pose": 3, "malformed": 1}
     assert parse_report(float_layout(), struct.pack("<4f", 0.0, 0.0, 0.0, float("inf"))) is None
     assert parse_report(float_layout(), "not bytes") is None
+
+
+def _spec(**changes):
+    f = [{"offset": 4 * k, "fmt": "<f"} for k in range(3)]
+    spec = {
+        "vendor_id": 1,
+        "product_id": 2,
+        "report_length": 12,
+        "position": f,
+        "force": f,
+        "force_length": 12,
+    }
+    return {**spec, **changes}
+
+
+@pytest.mark.parametrize(
+    ("make", "error", "name"),
+    [
+        (lambda: HidField("a"), TypeError, "offset"),
+        (lambda: HidField(-1), ValueError, "offset"),
+        (lambda: HidField(0, 5), TypeError, "fmt"),
+        (lambda: HidField(0, "<f", "1"), TypeError, "scale"),
+        (lambda: HidField(0, "<f", float("inf")), ValueError, "scale"),
+        (lambda: HidLayout.generic(70000, 1), ValueError, "vendor_id"),
+        (lambda: HidLayout.from_dict(_spec(colour=1)), ValueError, "colour"),
+        (lambda: HidLayout.from_dict({"vendor_id": 1}), ValueError, "force"),
+        (lambda: HidLayout.from_dict(_spec(position={"offset": 0})), TypeError, "position"),
+        (lambda: HidLayout.from_dict(_spec(position=[{"off": 0}] * 3)), ValueError, "position"),
+        (lambda: HidLayout.from_dict(_spec(report_id=300)), ValueError, "report_id"),
+        (lambda: HidLayout.from_dict(_spec(sequence_bits=2.5)), TypeError, "sequence_bits"),
+        (lambda: HidLayout.from_dict(_spec(buttons=7)), TypeError, "buttons"),
+        (
+            lambda: HidDevice(HidLayout.from_dict(_spec()), device=FakeHid(), timeout=-1.0),
+            ValueError,
+            "timeout",
+        ),
+    ],
+)
+def test_layout_errors_name_the_key(make, error, name):
+    with pytest.raises(error, match=f"^{name}: expected"):
+        make()

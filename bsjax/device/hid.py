@@ -7,12 +7,15 @@ needs a new layout (a dict / JSON file, see `HidLayout.from_dict`), nothing else
 
 from __future__ import annotations
 
+import dataclasses
+import numbers
 import struct
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from bsjax import _checks
 from bsjax.device.protocol import (
     DeviceBase,
     DeviceSample,
@@ -35,6 +38,11 @@ class HidField:
     scale: float = 1.0
 
     def __post_init__(self):
+        object.__setattr__(self, "offset", _checks.check_count(self.offset, "offset", minimum=0))
+        if not isinstance(self.fmt, str):
+            raise TypeError(f"fmt: expected a struct format string, got {type(self.fmt).__name__}")
+        if isinstance(self.scale, bool) or not isinstance(self.scale, numbers.Real):
+            raise TypeError(f"scale: expected a real number, got {type(self.scale).__name__} {self.scale!r}")
         try:
             n = len(struct.unpack(self.fmt, bytes(struct.calcsize(self.fmt))))
         except struct.error as err:
@@ -43,8 +51,6 @@ class HidField:
             ) from None
         if n != 1:
             raise ValueError(f"fmt: expected a struct format of one number, got {self.fmt!r}")
-        if self.offset < 0:
-            raise ValueError(f"offset: expected an int >= 0, got {self.offset}")
         if not (np.isfinite(self.scale) and self.scale != 0):
             raise ValueError(f"scale: expected a finite non-zero number, got {self.scale}")
 
@@ -66,8 +72,33 @@ class HidField:
         struct.pack_into(self.fmt, report, self.offset, int(min(max(round(raw), lo), hi)))
 
 
+# HidLayout's integers: name, lowest, highest value
+_LAYOUT_INTS = (
+    ("vendor_id", 0, 0xFFFF),
+    ("product_id", 0, 0xFFFF),
+    ("report_length", 1, 1 << 16),
+    ("force_length", 1, 1 << 16),
+    ("sequence_bits", 1, 64),
+    ("report_id", 0, 255),
+    ("force_report_id", 0, 255),
+)
+
+
+def _field(f, name: str) -> HidField:
+    if isinstance(f, HidField):
+        return f
+    if not isinstance(f, dict):
+        raise TypeError(f"{name}: expected fields as dicts {{offset, fmt, scale}}, got {type(f).__name__}")
+    unknown = sorted(set(f) - {"offset", "fmt", "scale"})
+    if unknown or "offset" not in f:
+        raise ValueError(f"{name}: expected a field {{offset, fmt, scale}}, got the keys {sorted(f)}")
+    return HidField(**f)
+
+
 def _fields(items, name: str, count: int) -> tuple[HidField, ...]:
-    out = tuple(f if isinstance(f, HidField) else HidField(**f) for f in items)
+    if isinstance(items, (HidField, dict)) or not isinstance(items, (list, tuple)):
+        raise TypeError(f"{name}: expected a list of {count} fields, got {type(items).__name__}")
+    out = tuple(_field(f, name) for f in items)
     if len(out) != count:
         raise ValueError(f"{name}: expected {count} fields, got {len(out)}")
     return out
@@ -100,14 +131,22 @@ class HidLayout:
     force_report_id: int = 0
 
     def __post_init__(self):
+        for name, lo, hi in _LAYOUT_INTS:
+            value = getattr(self, name)
+            if value is None and name == "report_id":
+                continue
+            value = _checks.check_count(value, name, minimum=lo)
+            if value > hi:
+                _checks.fail(name, f"an int in {lo}..{hi}", value)
+            object.__setattr__(self, name, value)
         object.__setattr__(self, "position", _fields(self.position, "position", 3))
         object.__setattr__(self, "force", _fields(self.force, "force", 3))
         if self.orientation is not None:
             object.__setattr__(self, "orientation", _fields(self.orientation, "orientation", 4))
         for name in ("buttons", "timestamp", "sequence"):
             value = getattr(self, name)
-            if isinstance(value, dict):
-                object.__setattr__(self, name, HidField(**value))
+            if value is not None:
+                object.__setattr__(self, name, _field(value, name))
         need = max(f.end for f in self._input_fields())
         if self.report_length < need:
             raise ValueError(
@@ -124,7 +163,18 @@ class HidLayout:
 
     @classmethod
     def from_dict(cls, spec: dict) -> "HidLayout":
-        """Build from plain data (e.g. a JSON file): fields as `{"offset":…, "fmt":…, "scale":…}`."""
+        """Build from plain data (e.g. a JSON file): fields as `{"offset":…, "fmt":…, "scale":…}`.
+        An unknown or missing key is a `ValueError` naming it."""
+        if not isinstance(spec, dict):
+            raise TypeError(f"spec: expected a dict, got {type(spec).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(spec) - known)
+        if unknown:
+            raise ValueError(f"{unknown[0]}: expected one of the layout keys {sorted(known)}, got {unknown}")
+        required = {f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING}
+        missing = sorted(required - set(spec))
+        if missing:
+            raise ValueError(f"{missing[0]}: expected in the layout, got the keys {sorted(spec)}")
         return cls(**spec)
 
     @classmethod
