@@ -369,3 +369,32 @@ def test_bad_parameters_and_orders():
         curve.evaluate(np.array([0.5 + 0j]))
     with pytest.raises(ValueError, match="m: expected an int >= 2"):
         curve.blending(1)
+
+
+def test_iso_curve_argument_errors():
+    surface = random_surface(np.random.default_rng(95), 5, 4, 3, 2)
+    with pytest.raises(ValueError, match="direction: expected 'u' or 'v'"):
+        surface.iso_curve("w", 0.5)
+    with pytest.raises(ValueError, match="value: expected an array with 0 dimension"):
+        surface.iso_curve("u", np.array([0.5, 0.6]))
+    raises_both(
+        lambda x: surface.iso_curve("v", x).ctrl, jnp.asarray(-0.1), match=r"value: expected values in \[0"
+    )
+
+
+def test_float32_curve_stays_float32():
+    rng = np.random.default_rng(96)
+    c64 = _random_curve(rng, n=7, k=3, d=2, weights=True)
+    c32 = BSplineCurve(
+        np.asarray(c64.ctrl, np.float32),
+        np.asarray(c64.knots, np.float32),
+        3,
+        weights=np.float32(c64.weights),
+    )
+    t = np.linspace(0, 1, 25, dtype=np.float32)
+    for nu in range(3):
+        got = c32.evaluate(t, nu)
+        ref = np.asarray(c64.evaluate(t.astype(np.float64), nu))
+        assert got.dtype == jnp.float32
+        np.testing.assert_allclose(got, ref, rtol=0, atol=_tol(ref, 1e-4))
+    assert c32.curvature(t).dtype == jnp.float32 and c32.blending(9).a.dtype == jnp.float32
