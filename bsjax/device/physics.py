@@ -36,7 +36,8 @@ orientation, or a tool centre farther than `reach` from the body, is dropped and
 lengths, control net and proxy data are checked inside the same jitted call; if anything went
 non-finite the tick is rolled back (the last good state is kept, counted in `rollbacks`), so one
 bad pose cannot poison the model: the next good pose renders the normal force. Either way
-`update` returns the last good proxy.
+`update` returns the last good proxy; after `max_rollbacks` bad ticks in a row it raises (the
+servo's physics thread stops and its watchdog ramps the force to zero).
 
 `SculptModel` is the model interface the servo loop needs (`warmup()`, `update(sample) -> Proxy`).
 """
@@ -451,7 +452,7 @@ class SculptModel:
         self._bad_ticks += 1
         if self._bad_ticks > self.max_rollbacks:
             raise FloatingPointError(
-                f"SculptModel.update: {self._bad_ticks} ticks in a row went non-finite "
+                f"SculptModel.update: {self._bad_ticks} ticks in a row failed or went non-finite "
                 f"(max_rollbacks = {self.max_rollbacks}); the model cannot recover"
             ) from cause
         return self._last_proxy

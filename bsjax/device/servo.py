@@ -498,11 +498,12 @@ def _always(sample) -> bool:
 
 
 def _good(sample) -> bool:
-    """A sample the servo may render: a finite `(3,)` position (and a sequence number)."""
+    """A sample the servo may render: a finite `(3,)` position, a hashable sequence number and a
+    timestamp (the arrival key), a velocity the filter can difference."""
     try:
         p = sample.position
         x, y, z = float(p[0]), float(p[1]), float(p[2])
-        hash(sample.sequence)
+        hash((sample.sequence, sample.timestamp))
     except Exception:
         return False
     return math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
