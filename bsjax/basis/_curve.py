@@ -248,16 +248,18 @@ class CurveBlending(eqx.Module):
         _checks.check_ndim(points, "points", 2)
         if points.shape[0] != m or points.shape[1] not in (2, 3):
             _checks.fail("points", f"shape ({m}, d) with d = 2 or 3", points.shape)
-        if self.refit_matrix is None:
+        inverse = self.refit_matrix
+        if inverse is None:
             _checks.fail("CurveBlending.refit", _REFIT_NEEDS, f"{m} samples for {self.n_ctrl} control points")
+            raise AssertionError  # (fail raises)
         points = _checks.finite(points, "points")
         points = _checks.check(
             points, ~self.full_rank, "CurveBlending.refit", _REFIT_NEEDS, "a rank-deficient matrix"
         )
         if self.weights is None:
-            return self.refit_matrix @ points
+            return inverse @ points
         denom = self.a[0] @ self.weights
-        return (self.refit_matrix @ (points * denom[:, None])) / self.weights[:, None]
+        return (inverse @ (points * denom[:, None])) / self.weights[:, None]
 
     def curve(self, ctrl: Float[Array, "n d"]) -> BSplineCurve:
         """The `BSplineCurve` of this basis with control points `ctrl`."""
