@@ -54,7 +54,7 @@ def assert_zero_after(t, force, fault, timeout, ramp=RAMP):
     """Every tick after the servo saw the last arrival + timeout + ramp writes exactly zero."""
     seen = t[t >= fault][0]  # the servo stamps an arrival at the first tick after it
     after = t > seen + timeout + ramp + MARGIN
-    assert after.sum() > 50, "too few ticks after the fault to judge"
+    assert after.sum() > 30, "too few ticks after the fault to judge"
     assert np.all(force[after] == 0.0), force[after].max()
     late = t[after][0] - fault
     assert late <= timeout + ramp + MARGIN + (seen - fault) + 0.0015
@@ -221,7 +221,7 @@ def test_device_exceptions_are_counted_and_the_watchdog_acts():
     time.sleep(0.15)
     stats = loop.stop()
     t, force, _ = recorded(loop)
-    assert stats.device_errors > 50 and loop.error is None
+    assert stats.device_errors > 30 and loop.error is None
     assert_zero_after(t, force, fault, TIMEOUT)
 
 
