@@ -120,7 +120,7 @@ class BSplineCurve(eqx.Module):
         """
         _check_nu(nu)
         t = self._params(t, "t")
-        return _derivatives(self, t.reshape(-1), nu)[nu].reshape(t.shape + (self.dim,))
+        return _derivatives(self, t.reshape(-1), (nu,))[0].reshape(t.shape + (self.dim,))
 
     @compiled
     def curvature(self, t: ArrayLike) -> Float[Array, "..."]:
@@ -128,12 +128,12 @@ class BSplineCurve(eqx.Module):
 
         d = 2: `κ = (x' y'' − y' x'') / |C'|³`, positive where the curve turns left
         (counter-clockwise) along the direction of travel; d = 3: `κ = |C' × C''| / |C'|³`
-        (The NURBS Book / do Carmo, *Differential Geometry of Curves and Surfaces* §1-5).
+        (do Carmo, *Differential Geometry of Curves and Surfaces*, §1-5).
         0 where the speed `|C'|` vanishes. **Returns:** `t.shape`.
         """
         t = self._params(t, "t")
-        d = _derivatives(self, t.reshape(-1), 2)
-        return _curvature(d[1], d[2]).reshape(t.shape)
+        d1, d2 = _derivatives(self, t.reshape(-1), (1, 2))
+        return _curvature(d1, d2).reshape(t.shape)
 
     @compiled
     def blending(self, m: int = 82, params: ArrayLike | None = None) -> CurveBlending:
@@ -170,10 +170,15 @@ def _weights(weights, ctrl):
     return _checks.positive(weights, "weights")
 
 
-def _derivatives(curve: BSplineCurve, t, nu: int) -> list:
-    """`[C, C', …, C^{(nu)}]` at flat parameters `t (m,)`, each `(m, d)`."""
-    a = curve.direction.matrices(t, tuple(range(nu + 1)))
-    return _contract(a, curve.ctrl, curve.weights, nu)
+def _derivatives(curve: BSplineCurve, t, orders: tuple[int, ...]) -> list:
+    """The derivatives `C^{(k)}` for k in `orders` at flat parameters `t (m,)`, each `(m, d)`
+    (a rational curve needs every lower order too, for the quotient rule)."""
+    if curve.weights is None:
+        return [a @ curve.ctrl for a in curve.direction.matrices(t, orders)]
+    top = max(orders)
+    a = curve.direction.matrices(t, tuple(range(top + 1)))
+    every = _contract(a, curve.ctrl, curve.weights, top)
+    return [every[k] for k in orders]
 
 
 def _contract(a, ctrl, weights, nu: int) -> list:
