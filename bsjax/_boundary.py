@@ -6,6 +6,9 @@ The rule for what is static and what is traced (the same for every public functi
 
 * traced: JAX and numpy arrays, numpy floating scalars and Python floats (a new value never
   recompiles: a sweep over `dt` or a radius given as Python floats reuses one compilation);
+* array-likes: a list (or a tuple holding at least one float) of numbers, nested, becomes a
+  numpy array first, so `contacts(b, ctrl.tolist(), …)` works like the array (a tuple of ints,
+  e.g. a lattice `shape`, stays static);
 * static: everything else — ints (counts, degrees, derivative orders), bools, strings, `None`,
   callables, and the static fields of equinox modules (degrees, grid sizes, method choices).
   A new static value compiles once more. Arguments named in `static=` stay static even when
@@ -13,7 +16,9 @@ The rule for what is static and what is traced (the same for every public functi
 
 Value checks inside (`bsjax._checks`) use `eqx.error_if`; when such a check fails in a direct
 call, the error is re-raised here as a `ValueError` carrying the check's message, the same
-message the caller sees inside their own `jit` (as a `JaxRuntimeError`).
+message the caller sees inside their own `jit` (as a `JaxRuntimeError`). JAX logs every failed
+host callback with its traceback; the records of bsjax's own checks (message `name: expected …,
+got …`) are dropped from that log, since the error itself reaches the caller.
 
 This is `eqx.filter_jit`'s idea with less work per call (equinox's bound methods alone cost
 ~30 µs per attribute access on this machine): `compiled` for free functions, `compiled_method`
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import logging
 import re
 import weakref
 from collections.abc import Callable
@@ -33,6 +39,7 @@ import jax
 import numpy as np
 
 _ERROR = re.compile(r"_EquinoxRuntimeError: (.*?)(?:\n\n-{10}|\Z)", re.S)
+_CHECK_MESSAGE = re.compile(r"^[\w\[\]., ()]+: expected .*, got ", re.S)
 _registry: weakref.WeakSet = weakref.WeakSet()
 _host_caches: list = []
 
@@ -52,6 +59,51 @@ class _Static:
         return (
             isinstance(other, _Static) and type(other.value) is type(self.value) and other.value == self.value
         )
+
+
+class _QuietChecks(logging.Filter):
+    """Drops JAX's log record of a host callback that failed on one of bsjax's value checks (an
+    `eqx.error_if` whose message is `name: expected …, got …`): the error reaches the caller."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        return not (type(error).__name__ == "_EquinoxRuntimeError" and _CHECK_MESSAGE.match(str(error)))
+
+
+logging.getLogger("jax._src.callback").addFilter(_QuietChecks())
+
+
+def _array_like(value) -> bool:
+    """A (nested) list of numbers, or a tuple of numbers holding at least one float."""
+    if isinstance(value, list):
+        return _numbers(value) is not None
+    return isinstance(value, tuple) and _numbers(value) is True
+
+
+_NUMBER = (int, float, np.integer, np.floating)
+
+
+def _numbers(seq):
+    """None when `seq` is not a nested sequence of real numbers; else whether any is a float."""
+    any_float = False
+    for item in seq:
+        if isinstance(item, (list, tuple)):
+            inner = _numbers(item) if item else False
+            if inner is None:
+                return None
+            any_float |= inner
+        elif isinstance(item, (bool, np.bool_)) or not isinstance(item, _NUMBER):
+            return None
+        else:
+            any_float |= isinstance(item, (float, np.floating))
+    return any_float
+
+
+def _as_arrays(args, kwargs):
+    args = tuple(np.asarray(a) if _array_like(a) else a for a in args)
+    if any(_array_like(v) for v in kwargs.values()):
+        kwargs = {k: np.asarray(v) if _array_like(v) else v for k, v in kwargs.items()}
+    return args, kwargs
 
 
 def _unwrap(leaf):
@@ -115,6 +167,7 @@ class _Compiled:
     def __call__(self, *args, **kwargs):
         if self._static:
             args, kwargs = self._mark_static(args, kwargs)
+        args, kwargs = _as_arrays(args, kwargs)
         leaves, treedef = jax.tree_util.tree_flatten((args, kwargs))
         mask = tuple(_is_dynamic(leaf) for leaf in leaves)
         static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
@@ -124,7 +177,7 @@ class _Compiled:
             raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
         try:
             return jitted([leaf for m, leaf in zip(mask, leaves) if m])
-        except jax.errors.JaxRuntimeError as err:
+        except (jax.errors.JaxRuntimeError, ValueError) as err:  # the C++ fast path: a ValueError
             found = _ERROR.search(str(err))
             if found is None:
                 raise

@@ -7,7 +7,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from bsjax import _checks
 from bsjax.basis import BSplineSurface, clamped_knots
+
+
+def _float(value, name: str) -> float:
+    """A real scalar as a Python float (a clear TypeError otherwise)."""
+    _checks.check_real(value, name)
+    if np.ndim(value) != 0 or not isinstance(value, (int, float, np.integer, np.floating)):
+        _checks.fail(name, "a real number", repr(value))
+    return float(value)
 
 
 # Radius gain of a uniform periodic cubic: on a regular N-gon of radius R the curve passes at
@@ -49,7 +58,11 @@ def teardrop(dtype=None) -> BSplineSurface:
 
 
 def sphere(radius: float = 1.0, n_rows: int = 8, n_around: int = 8, dtype=None) -> BSplineSurface:
-    """An approximate sphere: closed in v, poles at u = 0 (top) and u = 1 (bottom)."""
+    """An approximate sphere: closed in v, poles at u = 0 (top) and u = 1 (bottom); `radius`
+    finite > 0, `n_rows`, `n_around` ints ≥ 4."""
+    _checks.positive(_float(radius, "radius"), "radius")
+    _checks.check_count(n_rows, "n_rows", minimum=4)
+    _checks.check_count(n_around, "n_around", minimum=4)
     phi = np.linspace(0.0, np.pi, n_rows)
     # Pull the profile polygon outwards so the cubic curve lies near the circle.
     profile = np.stack([np.sin(phi) * 1.08, np.cos(phi) * 1.02], axis=-1) * radius
@@ -58,7 +71,12 @@ def sphere(radius: float = 1.0, n_rows: int = 8, n_around: int = 8, dtype=None) 
 
 
 def plate(r: int = 8, s: int = 8, size: float = 1.0, degree: int = 3, dtype=None) -> BSplineSurface:
-    """A flat square plate `[0, size]²` at z = 0 (normal +z), `r × s` control points."""
+    """A flat square plate `[0, size]²` at z = 0 (normal +z), `r × s` control points (ints
+    > `degree`), `size` finite > 0."""
+    _checks.check_degree(degree, "degree")
+    _checks.check_count(r, "r", minimum=degree + 1)
+    _checks.check_count(s, "s", minimum=degree + 1)
+    _checks.positive(_float(size, "size"), "size")
     x, y = np.meshgrid(np.linspace(0, size, r), np.linspace(0, size, s), indexing="ij")
     ctrl = np.stack([x, y, np.zeros_like(x)], axis=-1).astype(dtype or np.float64)
     return BSplineSurface(

@@ -638,7 +638,7 @@ _UNSTABLE = 1.0  # stable_dt of the two-node lattice is 2/sqrt(200) ≈ 0.14
             "youngs_modulus",
         ),
         (lambda v: mss.from_material(np.eye(3), np.array([[0, 1]]), mss.JELLY, v), (-1.0,), "volume"),
-        (lambda x: mss.hex_lattice(x, 1.0, 0.0, 1.0), (jnp.full((2, 2, 2, 3), jnp.nan),), "rest_positions"),
+        (lambda x: mss.hex_lattice(x, 1.0, 0.0, 1.0), (jnp.full((2, 2, 2, 3), jnp.nan),), "positions"),
         (lambda x: mss.hex_volume(x), (jnp.zeros((2, 2, 3)),), "positions: expected an array with 4"),
         (
             lambda l: mss.spring_stiffness(mss.JELLY, l, 1e-4),

@@ -59,7 +59,9 @@ class Plasticity(eqx.Module):
 # --- forces and energy -----------------------------------------------------------------------------
 
 
-def _check_shapes(lattice: Lattice, state: State, external_force=None, gravity=None) -> None:
+def _checked_inputs(lattice: Lattice, state: State, external_force=None, gravity=None):
+    """`(state, external_force, gravity)` after checking their shapes against the lattice (at
+    trace time) and that every entry is finite (an `eqx.error_if` when traced)."""
     n = lattice.n_nodes
     if np.shape(state.position) != (n, 3) or np.shape(state.velocity) != (n, 3):
         _checks.fail(
@@ -67,10 +69,15 @@ def _check_shapes(lattice: Lattice, state: State, external_force=None, gravity=N
             f"position and velocity of shape ({n}, 3)",
             (np.shape(state.position), np.shape(state.velocity)),
         )
-    if external_force is not None and np.shape(external_force) != (n, 3):
-        _checks.fail("external_force", f"shape ({n}, 3)", np.shape(external_force))
-    if gravity is not None and np.shape(gravity) != (3,):
-        _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
+    if external_force is not None:
+        if np.shape(external_force) != (n, 3):
+            _checks.fail("external_force", f"shape ({n}, 3)", np.shape(external_force))
+        external_force = _checks.finite(jnp.asarray(external_force), "external_force")
+    if gravity is not None:
+        if np.shape(gravity) != (3,):
+            _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
+        gravity = _checks.finite(jnp.asarray(gravity), "gravity")
+    return _checked_state(state), external_force, gravity
 
 
 def _checked_state(state: State) -> State:
@@ -106,7 +113,7 @@ def forces(
     """Net force on every node in N, `(N, 3)`: `f − D_i ẋ − g` of thesis eq. 5.12 (springs,
     Voigt dampers, ground damping), plus the weight `ρ_i g`, `external_force (N, 3)` and the
     penalty contact of `tools` (`contact`: `Contact`, default `Contact()`)."""
-    _check_shapes(lattice, state, external_force, gravity)
+    state, external_force, gravity = _checked_inputs(lattice, state, external_force, gravity)
     tools = tuple(tools)
     return _net_force(lattice, state, external_force, gravity, tools, contact, rest_length)
 
@@ -116,7 +123,7 @@ def energy(
     lattice: Lattice, state: State, gravity: Float[ArrayLike, " 3"] | None = None
 ) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """`(kinetic, potential)` in J: `½ Σ m v²` and `½ Σ K (l − L)² − Σ m g·x` (thesis §5.3)."""
-    _check_shapes(lattice, state, None, gravity)
+    state, _, gravity = _checked_inputs(lattice, state, None, gravity)
     x, v = state.position, state.velocity
     kinetic = 0.5 * jnp.sum(lattice.mass * jnp.sum(v * v, axis=-1))
     i, j = lattice.edges[:, 0], lattice.edges[:, 1]
@@ -266,7 +273,7 @@ def step(
 
     **Returns:** the new `State`.
     """
-    _check_shapes(lattice, state, external_force, gravity)
+    state, external_force, gravity = _checked_inputs(lattice, state, external_force, gravity)
     tools = tuple(tools)
     dt = _checked_dt(lattice, dt, _contact_stiffness(tools, contact), check_stability)
     return _explicit(lattice, state, dt, external_force, gravity, tools, contact, rest_length)
@@ -362,7 +369,7 @@ def implicit_step(
     held. `dt` must be finite, > 0 and small enough that `h²K` does not overflow. Other
     arguments as `step`; returns the new `State`.
     """
-    _check_shapes(lattice, state, external_force, gravity)
+    state, external_force, gravity = _checked_inputs(lattice, state, external_force, gravity)
     cg_iterations = _checks.check_count(cg_iterations, "cg_iterations")
     tools = tuple(tools)
     dt = _checked_implicit_dt(lattice, dt, _contact_stiffness(tools, contact))

@@ -254,7 +254,8 @@ def hex_lattice(
     Compiled at the boundary; the topology (`hex_edges`) is cached per grid shape.
     """
     _checks.check_ndim(positions, "positions", 4, last=3)
-    p = jnp.asarray(positions)
+    _checks.check_real(positions, "positions")
+    p = _checks.finite(jnp.asarray(positions), "positions")
     shape = p.shape[:3]
     edges = hex_edges(shape)
     if fixed is not None:
@@ -318,6 +319,10 @@ def grid_edges(
     `node_map (m, n)` gives the node of each sample (coincident samples — a closed seam, a pole —
     share a node); springs that join a node to itself and repeated springs are dropped.
     """
+    _checks.check_ndim(node_map, "node_map", 2)
+    node_map = np.asarray(node_map)
+    if not np.issubdtype(node_map.dtype, np.integer):
+        _checks.fail("node_map", "integer node indices", node_map.dtype)
     m, n = node_map.shape
     offsets = [(1, 0), (0, 1)] + ([(1, 1), (1, -1)] if shear else []) + ([(2, 0), (0, 2)] if bending else [])
     i, j = np.meshgrid(np.arange(m), np.arange(n), indexing="ij")

@@ -20,10 +20,9 @@ from bsjax.mss._integrators import (
     METHODS,
     Contact,
     Plasticity,
-    _check_shapes,
     _checked_dt,
     _checked_implicit_dt,
-    _checked_state,
+    _checked_inputs,
     _explicit,
     _implicit,
 )
@@ -71,6 +70,8 @@ def _per_step_force(external_force, n_steps, n_nodes):
     if external_force is None:
         return None, None
     shape = np.shape(external_force)
+    if shape in ((n_nodes, 3), (n_steps, n_nodes, 3)):
+        external_force = _checks.finite(jnp.asarray(external_force), "external_force")
     if shape == (n_nodes, 3):
         return external_force, None
     if shape == (n_steps, n_nodes, 3):
@@ -82,8 +83,7 @@ def _prepare(lattice, state, dt, method, cg_iterations, tools, contact, check_st
     """Structure and value checks shared by the rollouts: `(state, dt, contact)`."""
     _check_method(method)
     _checks.check_count(cg_iterations, "cg_iterations")
-    _check_shapes(lattice, state)
-    state = _checked_state(state)
+    state = _checked_inputs(lattice, state)[0]
     contact = Contact() if (tools and contact is None) else contact
     k_c = contact.stiffness if contact is not None else 0.0
     if method == "implicit":
@@ -334,7 +334,7 @@ def relax(
     `simulate` with a fixed step count for gradients.) Other arguments as `simulate`."""
     max_steps = _checks.check_count(max_steps, "max_steps")
     check_every = _checks.check_count(check_every, "check_every")
-    _check_shapes(lattice, state, external_force, gravity)
+    external_force, gravity = _checked_inputs(lattice, state, external_force, gravity)[1:]
     tol = _checks.positive(jnp.asarray(tol, dtype=lattice.mass.dtype), "tol", strict=False)
     tools = tuple(tools)
     state, dt, contact = _prepare(lattice, state, dt, method, cg_iterations, tools, contact, True)

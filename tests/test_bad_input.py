@@ -1,0 +1,239 @@
+"""The bad-input contract, table-driven: every case raises `ValueError`/`TypeError` whose message
+names the argument the caller passed, eagerly and (for array arguments) inside `jax.jit`; and
+array-likes (lists) are accepted where arrays are. Modules: collide, mss, merge, vsofm, shapes.
+"""
+
+from __future__ import annotations
+
+import logging
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsjax import collide, merge, mss, shapes, vsofm
+from tests.helpers import raises_both
+
+C3 = jnp.array([0.5, 0.5, 0.1])
+NAN3 = jnp.array([np.nan, 0.0, 0.0])
+INF3 = jnp.array([np.inf, 0.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def plate():
+    s = shapes.plate(6, 6)
+    return s, s.blending(12, 12)
+
+
+@pytest.fixture(scope="module")
+def lattice():
+    g = np.stack(np.meshgrid(*[np.linspace(0.0, 0.1, 3)] * 3, indexing="ij"), -1)
+    lat = mss.hex_lattice(g, material=mss.JELLY)
+    return lat, mss.init(lat)
+
+
+# (label, function of the traced array, the array, the argument the message must name)
+ARRAY_CASES = [
+    ("Sphere centre NaN", lambda c: collide.Sphere(c, 0.2), NAN3, "center"),
+    ("Sphere radius < 0", lambda r: collide.Sphere(C3, r), jnp.asarray(-1.0), "radius"),
+    ("Sphere radius inf", lambda r: collide.Sphere(C3, r), jnp.asarray(np.inf), "radius"),
+    ("Ellipsoid radii < 0", lambda r: collide.Ellipsoid(C3, r), jnp.array([1.0, -1.0, 1.0]), "radii"),
+    ("Plane point inf", lambda p: collide.Plane(p, jnp.array([0.0, 0.0, 1.0])), INF3, "point"),
+    ("Point position NaN", lambda p: collide.Point(p), NAN3, "position"),
+    ("closest_point_on_triangle NaN", lambda x: collide.closest_point_on_triangle(x, jnp.eye(3)), NAN3, "x"),
+    ("stable_dt contact < 0", None, jnp.asarray(-1e3), "contact_stiffness"),
+    ("step dt NaN", None, jnp.asarray(np.nan), "dt"),
+    ("step dt < 0", None, jnp.asarray(-1e-4), "dt"),
+    ("implicit_step dt inf", None, jnp.asarray(np.inf), "dt"),
+    ("step force NaN", None, None, "external_force"),
+    ("step gravity inf", None, INF3, "gravity"),
+    ("step state NaN", None, None, "state.position"),
+    ("relax tol < 0", None, jnp.asarray(-1.0), "tol"),
+    ("hex_lattice positions NaN", None, jnp.full((2, 2, 2, 3), np.nan), "positions"),
+    ("vsofm.fit points inf", lambda p: vsofm.fit(p, (3, 3, 3), cycles=2), None, "points"),
+]
+
+
+def _lattice_case(label, lat, state):
+    n = lat.n_nodes
+    return {
+        "stable_dt contact < 0": lambda k: mss.stable_dt(lat, k),
+        "step dt NaN": lambda dt: mss.step(lat, state, dt),
+        "step dt < 0": lambda dt: mss.step(lat, state, dt),
+        "implicit_step dt inf": lambda dt: mss.implicit_step(lat, state, dt),
+        "step force NaN": (lambda f: mss.step(lat, state, 1e-5, external_force=f), jnp.full((n, 3), np.nan)),
+        "step gravity inf": lambda g: mss.step(lat, state, 1e-5, gravity=g),
+        "step state NaN": (
+            lambda x: mss.step(lat, mss.State(x, state.velocity), 1e-5),
+            state.position.at[0, 0].set(np.nan),
+        ),
+        "relax tol < 0": lambda t: mss.relax(lat, state, 1e-5, tol=t, max_steps=2, check_every=1),
+        "hex_lattice positions NaN": lambda x: mss.hex_lattice(x, material=mss.JELLY),
+    }[label]
+
+
+@pytest.mark.parametrize("label, fn, array, name", ARRAY_CASES, ids=[c[0] for c in ARRAY_CASES])
+def test_bad_values_name_the_argument_eagerly_and_under_jit(lattice, label, fn, array, name):
+    if fn is None:
+        fn = _lattice_case(label, *lattice)
+        if isinstance(fn, tuple):
+            fn, array = fn
+    if array is None:  # vsofm's samples
+        array = jnp.asarray(np.random.default_rng(0).normal(size=(40, 3))).at[3, 1].set(np.inf)
+    raises_both(fn, array, match=rf"(?:^|Error: ){name.replace('.', '[.]')}: expected")
+
+
+@pytest.fixture(scope="module")
+def env(plate, lattice):
+    s, b = plate
+    lat, state = lattice
+    a2 = s.with_ctrl(s.ctrl + jnp.array([[[1.0, 0.0, 0.0]]]))
+    pts = np.random.default_rng(0).normal(size=(40, 3))
+    return SimpleNamespace(s=s, b=b, a2=a2, lat=lat, state=state, pts=pts)
+
+
+# (label, function of the environment, error type, the argument the message must name)
+STRUCTURE_CASES = [
+    ("Sphere complex radius", lambda e: collide.Sphere(C3, 1j), TypeError, "radius"),
+    ("Sphere boolean radius", lambda e: collide.Sphere(C3, True), TypeError, "radius"),
+    ("Sphere centre shape", lambda e: collide.Sphere(jnp.zeros(2), 0.2), ValueError, "center"),
+    ("Plane zero normal", lambda e: collide.Plane(C3, jnp.zeros(3)), ValueError, "normal"),
+    (
+        "TriangleMesh NaN vertex",
+        lambda e: collide.TriangleMesh(
+            np.array([[0, 0, 0], [1, 0, 0], [0, 1, np.nan]]), np.array([[0, 1, 2]])
+        ),
+        ValueError,
+        "vertices",
+    ),
+    (
+        "TriangleMesh face index",
+        lambda e: collide.TriangleMesh(np.eye(3), np.array([[0, 1, 5]])),
+        ValueError,
+        "faces",
+    ),
+    (
+        "TriangleMesh float faces",
+        lambda e: collide.TriangleMesh(np.eye(3), np.array([[0, 1, 2.0]])),
+        ValueError,
+        "faces",
+    ),
+    (
+        "contacts ctrl shape",
+        lambda e: collide.contacts(e.b, e.s.ctrl[:4], collide.Sphere(C3, 0.2)),
+        ValueError,
+        "ctrl",
+    ),
+    ("contacts tool type", lambda e: collide.contacts(e.b, e.s.ctrl, "sphere"), TypeError, "tool"),
+    (
+        "contacts boolean ctrl",
+        lambda e: collide.contacts(e.b, e.s.ctrl > 0, collide.Sphere(C3, 0.2)),
+        TypeError,
+        "ctrl",
+    ),
+    ("tessellate shape", lambda e: collide.tessellate(jnp.zeros((5, 3))), ValueError, "points"),
+    ("sphere_hierarchy levels", lambda e: collide.sphere_hierarchy(e.s.ctrl, -1), ValueError, "levels"),
+    (
+        "hex_lattice positions shape",
+        lambda e: mss.hex_lattice(np.zeros((3, 3, 3)), material=mss.JELLY),
+        ValueError,
+        "positions",
+    ),
+    ("hex_edges zero size", lambda e: mss.hex_edges((0, 2, 2)), ValueError, "shape"),
+    ("grid_edges node_map", lambda e: mss.grid_edges(np.zeros(4, dtype=int)), ValueError, "node_map"),
+    ("grid_edges float node_map", lambda e: mss.grid_edges(np.zeros((3, 3))), ValueError, "node_map"),
+    ("Contact stiffness < 0", lambda e: mss.Contact(stiffness=-1.0), ValueError, "stiffness"),
+    (
+        "step gravity shape",
+        lambda e: mss.step(e.lat, e.state, 1e-5, gravity=jnp.zeros(2)),
+        ValueError,
+        "gravity",
+    ),
+    ("simulate n_steps 0", lambda e: mss.simulate(e.lat, e.state, 1e-5, 0), ValueError, "n_steps"),
+    ("simulate n_steps float", lambda e: mss.simulate(e.lat, e.state, 1e-5, 2.5), TypeError, "n_steps"),
+    (
+        "simulate Point tool",
+        lambda e: mss.simulate(e.lat, e.state, 1e-5, 2, tools=[collide.Point(C3)]),
+        TypeError,
+        "tools",
+    ),
+    (
+        "relax check_every -1",
+        lambda e: mss.relax(e.lat, e.state, 1e-5, check_every=-1),
+        ValueError,
+        "check_every",
+    ),
+    (
+        "trajectory save_every 0",
+        lambda e: mss.trajectory(e.lat, e.state, 1e-5, 4, save_every=0),
+        ValueError,
+        "save_every",
+    ),
+    (
+        "implicit cg_iterations 0",
+        lambda e: mss.implicit_step(e.lat, e.state, 1e-5, cg_iterations=0),
+        ValueError,
+        "cg_iterations",
+    ),
+    ("merge continuity", lambda e: merge.merge([e.s, e.a2], "u", 5), ValueError, "continuity"),
+    ("merge direction", lambda e: merge.merge([e.s, e.a2], "w", 0), ValueError, "direction"),
+    ("merge one patch", lambda e: merge.merge([e.s], "u", 0), ValueError, "surfaces"),
+    ("merge samples 1", lambda e: merge.merge([e.s, e.a2], "u", 0, samples=1), ValueError, "samples"),
+    ("merge samples float", lambda e: merge.merge([e.s, e.a2], "u", 0, samples=20.5), ValueError, "samples"),
+    ("merge not a surface", lambda e: merge.merge([e.s, "x"], "u", 0), TypeError, r"surfaces\[1\]"),
+    (
+        "deviation samples 0",
+        lambda e: merge.deviation([e.s, e.a2], merge.merge([e.s, e.a2], "u", 0), samples=0),
+        ValueError,
+        "samples",
+    ),
+    ("vsofm cycles 0", lambda e: vsofm.fit(e.pts, (3, 3, 3), cycles=0), ValueError, "cycles"),
+    ("vsofm shape", lambda e: vsofm.fit(e.pts, (1, 3, 3)), ValueError, "shape"),
+    (
+        "vsofm Settings",
+        lambda e: vsofm.Settings(learning_rate_start=-1.0),
+        ValueError,
+        "learning_rate_start",
+    ),
+    ("corner_jacobians shape", lambda e: vsofm.corner_jacobians(jnp.zeros((3, 3, 3))), ValueError, "nodes"),
+    ("plate r 0", lambda e: shapes.plate(0, 8), ValueError, "r"),
+    ("plate r float", lambda e: shapes.plate(8.5, 8), TypeError, "r"),
+    ("plate size < 0", lambda e: shapes.plate(8, 8, size=-1.0), ValueError, "size"),
+    ("sphere radius < 0", lambda e: shapes.sphere(radius=-1.0), ValueError, "radius"),
+    ("sphere radius complex", lambda e: shapes.sphere(radius=1j), TypeError, "radius"),
+]
+
+
+@pytest.mark.parametrize("label, fn, error, name", STRUCTURE_CASES, ids=[c[0] for c in STRUCTURE_CASES])
+def test_bad_arguments_name_the_argument(env, label, fn, error, name):
+    with pytest.raises(error, match=rf"^{name}[ :(]"):
+        jax.block_until_ready(fn(env))
+
+
+def test_lists_are_array_likes(plate):
+    """A nested list of numbers is accepted wherever an array is, with the same result."""
+    s, b = plate
+    tool = collide.Sphere(C3, 0.3)
+    as_array = collide.contacts(b, s.ctrl, tool)
+    as_list = collide.contacts(b, np.asarray(s.ctrl).tolist(), collide.Sphere([0.5, 0.5, 0.1], 0.3))
+    np.testing.assert_array_equal(as_array.depth, as_list.depth)
+    assert int(jnp.sum(as_array.mask)) > 0
+    pts = np.asarray(s.ctrl).reshape(-1, 3)
+    assert bool(collide.hulls_apart(pts.tolist(), (pts + 5.0).tolist()))
+
+
+def test_value_check_failures_are_not_logged_as_tracebacks(plate, caplog):
+    """A failed value check reaches the caller as one ValueError with the check's message — on
+    the first call and on later ones (which take JAX's C++ dispatch path); JAX's log of the
+    failed host callback (a traceback per call) is dropped for bsjax's own checks."""
+    s, b = plate
+    tool = collide.Sphere(C3, 0.2)
+    collide.contacts(b, s.ctrl, tool)  # compiled: the bad calls below take the fast path
+    for _ in range(2):
+        with caplog.at_level(logging.ERROR), pytest.raises(ValueError, match="^radius: expected"):
+            collide.Sphere(C3, jnp.asarray(-1.0))
+        with caplog.at_level(logging.ERROR), pytest.raises(ValueError, match="^ctrl: expected finite"):
+            collide.contacts(b, s.ctrl.at[0, 0, 0].set(np.nan), tool)
+    assert not [r for r in caplog.records if "callback" in r.getMessage()], caplog.text
