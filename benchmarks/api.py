@@ -49,7 +49,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
+from _timing import paired, timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 import bsjax._boundary  # noqa: E402
 from bsjax import collide, merge, mss, shapes, vsofm  # noqa: E402
@@ -446,12 +446,18 @@ def first_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[0] if text else ''}"[:160]
 
 
+def budget(fn, calls: int, per_call: int = 1) -> int:
+    """How many calls (at least 5, at most `calls`) fit the time budget, from one timed call of
+    `fn` (the second call: the first after compilation); `per_call` functions run per count."""
+    t0 = time.perf_counter()
+    fn()
+    once = time.perf_counter() - t0
+    return int(min(calls, max(5, STEADY_BUDGET / max(per_call * once, 1e-6))))
+
+
 def steady(fn, calls: int):
     """(median, p99, n) of `fn()` from its second call on; fewer calls when one takes long."""
-    t0 = time.perf_counter()
-    fn()  # second call: the first after compilation, not counted
-    once = time.perf_counter() - t0
-    n = int(min(calls, max(5, STEADY_BUDGET / max(once, 1e-6))))
+    n = budget(fn, calls)
     med, p99 = timed(fn, n, warmup=1)
     return med, p99, n
 
@@ -468,18 +474,22 @@ def run_entry(e: Entry, q: Sizes, calls: int) -> dict[str, Any]:
         t0 = time.perf_counter()
         as_called()
         row["first_s"] = time.perf_counter() - t0
-        row["median_s"], row["p99_s"], row["calls"] = steady(as_called, calls)
     except Exception as exc:  # one failing entry must not stop the table
         row["error"] = first_line(exc)
         return row
     if not case.jit:
+        row["median_s"], row["p99_s"], row["calls"] = steady(as_called, calls)
         row["jitted_s"] = row["ratio"] = None
         row["verdict"] = "n/a"
         return row
     try:
         jitted = jax.jit(case.twin or call)
-        jitted(*args)  # compile
-        row["jitted_s"] = steady(lambda: jax.block_until_ready(jitted(*args)), calls)[0]
+        jax.block_until_ready(jitted(*args))  # compile
+        hand = lambda: jax.block_until_ready(jitted(*args))
+        n = budget(as_called, calls, per_call=2)
+        # as called and hand-jitted in alternation: the machine's load falls on both alike
+        row["median_s"], row["p99_s"], row["jitted_s"], _ = paired(as_called, hand, n)
+        row["calls"] = n
     except Exception as exc:
         row["error"] = "jitted: " + first_line(exc)
         return row
