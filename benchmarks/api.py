@@ -220,6 +220,62 @@ def _(q):
     return Case(lambda s: s.blending(q.grid, q.grid), (s,), grid_size(q))
 
 
+@entry("basis.BSplineSurface.iso_curve")
+def _(q):
+    s, _ = plate(q)
+    return Case(lambda s, t: s.iso_curve("u", t), (s, jnp.asarray(0.3)), f"{q.net}x{q.net} net")
+
+
+@functools.cache
+def curve(q: Sizes):
+    """A random planar cubic with `q.net` control points and its blending at `q.grid ** 2` samples."""
+    rng = np.random.default_rng(1)
+    c = bsjax.BSplineCurve(jnp.asarray(rng.normal(size=(q.net, 2))), bsjax.clamped_knots(q.net, 3), 3)
+    return c, c.blending(q.grid * q.grid)
+
+
+def _curve_size(q, what="samples"):
+    return f"{q.net} ctrl, {q.grid * q.grid} {what}"
+
+
+@entry("basis.BSplineCurve.evaluate")
+def _(q):
+    c, _ = curve(q)
+    t = jnp.asarray(np.random.default_rng(0).uniform(size=q.n_eval))
+    return Case(lambda c, t: c.evaluate(t, 1), (c, t), f"{q.net} ctrl, {q.n_eval} t, nu = 1")
+
+
+@entry("basis.BSplineCurve.curvature")
+def _(q):
+    c, _ = curve(q)
+    t = jnp.asarray(np.random.default_rng(0).uniform(size=q.n_eval))
+    return Case(lambda c, t: c.curvature(t), (c, t), f"{q.net} ctrl, {q.n_eval} t")
+
+
+@entry("basis.BSplineCurve.blending")
+def _(q):
+    c, _ = curve(q)
+    return Case(lambda c: c.blending(q.grid * q.grid), (c,), _curve_size(q))
+
+
+@entry("basis.CurveBlending.points")
+def _(q):
+    c, b = curve(q)
+    return Case(lambda b, p: b.points(p), (b, c.ctrl), _curve_size(q))
+
+
+@entry("basis.CurveBlending.derivative")
+def _(q):
+    c, b = curve(q)
+    return Case(lambda b, p: b.derivative(p, 2), (b, c.ctrl), _curve_size(q) + ", nu = 2")
+
+
+@entry("basis.CurveBlending.refit")
+def _(q):
+    c, b = curve(q)
+    return Case(lambda b, m: b.refit(m), (b, b.points(c.ctrl)), _curve_size(q))
+
+
 # --- collide -------------------------------------------------------------------------------------
 def _tools():
     """name -> tool builder (called inside setup, after the sizes are known)."""

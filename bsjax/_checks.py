@@ -82,9 +82,12 @@ def check_count(value: Any, name: str, minimum: int = 1) -> int:
 
 def check_real(x: Any, name: str) -> None:
     """Refuse complex input (it would be truncated to its real part) and booleans (not numbers)."""
-    if np.iscomplexobj(x):
-        raise TypeError(f"{name}: expected real numbers, got complex dtype {np.asarray(x).dtype}")
-    if isinstance(x, (bool, np.bool_)) or getattr(x, "dtype", None) == np.bool_:
+    dtype = getattr(x, "dtype", None)  # tracers too (their dtype is known; their values are not)
+    if dtype is None:
+        dtype = np.asarray(x).dtype
+    if np.issubdtype(dtype, np.complexfloating):
+        raise TypeError(f"{name}: expected real numbers, got complex dtype {dtype}")
+    if dtype == np.bool_:
         raise TypeError(f"{name}: expected real numbers, got booleans")
 
 

@@ -269,11 +269,6 @@ def test_jit_vmap_and_grad():
     check_grad(lambda p: jnp.sum(b.refit(p) ** 2), b.points(curve.ctrl))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bsjax.basis._functions.basis_functions clamps t with jnp.clip, whose gradient is 1/2 "
-    "exactly at the clip bound: d/dt at t = 0 and t = 1 comes out halved",
-)
 def test_grad_in_t_at_the_domain_ends():
     curve = _random_curve(np.random.default_rng(81), n=7, k=3, d=2)
     ends = jnp.asarray([0.0, 1.0])

@@ -22,7 +22,7 @@ def test_annotations_hold_under_jaxtyping_and_beartype():
     cmd = [
         sys.executable, "-m", "pytest", "-q", "-p", "no:xdist", "-p", "no:cacheprovider",
         "--jaxtyping-packages=bsjax,beartype.beartype",
-        "tests/test_surface.py", "tests/test_blending.py",
+        "tests/test_surface.py", "tests/test_blending.py", "tests/test_curve.py",
         "-k", "not error and not raise and not bad and not refuse",
     ]  # fmt: skip
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1500)

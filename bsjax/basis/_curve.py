@@ -185,13 +185,10 @@ def _contract(a, ctrl, weights, nu: int) -> list:
     """`[A^{(k)} P]_{k ≤ nu}` — through the homogeneous form and the quotient rule when rational."""
     if weights is None:
         return [a[k] @ ctrl for k in range(nu + 1)]
-    d = ctrl.shape[-1]
-    # `_tensor.rational_derivatives` works on 3-D points: lift planar points to z = 0.
-    lifted = ctrl if d == 3 else jnp.concatenate([ctrl, jnp.zeros_like(ctrl[:, :1])], axis=-1)
-    net = _tensor.homogeneous(lifted, weights)
+    net = _tensor.homogeneous(ctrl, weights)
     h = {(k, 0): a[k] @ net for k in range(nu + 1)}
     s = _tensor.rational_derivatives(h, nu, 0)
-    return [s[(k, 0)][..., :d] for k in range(nu + 1)]
+    return [s[(k, 0)] for k in range(nu + 1)]
 
 
 def _curvature(d1, d2):
@@ -283,16 +280,7 @@ _REFIT_NEEDS = "at least as many samples as control points, with a full-column-r
 @compiled
 def _blending(direction: SplineDirection, params, weights) -> CurveBlending:
     a = direction.matrices(params, tuple(range(_ORDERS)))
-    refit, ok = _pinv(a[0])
+    refit, ok = _tensor.pseudo_inverse(a[0])
     return CurveBlending(
         params=params, a=a, refit_matrix=refit, full_rank=ok, weights=weights, direction=direction
     )
-
-
-def _pinv(a):
-    """`(A^+, full column rank)` via SVD; `(None, True)` when `A` has fewer rows than columns."""
-    if a.shape[0] < a.shape[1]:
-        return None, jnp.ones((), bool)
-    s = jnp.linalg.svd(a, compute_uv=False)
-    tol = s[0] * max(a.shape) * jnp.finfo(a.dtype).eps
-    return jnp.linalg.pinv(a), s[-1] > tol

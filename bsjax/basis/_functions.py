@@ -42,8 +42,10 @@ def basis_functions(knots: Float[Array, " L"], degree: int, t: Float[Array, ""],
     """The nu-th derivative of all `L − degree − 1` basis functions at one parameter `t` (a kernel:
     no checks; callers validate).
 
-    Parameters are clipped to the domain `[t_k, t_{n}]`; the right end belongs to the last
-    non-empty span, so `t = 1` is included. Differentiable in `t` and in the knots.
+    Parameters are clipped to the domain `[t_k, t_{n}]` (by `where`, so the derivative in `t` at
+    the domain ends is the one-sided derivative, not halved as `clip`'s would be); the right end
+    belongs to the last non-empty span, so `t = 1` is included. Differentiable in `t` and in the
+    knots.
 
     **Returns:** `(L − degree − 1,)`; at most `degree + 1` entries are non-zero.
     """
@@ -52,7 +54,8 @@ def basis_functions(knots: Float[Array, " L"], degree: int, t: Float[Array, ""],
     n_ctrl = L - degree - 1
     if nu > degree:
         return jnp.zeros((n_ctrl,), dtype=knots.dtype)
-    t = jnp.clip(t, knots[degree], knots[n_ctrl])
+    lo, hi = knots[degree], knots[n_ctrl]
+    t = jnp.where(t < lo, lo, jnp.where(t > hi, hi, t))
     # Last non-empty span at or left of t; at the right end this is the last interval.
     domain = knots[degree : n_ctrl + 1]
     span = jnp.searchsorted(domain, t, side="right").astype(jnp.int32) - 1

@@ -379,7 +379,7 @@ _REFIT_NEEDS = (
 def _blending(du: SplineDirection, dv: SplineDirection, pu, pv, weights) -> Blending:
     pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
     a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
-    (refit_u, ok_u), (refit_v, ok_v) = _pinv(a_u[0]), _pinv(a_v[0])
+    (refit_u, ok_u), (refit_v, ok_v) = _tensor.pseudo_inverse(a_u[0]), _tensor.pseudo_inverse(a_v[0])
     return Blending(
         params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
         full_rank=ok_u & ok_v, weights=weights, direction_u=du, direction_v=dv,
@@ -395,16 +395,6 @@ def _grid_params(params, count, name, count_name, dtype):
     params = jnp.asarray(params, dtype=dtype)
     _checks.check_ndim(params, name, 1)
     return params
-
-
-def _pinv(a):
-    """`((A^T A)^{-1} A^T, full column rank)` via SVD, computed once; `(None, True)` when `A` has
-    fewer rows than columns (structural: then no refit)."""
-    if a.shape[0] < a.shape[1]:
-        return None, jnp.ones((), bool)
-    s = jnp.linalg.svd(a, compute_uv=False)
-    tol = s[0] * max(a.shape) * jnp.finfo(a.dtype).eps
-    return jnp.linalg.pinv(a), s[-1] > tol
 
 
 def _every(count: int, q: int) -> np.ndarray:

@@ -13,7 +13,7 @@ from bsjax._safe import norm, unit
 
 
 def homogeneous(ctrl, weights):
-    """`(r, s, 3)` control net → `(r, s, 4)` homogeneous net `[w P, w]` (or `ctrl` if no weights)."""
+    """`(..., d)` control net → `(..., d + 1)` homogeneous net `[w P, w]` (or `ctrl` if no weights)."""
     if weights is None:
         return ctrl
     return jnp.concatenate([ctrl * weights[..., None], weights[..., None]], axis=-1)
@@ -34,13 +34,14 @@ def rational_derivatives(h, nu: int, nv: int):
 
     **Arguments:** `h[(k, l)]` the (k, l)-th partial derivative of `[w S, w]`, `(..., 4)`, for
     all `k ≤ nu`, `l ≤ nv`.
-    **Returns:** `s[(k, l)]`, `(..., 3)`, the partial derivatives of the rational surface.
+    **Returns:** `s[(k, l)]`, `(..., d)`, the partial derivatives of the rational map (a surface,
+    or a curve with `nv = 0`; points of any dimension `d`, the weight last).
     """
-    w = {kl: v[..., 3:] for kl, v in h.items()}
+    w = {kl: v[..., -1:] for kl, v in h.items()}
     s = {}
     for k in range(nu + 1):
         for l in range(nv + 1):
-            value = h[(k, l)][..., :3]
+            value = h[(k, l)][..., :-1]
             for i in range(k + 1):
                 for j in range(l + 1):
                     if i or j:
@@ -67,3 +68,14 @@ def unit_normal(t_u, t_v, t_uv, u, v):
     sign_v = jnp.where(v < 0.5, 1.0, -1.0)[..., None]
     limit = jnp.where(pole_in_v[..., None], sign_u * jnp.cross(t_u, t_uv), sign_v * jnp.cross(t_uv, t_v))
     return unit(jnp.where(degenerate[..., None], limit, n))
+
+
+def pseudo_inverse(a):
+    """`(A^+, full column rank)` of a blending matrix `A (m, n)` via SVD, computed once (the stored
+    least-squares refit of thesis eq. 3.7); `(None, True)` when `A` has fewer rows than columns
+    (structural: then no refit)."""
+    if a.shape[0] < a.shape[1]:
+        return None, jnp.ones((), bool)
+    s = jnp.linalg.svd(a, compute_uv=False)
+    tol = s[0] * max(a.shape) * jnp.finfo(a.dtype).eps
+    return jnp.linalg.pinv(a), s[-1] > tol

@@ -276,7 +276,7 @@ def load_surfaces(path: str, args: argparse.Namespace) -> list:
     """Every surface in `path`, in the dtype of this run (see `dtype`)."""
     from bsjax import io
 
-    return [_cast(s, dtype(args)) for s in io.load_all(path)]
+    return [_cast(s, dtype(args)) for s in io.load_all(path, kind="surface")]
 
 
 def load_surface(path: str, args: argparse.Namespace):
