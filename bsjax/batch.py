@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import inspect
 import os
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -87,40 +88,93 @@ def _shardings(grid: Mesh) -> tuple[NamedSharding, NamedSharding]:
 
 
 # --- the compiled, vmapped function, cached per (fn, mesh) --------------------------------------
+def _split(fn: Callable) -> tuple[Callable, tuple, dict]:
+    """`(core, args, kwargs)` with `fn(*items) == core(*args, *items, **kwargs)`: a
+    `functools.partial` or a bound method (`blending.points`) is its function and its bound
+    values, so that a new partial or method object over new arrays reuses one compilation."""
+    if isinstance(fn, functools.partial):
+        core, args, kwargs = _split(fn.func)
+        return core, (*args, *fn.args), {**kwargs, **fn.keywords}
+    owner, func = getattr(fn, "__self__", None), getattr(fn, "__func__", None)
+    if owner is not None and callable(func) and not inspect.ismodule(owner):
+        return func, (owner,), {}
+    return fn, (), {}
+
+
 class _MappedCache:
     """`jax.jit` of the sharded `jax.vmap(fn)` per `(fn, mesh)`, least recently used dropped
     past 64 entries; `jax.jit` itself keeps one executable per argument structure and shapes.
-    Registered with `bsjax.clear_caches()`."""
+
+    A `functools.partial` or bound method is keyed by its function and the structure and static
+    leaves of its bound values; their arrays are passed as (replicated) arguments. Registered
+    with `bsjax.clear_caches()`.
+    """
 
     def __init__(self, size: int):
         self._size = size
         self._entries: collections.OrderedDict = collections.OrderedDict()
 
-    def get(self, fn: Callable, grid: Mesh):
-        key = (fn, grid)
-        jitted = self._entries.get(key)
+    def get(self, fn: Callable, grid: Mesh) -> tuple[Callable, list]:
+        """The compiled function `run(bound_arrays, *batched)` and `fn`'s bound arrays."""
+        core, args, kwargs = _split(fn)
+        leaves, treedef = jax.tree_util.tree_flatten((args, kwargs))
+        mask = tuple(_boundary._is_dynamic(leaf) for leaf in leaves)
+        static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
+        dynamic = [leaf for m, leaf in zip(mask, leaves) if m]
+        key = (core, treedef, mask, static, grid)
+        try:
+            jitted = self._entries.get(key)
+        except TypeError:  # an unhashable bound value: key on the function object itself
+            key, core, treedef, mask, static, dynamic = (
+                (fn, grid),
+                fn,
+                jax.tree.structure(((), {})),
+                (),
+                (),
+                [],
+            )
+            jitted = self._entries.get(key)
         if jitted is None:
-            jitted = jax.jit(_sharded_vmap(fn, grid))
+            jitted = jax.jit(_sharded_vmap(core, treedef, mask, static, grid))
             self._entries[key] = jitted
             if len(self._entries) > self._size:
                 self._entries.popitem(last=False)
         else:
             self._entries.move_to_end(key)
-        return jitted
+        return jitted, dynamic
 
     def clear_cache(self) -> None:
         self._entries.clear()
 
 
-def _sharded_vmap(fn: Callable, grid: Mesh) -> Callable:
-    """`jax.vmap(fn)` run by `jax.shard_map` on each device's own block of the batch.
+def _sharded_vmap(core: Callable, treedef, mask: tuple, static: tuple, grid: Mesh) -> Callable:
+    """`jax.vmap` of `core(*bound, *items)` run by `jax.shard_map` on each device's own block
+    of the batch, the bound arrays replicated.
 
     Each device runs its block alone, with no collective between devices: a value check of `fn`
     (`eqx.error_if`) that fails on one device then fails the call instead of leaving the others
     waiting in a cross-device reduction, as the automatic partitioning of `jit` would.
     """
     spec = _batch_spec(grid)
-    return jax.shard_map(jax.vmap(fn), mesh=grid, in_specs=spec, out_specs=spec, check_vma=False)
+
+    def one(dynamic, *items):
+        it = iter(dynamic)
+        leaves = [next(it) if m else s for m, s in zip(mask, static)]
+        args, kwargs = jax.tree_util.tree_unflatten(treedef, leaves)
+        return core(*args, *items, **kwargs)
+
+    def run(dynamic, *batched):
+        size = jax.tree.leaves(batched)[0].shape[0]
+        padded = jax.tree.map(lambda x: _pad(x, 0, size, -(-size // grid.size) * grid.size), batched)
+        block = jax.vmap(one, in_axes=(None,) + (0,) * len(batched))
+        specs = (PartitionSpec(),) + (spec,) * len(batched)
+        out = jax.shard_map(block, mesh=grid, in_specs=specs, out_specs=spec, check_vma=False)(
+            dynamic, *padded
+        )
+        layout = NamedSharding(grid, spec if size % grid.size == 0 else PartitionSpec())
+        return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x[:size], layout), out)
+
+    return run
 
 
 _mapped = _MappedCache(_CACHE_SIZE)
@@ -160,29 +214,41 @@ def _leaf_shape(leaf, name: str) -> tuple[int, ...]:
     return shape
 
 
-def _place(leaf, start: int, stop: int, size: int, sharding: NamedSharding):
-    """Items `start:stop` of a concrete `leaf` (the last one repeated up to `size` items) as a
-    global array with `sharding`; each process transfers only its addressable shards."""
+def _pad(leaf, start: int, stop: int, size: int):
+    """Items `start:stop` of `leaf`, the last one repeated up to `size` items."""
+    if start == 0 and stop == size == leaf.shape[0]:
+        return leaf
+    if stop - start == size:
+        return leaf[start:stop]
+    return leaf[np.minimum(np.arange(start, start + size), stop - 1)]
+
+
+def _place(leaf, start: int, stop: int, size: int, sharding: NamedSharding, several: bool):
+    """`_pad` of a concrete `leaf` as a global array with `sharding`; with `several` processes,
+    each transfers only its addressable shards."""
     if isinstance(leaf, jax.Array) and not leaf.is_fully_addressable:
         if start == 0 and stop == size == leaf.shape[0]:
             return leaf  # already a global array of the whole batch
         leaf = _allgather(leaf)
-    if start == 0 and stop == size == leaf.shape[0]:
-        part = leaf
-    elif stop - start == size:
-        part = leaf[start:stop]
-    else:
-        part = leaf[np.minimum(np.arange(start, start + size), stop - 1)]
-    if jax.process_count() == 1:
+    part = _pad(leaf, start, stop, size)
+    if not several:
         return jax.device_put(part, sharding)
     host = np.asarray(part)
     return jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
 
 
-def _constrain(leaf, start: int, stop: int, size: int, sharding: NamedSharding):
-    """`_place` for a traced leaf (inside a caller's `jit`, `vmap` or `grad`)."""
-    part = leaf[np.minimum(np.arange(start, start + size), stop - 1)]
-    return jax.lax.with_sharding_constraint(part, sharding)
+def _place_replicated(leaf, replicated: NamedSharding, several: bool):
+    """A concrete bound value of `fn` as an argument of the mesh's computation: as it is in one
+    process unless committed to other devices; a global replicated array with `several`."""
+    if not several:
+        committed = isinstance(leaf, jax.Array) and leaf.committed
+        if committed and leaf.sharding.device_set != replicated.device_set:
+            return jax.device_put(leaf, replicated)
+        return leaf
+    if isinstance(leaf, jax.Array) and not leaf.is_fully_addressable:
+        return leaf
+    host = np.asarray(leaf)
+    return jax.make_array_from_callback(host.shape, replicated, lambda index: host[index])
 
 
 @functools.partial(jax.jit, static_argnames=("n", "sharding"))
@@ -260,20 +326,27 @@ def map(  # the name users expect, as `jax.lax.map`
     step = n if chunk is None else _checks.check_count(chunk, "chunk")
     step = -(-min(step, n) // devices) * devices  # ≥ n when one chunk holds the whole batch
     sharding, replicated = _shardings(grid)
-    traced = not _checks.is_concrete(args)
-    place = _constrain if traced else _place
-    mapped = _mapped.get(fn, grid)
+    mapped, bound = _mapped.get(fn, grid)
+    traced = not _checks.is_concrete((args, bound))
+    several = jax.process_count() > 1
+    if not traced:
+        bound = [_place_replicated(leaf, replicated, several) for leaf in bound]
+    if step >= n and (traced or not several):  # one call; `mapped` pads and cuts the batch
+        out = _run(mapped, (bound, *args), wait=not traced)
+        if progress is not None and not traced:
+            progress(n, n)
+        return out
     pieces = []
-    for start in range(0, n, step):
+    for start in range(0, n, step):  # every chunk `step` items (one compilation), the last padded
         stop = min(start + step, n)
-        inputs = jax.tree.map(lambda leaf: place(leaf, start, stop, step, sharding), args)
-        pieces.append(_run(mapped, inputs, wait=not traced))
+        if traced:
+            inputs = jax.tree.map(lambda leaf: _pad(leaf, start, stop, step), args)
+        else:
+            inputs = jax.tree.map(lambda leaf: _place(leaf, start, stop, step, sharding, several), args)
+        pieces.append(_run(mapped, (bound, *inputs), wait=not traced))
         if progress is not None and not traced:
             progress(stop, n)
-    if len(pieces) == 1 and n == step:
-        return pieces[0]
-    out_sharding = sharding if n % devices == 0 else replicated
-    return _assemble(pieces, n, out_sharding)
+    return _assemble(pieces, n, sharding if n % devices == 0 else replicated)
 
 
 # --- gather ----------------------------------------------------------------------------------

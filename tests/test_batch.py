@@ -32,15 +32,18 @@ MARK = "RESULT "
 
 # --- the experiment (also imported by the subprocesses, after their JAX set-up) ---------------
 @functools.cache
-def experiment():
-    """`(surface, blending, fn)`: `fn(tool, net)` is one design's contact and sample points."""
+def experiment(method: str = "window"):
+    """`(surface, blending, fn)`: `fn(tool, net)` is one design's contact and sample points
+    (`method="dense"`, the same contact, compiles faster: used in the subprocesses)."""
     from bsjax import collide, shapes
 
     surface = shapes.plate(6, 5)
     blending = surface.blending(9, 7)
 
     def fn(tool, net):
-        contact = collide.contacts(blending, net, collide.Sphere(tool["center"], tool["radius"]))
+        contact = collide.contacts(
+            blending, net, collide.Sphere(tool["center"], tool["radius"]), method=method
+        )
         return {"area": contact.mask.sum(), "depth": contact.depth, "points": blending.points(net)}, (
             contact.hit
         )
@@ -193,7 +196,7 @@ def test_map_bad_input():
 
 
 def test_map_value_check_of_fn_raises():
-    _, _, fn = experiment()
+    _, _, fn = experiment("dense")
     tools, nets = designs(4)
     nets[2, 1, 1, 2] = np.nan
     raises_both(lambda p: batch.map(fn, tools, p), nets, match="ctrl: expected finite values")
@@ -270,7 +273,7 @@ FOUR_DEVICES = f"""
     jax.config.update("jax_enable_x64", True)
     from bsjax import batch
     from tests.test_batch import experiment, designs, table
-    _, _, fn = experiment()
+    _, _, fn = experiment("dense")
     found = {{"devices": len(jax.devices())}}
     tools, nets = designs(8)
     out = batch.map(fn, tools, nets)
@@ -311,7 +314,7 @@ def test_map_on_four_devices():
     assert found["gap8"] <= 1e-12 and found["gap7"] <= 1e-12 and found["shape7"] == [7, 9, 7]
     assert found["gap7_chunked"] <= 1e-12 and found["calls"] == [[4, 7], [7, 7]]  # chunk 3 → 4
     assert found["nan"].startswith("ctrl: expected finite values")  # an error, not a hang
-    _, _, fn = experiment()
+    _, _, fn = experiment("dense")
     np.testing.assert_allclose(found["table8"], table(jax.jit(jax.vmap(fn))(*designs(8))), rtol=0, atol=1e-12)
 
 
@@ -322,7 +325,7 @@ WORKER = f"""
     import jax, numpy as np
     jax.config.update("jax_enable_x64", True)
     from tests.test_batch import experiment, designs, table
-    _, _, fn = experiment()
+    _, _, fn = experiment("dense")
     tools, nets = designs(8)
     out = batch.map(fn, tools, nets)
     found = {{"started": started, "process": jax.process_index(), "count": jax.process_count(),
@@ -353,7 +356,7 @@ def test_map_on_two_processes_matches_one():
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    _, _, fn = experiment()
+    _, _, fn = experiment("dense")
     tools, nets = designs(8)
     expected8 = table(jax.jit(jax.vmap(fn))(tools, nets))
     expected7 = table(jax.jit(jax.vmap(fn))(*jax.tree.map(lambda x: x[:7], (tools, nets))))
