@@ -15,7 +15,7 @@ devices, the collectives and the process group are JAX's.
   from arguments, `BSJAX_*` environment variables or JAX's cluster auto-detection.
 - `mesh(devices=None)` — the 1-D `"batch"` mesh.
 
-Source: SPEC §9 "scale-out via JAX's own runtime"; the sharding model is JAX's
+Source: issue #14 (scale-out through JAX's own runtime); the sharding model is JAX's
 (*Distributed arrays and automatic parallelization*, *Multi-process environments* in the JAX
 documentation).
 """
@@ -29,6 +29,7 @@ import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -90,15 +91,22 @@ def _shardings(grid: Mesh) -> tuple[NamedSharding, NamedSharding]:
 # --- the compiled, vmapped function, cached per (fn, mesh) --------------------------------------
 def _split(fn: Callable) -> tuple[Callable, tuple, dict]:
     """`(core, args, kwargs)` with `fn(*items) == core(*args, *items, **kwargs)`: a
-    `functools.partial` or a bound method (`blending.points`) is its function and its bound
-    values, so that a new partial or method object over new arrays reuses one compilation."""
+    `functools.partial`, a bound method (`blending.points`) or a callable `eqx.Module` is its
+    function and its bound values, so that a new such object over new arrays of the same shapes
+    reuses one compilation."""
     if isinstance(fn, functools.partial):
         core, args, kwargs = _split(fn.func)
         return core, (*args, *fn.args), {**kwargs, **fn.keywords}
     owner, func = getattr(fn, "__self__", None), getattr(fn, "__func__", None)
     if owner is not None and callable(func) and not inspect.ismodule(owner):
         return func, (owner,), {}
+    if isinstance(fn, eqx.Module):  # a callable module: its arrays are its bound values
+        return _call, (fn,), {}
     return fn, (), {}
+
+
+def _call(module, *items):
+    return module(*items)
 
 
 class _MappedCache:
@@ -309,11 +317,15 @@ def map(  # the name users expect, as `jax.lax.map`
     `iB/D … (i+1)B/D − 1`; otherwise the (small) result is replicated on every device. `gather`
     brings it to the host.
 
-    Compilation: `jax.jit(jax.vmap(fn))` is kept per `(fn, mesh)` (pass the same `fn` object to
-    reuse it) and compiled once per argument structure, shapes and chunk size; a repeated call
-    costs one dispatch plus the transfer of the inputs. Inside a caller's `jit`, `vmap` or `grad`
-    the inputs are laid out with `jax.lax.with_sharding_constraint` instead (differentiable).
-    A value check of `fn` that fails (an `eqx.error_if`) raises `ValueError` in a direct call.
+    Compilation: `jax.jit` of `jax.shard_map(jax.vmap(fn))` is kept per `(fn, mesh)` and
+    compiled once per argument structure, shapes and chunk size; a repeated direct call costs
+    one dispatch and waits for its results (so that a failed value check of `fn`, an
+    `eqx.error_if`, raises `ValueError` here and a chunk holds memory only while it runs). A
+    `functools.partial`, a bound method (`blending.points`) or a callable `eqx.Module` is keyed
+    by its function and static values, its arrays passed as replicated arguments: a new one over
+    new arrays of the same shapes reuses the compilation. A fresh `lambda` per call compiles per
+    call. Inside a caller's `jit`, `vmap` or `grad` the same function is traced into the
+    caller's program (differentiable).
     """
     if not callable(fn):
         raise TypeError(f"fn: expected a callable (a function of one design), got {type(fn).__name__}")

@@ -17,6 +17,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -151,6 +152,42 @@ def test_map_reuses_its_compilation():
     for n in (4, 4, 4):
         np.testing.assert_array_equal(np.asarray(batch.map(fn, np.arange(n, dtype=float))), 2 * np.arange(n))
     assert len(calls) == 1
+
+
+class _Scaled(eqx.Module):
+    scale: jax.Array
+    power: int = eqx.field(static=True)
+
+    def __call__(self, x):
+        return self.scale * x**self.power
+
+
+def test_map_bound_values_are_arguments_not_stale_constants():
+    """A partial or bound method over new arrays of the same shapes reuses one compilation and
+    uses the new values; a new static bound value (an int) compiles anew."""
+    traces = []
+
+    def scaled(scale, x, power=1):
+        traces.append(power)  # runs once per trace
+        return scale * x**power
+
+    x = np.arange(1.0, 5.0)
+    for scale in (2.0, 3.0):
+        out = batch.map(functools.partial(scaled, jnp.asarray(scale)), x)
+        np.testing.assert_array_equal(np.asarray(out), scale * x)
+    np.testing.assert_array_equal(np.asarray(batch.map(functools.partial(scaled, 2.0, power=2), x)), 2 * x**2)
+    assert traces == [1, 2]
+    for scale in (5.0, 7.0):
+        np.testing.assert_array_equal(np.asarray(batch.map(_Scaled(jnp.asarray(scale), 3), x)), scale * x**3)
+    surface, blending, _ = experiment()
+    _, nets = designs(3)
+    other = surface.blending(9, 7, params_u=np.linspace(0, 1, 9) ** 2)  # same shapes, other samples
+    np.testing.assert_allclose(
+        np.asarray(batch.map(other.points, nets)), np.asarray(jax.vmap(other.points)(nets)), atol=1e-12
+    )
+    assert not np.allclose(
+        np.asarray(batch.map(blending.points, nets)), np.asarray(batch.map(other.points, nets))
+    )
 
 
 def test_gather_returns_numpy():
@@ -333,6 +370,8 @@ WORKER = f"""
              "global": len(out[0]["depth"].sharding.device_set), "table8": table(out).tolist()}}
     tools7, nets7 = jax.tree.map(lambda x: x[:7], (tools, nets))
     found["table7"] = table(batch.map(fn, tools7, nets7, chunk=3)).tolist()
+    points = batch.map(experiment("dense")[1].points, nets7)  # bound arrays: global, replicated
+    found["points7"] = batch.gather(points).sum(axis=(1, 2, 3)).tolist()
     print("{MARK}" + json.dumps(found), flush=True)
 """
 
@@ -365,4 +404,5 @@ def test_map_on_two_processes_matches_one():
         assert f["local"] == 2 and f["global"] == 4  # each process holds 2 of the 4 blocks
         np.testing.assert_allclose(f["table8"], expected8, rtol=0, atol=1e-12)
         np.testing.assert_allclose(f["table7"], expected7, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f["points7"], expected7[:, 2], rtol=0, atol=1e-12)
     assert found[0]["table8"] == found[1]["table8"] and found[0]["table7"] == found[1]["table7"]
