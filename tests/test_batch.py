@@ -120,7 +120,7 @@ def test_map_accepts_lists_and_works_inside_jit_and_grad():
     np.testing.assert_allclose(
         np.asarray(batch.map(fn, radii)), np.stack([np.square(radii), np.sin(radii)], 1)
     )
-    _, _, contact = experiment()
+    _, _, contact = experiment("dense")
     tools, nets = designs(6)
 
     def spill(radius):
