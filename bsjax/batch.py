@@ -416,9 +416,9 @@ def initialize(
     **Returns:** True when it initialised `jax.distributed`; False when there was nothing to do
     (a single process, or already initialised with the same number of processes).
     """
-    coordinator = _from_env(coordinator, "coordinator", str)
-    num_processes = _from_env(num_processes, "num_processes", int)
-    process_id = _from_env(process_id, "process_id", int)
+    coordinator = _env_address(coordinator, "coordinator")
+    num_processes = _env_int(num_processes, "num_processes")
+    process_id = _env_int(process_id, "process_id")
     if num_processes is not None:
         _checks.check_count(num_processes, "num_processes")
     if process_id is not None:
@@ -451,20 +451,25 @@ def initialize(
     return True
 
 
-def _from_env(value, name: str, kind: type):
+def _env_address(value, name: str) -> str | None:
     if value is not None:
-        if kind is str and not isinstance(value, str):
+        if not isinstance(value, str):
             raise TypeError(f"{name}: expected a 'host:port' string, got {type(value).__name__}")
+        return value
+    return os.environ.get(_ENV[name], "").strip() or None
+
+
+def _env_int(value, name: str) -> int | None:
+    if value is not None:
         return value
     text = os.environ.get(_ENV[name], "").strip()
     if not text:
         return None
-    if kind is int:
-        try:
-            return int(text)
-        except ValueError:
-            _checks.fail(_ENV[name], "an int", repr(text))
-    return text
+    try:
+        return int(text)
+    except ValueError:
+        _checks.fail(_ENV[name], "an int", repr(text))
+        raise  # unreachable: `fail` raises
 
 
 def _check_address(address: str) -> None:

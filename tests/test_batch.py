@@ -256,6 +256,31 @@ def test_initialize_single_process_is_a_no_op(no_cluster):
     assert not jax.distributed.is_initialized()
 
 
+def test_initialize_passes_arguments_and_environment_to_jax(no_cluster):
+    """What reaches `jax.distributed.initialize` (recorded, not started: it runs once per
+    process; the real start is the two-process test below)."""
+    calls = []
+    no_cluster.setattr(jax.distributed, "initialize", lambda *a: calls.append(a))
+    assert batch.initialize("127.0.0.1:1234", 2, 1) is True
+    no_cluster.setenv("BSJAX_COORDINATOR", "10.0.0.1:99")
+    no_cluster.setenv("BSJAX_NUM_PROCESSES", "3")
+    no_cluster.setenv("BSJAX_PROCESS_ID", "2")
+    assert batch.initialize() is True
+    assert batch.initialize(process_id=0) is True  # an argument wins over its variable
+    for name in ("BSJAX_COORDINATOR", "BSJAX_NUM_PROCESSES", "BSJAX_PROCESS_ID"):
+        no_cluster.delenv(name)
+    no_cluster.setattr(batch, "_cluster_detected", lambda: True)  # e.g. a Slurm job of 4 tasks
+    assert batch.initialize() is True
+    assert batch.initialize(num_processes=4) is True  # JAX's detection fills in the rest
+    assert calls == [
+        ("127.0.0.1:1234", 2, 1),
+        ("10.0.0.1:99", 3, 2),
+        ("10.0.0.1:99", 3, 0),
+        (),
+        (None, 4, None),
+    ]
+
+
 def test_initialize_bad_input(no_cluster):
     with pytest.raises(ValueError, match=r"process_id: expected an int in \[0, 2\).*got 2"):
         batch.initialize("127.0.0.1:1234", 2, 2)
