@@ -16,6 +16,8 @@ rhino3dm and trimesh are imported by the functions that use them, so `import bsj
 from __future__ import annotations
 
 import json
+import warnings
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -79,22 +81,19 @@ def from_dict(data: dict, source: str = "data") -> BSplineSurface | BSplineCurve
     missing = [k for k in ("degree_u", "degree_v", "ctrl", "knots_u", "knots_v") if k not in data]
     if missing:
         _checks.fail(source, "the fields degree_u, degree_v, ctrl, knots_u, knots_v", f"missing {missing}")
-    dtype = np.dtype(data.get("dtype", "float64"))
-
-    def arr(key):
-        return None if data.get(key) is None else np.asarray(data[key], dtype=dtype)
-
+    field = _Fields(data, source)
+    args = (
+        field.array("ctrl"),
+        field.array("knots_u"),
+        field.array("knots_v"),
+        field.integer("degree_u"),
+        field.integer("degree_v"),
+        field.boolean("periodic_u"),
+        field.boolean("periodic_v"),
+        field.array("weights"),
+    )
     try:
-        return BSplineSurface(
-            arr("ctrl"),
-            arr("knots_u"),
-            arr("knots_v"),
-            int(data["degree_u"]),
-            int(data["degree_v"]),
-            bool(data.get("periodic_u", False)),
-            bool(data.get("periodic_v", False)),
-            arr("weights"),
-        )
+        return BSplineSurface(*args)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{source}: {err}") from err
 
@@ -103,17 +102,73 @@ def _curve_from_dict(data: dict, source: str) -> BSplineCurve:
     missing = [k for k in ("degree", "ctrl", "knots") if k not in data]
     if missing:
         _checks.fail(source, "the fields degree, ctrl, knots", f"missing {missing}")
-    dtype = np.dtype(data.get("dtype", "float64"))
-
-    def arr(key):
-        return None if data.get(key) is None else np.asarray(data[key], dtype=dtype)
-
+    field = _Fields(data, source)
+    args = (
+        field.array("ctrl"),
+        field.array("knots"),
+        field.integer("degree"),
+        field.boolean("periodic"),
+        field.array("weights"),
+    )
     try:
-        return BSplineCurve(
-            arr("ctrl"), arr("knots"), int(data["degree"]), bool(data.get("periodic", False)), arr("weights")
-        )
+        return BSplineCurve(*args)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{source}: {err}") from err
+
+
+class _Fields:
+    """Typed access to the fields of one JSON spline object; every error names the source and
+    the field (a degree must be a JSON integer, a flag a JSON boolean, arrays nested lists of
+    numbers, the dtype float32 or float64)."""
+
+    def __init__(self, data: dict, source: str):
+        self.data, self.source = data, source
+        dtype = data.get("dtype", "float64")
+        if dtype not in ("float32", "float64"):
+            self.fail("dtype", "'float32' or 'float64'", repr(dtype))
+        self.dtype = np.dtype(dtype)
+
+    def fail(self, key: str, expected: str, got) -> None:
+        _checks.fail(f"{self.source}: {key}", expected, got)
+
+    def integer(self, key: str) -> int:
+        value = self.data.get(key)
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(key, "an integer", repr(value))
+        return value  # pyright: ignore[reportReturnType]
+
+    def boolean(self, key: str) -> bool:
+        value = self.data.get(key, False)
+        if not isinstance(value, bool):
+            self.fail(key, "true or false", repr(value))
+        return value
+
+    def array(self, key: str):
+        value = self.data.get(key)
+        if value is None:
+            return None
+        if not _numeric_lists(value):
+            self.fail(key, "nested lists of numbers", _json_type(value))
+        with np.errstate(over="ignore"):  # too large for the dtype → inf, refused as non-finite next
+            try:
+                out = np.asarray(value, dtype=np.float64).astype(self.dtype)
+            except (OverflowError, ValueError) as err:  # an integer beyond float64, ragged lists
+                self.fail(key, "a rectangular array of float64-representable numbers", str(err))
+        if not np.isfinite(out).all():
+            self.fail(key, f"finite {self.dtype} values", "NaN, inf or a value beyond the dtype's range")
+        return out
+
+
+def _numeric_lists(value) -> bool:
+    if isinstance(value, list):
+        return all(_numeric_lists(v) for v in value)
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _json_type(value) -> str:
+    return {dict: "an object", str: "a string", bool: "a boolean", list: "a list holding other values"}.get(
+        type(value), type(value).__name__
+    )
 
 
 # --- Rhino .3dm -----------------------------------------------------------------------------
@@ -236,20 +291,41 @@ def _save_3dm(splines, path: Path) -> None:
 def _load_3dm(path: Path) -> list[BSplineSurface | BSplineCurve]:
     import rhino3dm
 
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
     model = rhino3dm.File3dm.Read(str(path))
     if model is None:
         _checks.fail(str(path), "a readable Rhino .3dm file", "a file rhino3dm cannot parse")
-    surfaces = []
+    splines, skipped, untrimmed, reversed_faces = [], Counter(), 0, 0
     for index, obj in enumerate(model.Objects):
-        geometry = obj.Geometry
+        geometry, source = obj.Geometry, f"{path} object {index}"
         if isinstance(geometry, rhino3dm.Curve):
-            surfaces.append(_curve_from_rhino(geometry.ToNurbsCurve(), f"{path} object {index}"))
-            continue
-        faces = list(geometry.Surfaces) if isinstance(geometry, rhino3dm.Brep) else [geometry]
-        for face in faces:
-            if isinstance(face, rhino3dm.Surface):
-                surfaces.append(_from_rhino(face.ToNurbsSurface(), f"{path} object {index}"))
-    return surfaces
+            splines.append(_curve_from_rhino(geometry.ToNurbsCurve(), source))
+        elif isinstance(geometry, rhino3dm.Brep):
+            if not geometry.IsSurface:  # trimmed or several faces: the faces' underlying surfaces
+                untrimmed += len(geometry.Faces)
+            for face in geometry.Faces:
+                reversed_faces += bool(face.OrientationIsReversed)
+                splines.append(_from_rhino(face.ToNurbsSurface(), source))
+        elif isinstance(geometry, rhino3dm.Surface):
+            splines.append(_from_rhino(geometry.ToNurbsSurface(), source))
+        else:
+            skipped[type(geometry).__name__] += 1
+    _warn_dropped(path, skipped, untrimmed, reversed_faces)
+    return splines
+
+
+def _warn_dropped(path: Path, skipped: Counter, untrimmed: int, reversed_faces: int) -> None:
+    """One warning listing what a `.3dm` file held that was not loaded as it is in the file."""
+    notes = []
+    if skipped:
+        notes.append("not loaded: " + ", ".join(f"{n} {kind}" for kind, n in sorted(skipped.items())))
+    if untrimmed:
+        notes.append(f"{untrimmed} faces of trimmed or multi-face Breps loaded as their untrimmed surfaces")
+    if reversed_faces:
+        notes.append(f"{reversed_faces} Brep faces have reversed orientation (loaded with the surface's own)")
+    if notes:
+        warnings.warn(f"{path}: " + "; ".join(notes), stacklevel=4)
 
 
 # --- meshes -------------------------------------------------------------------------------
@@ -325,15 +401,30 @@ def _read_all(path: Path) -> list:
         return _load_3dm(path)
     if ext != ".json":
         _checks.fail("path", "a .json or .3dm file (meshes hold no B-spline)", repr(path.suffix))
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not valid JSON ({err})") from err
-    if isinstance(data, dict) and data.get("format") == _FORMAT + "s":
-        return [from_dict(d, f"{path} surface {k}") for k, d in enumerate(data.get("surfaces", []))]
-    if isinstance(data, dict) and data.get("format") == _MIXED_FORMAT:
-        return [from_dict(d, f"{path} item {k}") for k, d in enumerate(data.get("splines", []))]
+    data = _read_json(path)
+    for fmt, key, what in ((_FORMAT + "s", "surfaces", "surface"), (_MIXED_FORMAT, "splines", "item")):
+        if isinstance(data, dict) and data.get("format") == fmt:
+            items = data.get(key)
+            if not isinstance(items, list):
+                _checks.fail(f"{path}: {key}", "a list of spline objects", _json_type(items))
+            return [from_dict(d, f"{path} {what} {k}") for k, d in enumerate(items)]  # pyright: ignore
     return [from_dict(data, str(path))]
+
+
+def _read_json(path: Path):
+    """The parsed JSON of `path`; every failure a `ValueError` (or the `OSError`) naming the file."""
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply to be a bsjax file") from None
+    except ValueError as err:  # e.g. an integer literal longer than Python's conversion limit
+        raise ValueError(f"{path}: not a bsjax JSON file ({err})") from None
 
 
 def load(path, kind: str | None = None) -> BSplineSurface | BSplineCurve:

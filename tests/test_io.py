@@ -140,6 +140,81 @@ def test_bad_files_name_the_file(tmp_path):
         io.load(garbage)
 
 
+def _plate_document(**change):
+    doc = io.to_dict(shapes.plate(4, 4))
+    doc.update(change)
+    return doc
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        (b"\xc5\x00\xff random bytes", "not UTF-8"),
+        (b'{"a": ' * 100_000, "nested too deeply|not valid JSON"),
+        (json.dumps(_plate_document(degree_u=3.7)).encode(), "degree_u: expected an integer"),
+        (json.dumps(_plate_document(degree_v=True)).encode(), "degree_v: expected an integer"),
+        (json.dumps(_plate_document(periodic_v="false")).encode(), "periodic_v: expected true or false"),
+        (json.dumps(_plate_document(dtype="int64")).encode(), "dtype: expected 'float32' or 'float64'"),
+        (json.dumps(_plate_document(ctrl="zeros")).encode(), "ctrl: expected nested lists of numbers"),
+        (json.dumps(_plate_document(ctrl=[[[True, 0, 0]]])).encode(), "ctrl: expected nested lists of numbers"),  # noqa: E501
+        (json.dumps(_plate_document()).replace("0.0", "1" + "0" * 400, 1).encode(), "knots_u: expected"),
+        (json.dumps(_plate_document(dtype="float32")).replace("0.0", "1e39", 1).encode(), "knots_u: expected finite"),  # noqa: E501
+        (json.dumps({"format": "bsjax.surfaces", "surfaces": {"a": 1}}).encode(), "surfaces: expected a list"),  # noqa: E501
+        (json.dumps([1, 2]).encode(), "expected a JSON object"),
+    ],
+    ids=[
+        "random bytes", "deep nesting", "float degree", "bool degree", "string flag", "int dtype",
+        "string array", "boolean entries", "huge integer", "float32 overflow", "surfaces not a list",
+        "wrong schema",
+    ],
+)  # fmt: skip
+def test_bad_json_is_a_clear_error_naming_the_file_and_field(tmp_path, content, match):
+    path = tmp_path / "bad.json"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=f"bad.json.*({match})"):
+        io.load(path)
+
+
+def test_missing_files_are_os_errors_naming_them(tmp_path):
+    for name in ("absent.json", "absent.3dm"):
+        with pytest.raises(FileNotFoundError, match=name):
+            io.load(tmp_path / name)
+
+
+def test_3dm_objects_not_loaded_are_listed_in_a_warning(tmp_path):
+    """A point, a mesh and a trimmed Brep beside an untrimmed surface: the surface and the
+    Brep's face load, and one warning says what was skipped or loaded untrimmed."""
+    model = rhino3dm.File3dm()
+    model.Objects.AddPoint(rhino3dm.Point3d(1, 2, 3))
+    mesh = rhino3dm.Mesh()
+    for x, y in ((0, 0), (1, 0), (0, 1)):
+        mesh.Vertices.Add(x, y, 0)
+    mesh.Faces.AddFace(0, 1, 2)
+    model.Objects.AddMesh(mesh)
+    model.Objects.AddSurface(
+        rhino3dm.NurbsSurface.CreateFromSphere(rhino3dm.Sphere(rhino3dm.Point3d(0, 0, 0), 1))
+    )
+    box = rhino3dm.Brep.CreateFromBox(rhino3dm.Box(rhino3dm.BoundingBox(0, 0, 0, 1, 1, 1)))
+    model.Objects.AddBrep(box)
+    path = tmp_path / "mixed.3dm"
+    assert model.Write(str(path), 7)
+    with pytest.warns(UserWarning, match=r"mixed.3dm: not loaded: 1 Mesh, 1 Point; 6 faces of trimmed"):
+        items = io.load_all(path)
+    assert len(items) == 1 + 6 and all(isinstance(s, BSplineSurface) for s in items)
+
+
+def test_mesh_with_a_non_finite_vertex_is_refused(tmp_path):
+    from bsjax.collide import TriangleMesh
+
+    path = tmp_path / "nan.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    with pytest.raises(ValueError, match="nan.obj: vertices: expected finite"):
+        TriangleMesh.load(path)
+    good = tmp_path / "good.obj"
+    good.write_text(path.read_text().replace("nan", "1"))
+    assert TriangleMesh.load(good).faces.shape == (4, 3)
+
+
 def _xyz(p):
     return (p.X, p.Y, p.Z)
 

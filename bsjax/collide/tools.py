@@ -594,10 +594,14 @@ class TriangleMesh(AbstractTool):
         """From any mesh file trimesh reads (OBJ, STL, PLY, GLB…)."""
         import trimesh
 
-        try:
-            mesh = trimesh.load(path, force="mesh")
+        try:  # unprocessed first: trimesh's processing drops non-finite vertices with their faces
+            mesh = trimesh.load(path, force="mesh", process=False)
         except Exception as err:  # trimesh raises many types
             raise ValueError(f"{path}: cannot read a triangle mesh ({err})") from err
+        bad = ~np.isfinite(np.asarray(mesh.vertices)).all(axis=1)
+        if bad.any():
+            raise ValueError(f"{path}: vertices: expected finite values, got NaN or inf in {int(bad.sum())}")
+        mesh.process()  # merge duplicate vertices (an STL stores three per face)
         return cls.from_trimesh(mesh, dtype)
 
     @property
