@@ -109,6 +109,9 @@ def _call(module, *items):
     return module(*items)
 
 
+_UNBOUND = jax.tree.structure(((), {}))
+
+
 class _MappedCache:
     """`jax.jit` of the sharded `jax.vmap(fn)` per `(fn, mesh)`, least recently used dropped
     past 64 entries; `jax.jit` itself keeps one executable per argument structure and shapes.
@@ -132,16 +135,8 @@ class _MappedCache:
         key = (core, treedef, mask, static, grid)
         try:
             jitted = self._entries.get(key)
-        except TypeError:  # an unhashable bound value: key on the function object itself
-            key, core, treedef, mask, static, dynamic = (
-                (fn, grid),
-                fn,
-                jax.tree.structure(((), {})),
-                (),
-                (),
-                [],
-            )
-            jitted = self._entries.get(key)
+        except TypeError:  # an unhashable static bound value: compiled for this call alone
+            return jax.jit(_sharded_vmap(fn, _UNBOUND, (), (), grid)), []
         if jitted is None:
             jitted = jax.jit(_sharded_vmap(core, treedef, mask, static, grid))
             self._entries[key] = jitted
@@ -296,8 +291,9 @@ def map(  # the name users expect, as `jax.lax.map`
 
     **Arguments:**
     - `fn`: a function of one design (`fn(*items) -> pytree of arrays`), e.g.
-      `lambda tool: collide.contacts(blending, ctrl, tool)`. Values that are the same for every
-      design are closed over (or bound with `functools.partial`), not passed in `args`.
+      `functools.partial(collide.contacts, blending, ctrl)` of one tool. Values that are the same
+      for every design are bound (`functools.partial`, a bound method) or closed over, not
+      passed in `args`.
     - `*args`: pytrees whose every leaf is an array `(B, …)` with the same batch size `B ≥ 1`
       (a list of numbers counts as an array). In multi-process use every process passes the
       same global batch.
