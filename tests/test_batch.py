@@ -358,6 +358,13 @@ FOUR_DEVICES = f"""
     calls = []
     chunked = batch.map(fn, tools7, nets7, chunk=3, progress=lambda d, t: calls.append([d, t]))
     found["gap7_chunked"], found["calls"] = gap(chunked, out7), calls
+    def spill(radius, over):
+        (values, _) = over({{**tools7, "radius": radius}}, nets7)
+        return jax.numpy.sum(values["depth"] ** 2)
+
+    r7 = jax.numpy.asarray(tools7["radius"])  # padded batch: the cotangent comes back replicated
+    sharded = jax.grad(spill)(r7, lambda *a: batch.map(fn, *a))
+    found["grad_gap"] = gap(sharded, jax.grad(spill)(r7, jax.vmap(fn)))
     nets[5, 2, 2, 2] = np.nan
     try:
         jax.block_until_ready(batch.map(fn, tools, nets))
@@ -375,6 +382,7 @@ def test_map_on_four_devices():
     assert max(s[3] for s in found["shards"]) <= 1e-12  # each device holds its own block
     assert found["gap8"] <= 1e-12 and found["gap7"] <= 1e-12 and found["shape7"] == [7, 9, 7]
     assert found["gap7_chunked"] <= 1e-12 and found["calls"] == [[4, 7], [7, 7]]  # chunk 3 → 4
+    assert found["grad_gap"] <= 1e-12
     assert found["nan"].startswith("ctrl: expected finite values")  # an error, not a hang
     _, _, fn = experiment("dense")
     np.testing.assert_allclose(found["table8"], table(jax.jit(jax.vmap(fn))(*designs(8))), rtol=0, atol=1e-12)
