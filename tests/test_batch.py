@@ -45,9 +45,8 @@ def experiment(method: str = "window"):
         contact = collide.contacts(
             blending, net, collide.Sphere(tool["center"], tool["radius"]), method=method
         )
-        return {"area": contact.mask.sum(), "depth": contact.depth, "points": blending.points(net)}, (
-            contact.hit
-        )
+        values = {"area": contact.mask.sum(), "depth": contact.depth, "points": blending.points(net)}
+        return values, contact.hit
 
     return surface, blending, fn
 
