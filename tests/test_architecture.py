@@ -104,6 +104,7 @@ def _reach(graph, start):
         ("bsjax.collide", ("bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.merge", ("bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.mss", ("bsjax.merge", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.batch", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
     ],
 )
 def test_floors(lower, forbidden):
@@ -144,5 +145,6 @@ def test_public_modules_import():
         "bsjax.io",
         "bsjax.shapes",
         "bsjax.plot",
+        "bsjax.batch",
     ):
         assert importlib.util.find_spec(name) is not None, name
