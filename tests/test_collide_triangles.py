@@ -178,3 +178,42 @@ def test_closest_point_direct_matches_jit_on_degenerate_triangles():
         np.testing.assert_allclose(
             np.linalg.norm(np.asarray(got) - pts, axis=1), np.linalg.norm(ref - pts, axis=1), atol=1e-12
         )
+
+
+def test_batched_candidate_test_agrees_with_the_single_pair_test():
+    """The masked batch test of `surface_contacts` (`candidate_pairs_intersect`) gives exactly
+    `triangles_intersect` on active pairs — touching at one vertex, along an edge, coplanar,
+    zero-area — and False on inactive (padding) pairs."""
+    from bsjax.collide.triangles import candidate_pairs_intersect
+
+    rng = np.random.default_rng(6)
+    n = 400
+    t1 = rng.integers(-2, 3, size=(n, 3, 3)).astype(float)
+    t2 = rng.integers(-2, 3, size=(n, 3, 3)).astype(float)
+    t2[: n // 4, 0] = t1[: n // 4, 2]  # one shared vertex
+    t2[n // 4 : n // 2, :2] = t1[n // 4 : n // 2, :2]  # a shared edge
+    t1[n // 2 : 3 * n // 4, :, 2] = t2[n // 2 : 3 * n // 4, :, 2] = 1.0  # coplanar
+    t2[::9, 1] = t2[::9, 2] = t2[::9, 0]  # a point
+    single = np.asarray(triangles_intersect(jnp.asarray(t1), jnp.asarray(t2)))
+    assert single[: n // 2].all() and 0.2 < single[n // 2 :].mean() < 0.95
+    active = rng.uniform(size=n) < 0.7
+    batched = np.asarray(candidate_pairs_intersect(jnp.asarray(t1), jnp.asarray(t2), jnp.asarray(active)))
+    np.testing.assert_array_equal(batched, single & active)
+
+
+def test_surfaces_touching_at_one_vertex_are_in_contact():
+    """Two plates whose sample grids share only the corner (1, 1, 0), the second tilted up and
+    away: `surface_contacts` reports the contact (the single-pair test alone would find it)."""
+    from bsjax import collide, shapes
+
+    a = shapes.plate(4, 4)
+    tilt = jnp.asarray(a.ctrl) * jnp.array([[[1.0, 1.0, 0.0]]])
+    b = a.with_ctrl(tilt + jnp.array([[[1.0, 1.0, 0.0]]]) + tilt[..., :1] * jnp.array([[[0.0, 0.0, 1.0]]]))
+    ba, bb = a.blending(9, 9), b.blending(9, 9)
+    assert np.allclose(bb.points(b.ctrl)[0, 0], [1.0, 1.0, 0.0]) and np.allclose(
+        ba.points(a.ctrl)[-1, -1], [1, 1, 0]
+    )
+    out = collide.surface_contacts(ba, a.ctrl, bb, b.ctrl, flat_angle=None)
+    dense = collide.surface_contacts(ba, a.ctrl, bb, b.ctrl, method="dense")
+    assert bool(dense.hit) and bool(out.hit)
+    assert bool(out.mask_a[-1, -1]) and bool(out.mask_b[0, 0])
