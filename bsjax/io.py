@@ -304,7 +304,7 @@ def _load_3dm(path: Path) -> list[BSplineSurface | BSplineCurve]:
         elif isinstance(geometry, rhino3dm.Brep):
             if not geometry.IsSurface:  # trimmed or several faces: the faces' underlying surfaces
                 untrimmed += len(geometry.Faces)
-            for face in geometry.Faces:
+            for face in (geometry.Faces[i] for i in range(len(geometry.Faces))):
                 reversed_faces += bool(face.OrientationIsReversed)
                 splines.append(_from_rhino(face.ToNurbsSurface(), source))
         elif isinstance(geometry, rhino3dm.Surface):
