@@ -68,7 +68,8 @@ def _plan(curves: Sequence[BSplineCurve], names: Sequence[str]) -> _Plan:
         return _Plan(first.direction, (None,) * len(curves), True)
     dtype = jnp.dtype(first.ctrl.dtype).name
     key = tuple((c.degree, np.asarray(c.knots, np.float64).tobytes()) for c in curves)
-    return _cached_plan(dtype, key)
+    with jax.ensure_compile_time_eval():  # plan on concrete values inside a caller's jit too
+        return _cached_plan(dtype, key)
 
 
 def _same_structure(curves, names, expected: str) -> None:
@@ -242,7 +243,7 @@ def extrude(curve: BSplineCurve, vector: ArrayLike) -> BSplineSurface:
     vector = _nonzero(vector, "vector", "a finite nonzero extrusion vector")
     plan = _Plan(curve.direction, (None,), False)
     (h,) = _nets((curve,), plan, ("curve",))
-    moved = h.at[:, :3].add(h[:, 3:] * vector)
+    moved = h.at[:, :3].add(h[:, 3:] * vector[None])
     net = jnp.stack([h, moved], axis=1)
     return _surface(net, curve.direction, _linear(net.dtype), curve.weights is not None)
 
@@ -296,12 +297,12 @@ def _revolve(profile: BSplineCurve, axis_point, axis_dir, angle, n_arcs: int) ->
     a = _safe.unit(axis)
     points = profile.ctrl
     if profile.dim == 2:
-        points = origin + points[:, :1] * _perpendicular(a) + points[:, 1:] * a
-    foot = origin + ((points - origin) @ a)[:, None] * a
+        points = origin[None] + points[:, :1] * _perpendicular(a)[None] + points[:, 1:] * a[None]
+    foot = origin[None] + ((points - origin[None]) @ a)[:, None] * a[None]
     x = points - foot
     y = jnp.cross(jnp.broadcast_to(a, x.shape), x)
-    half = jnp.arange(2 * n_arcs + 1)
-    theta = half * (angle / (2 * n_arcs))
+    half = np.arange(2 * n_arcs + 1)
+    theta = jnp.asarray(half, dtype) * (angle / (2 * n_arcs))
     middle = jnp.asarray(half % 2 == 1)
     c = jnp.where(middle, jnp.cos(angle / (2 * n_arcs)), jnp.ones_like(theta))
     arc = jnp.cos(theta)[None, :, None] * x[:, None] + jnp.sin(theta)[None, :, None] * y[:, None]
@@ -369,7 +370,7 @@ def _coons(bottom, top, left, right, plan_u: _Plan, plan_v: _Plan, tol) -> BSpli
     eta = _greville(plan_v.direction)[None, :, None]
     across = (1 - eta) * b[:, None] + eta * t[:, None]
     along = (1 - xi) * l[None] + xi * r[None]
-    p00, p10, p01, p11 = b[0], b[-1], t[0], t[-1]
+    p00, p10, p01, p11 = (p[None, None] for p in (b[0], b[-1], t[0], t[-1]))
     bilinear = (1 - xi) * (1 - eta) * p00 + xi * (1 - eta) * p10 + (1 - xi) * eta * p01 + xi * eta * p11
     return BSplineSurface.from_directions(across + along - bilinear, plan_u.direction, plan_v.direction)
 
@@ -424,9 +425,12 @@ def _section_params(points):
     total = cumulative[:, -1:]
     used = total > 0
     per_column = _safe.ratio(cumulative, total)
-    params = _safe.ratio(jnp.sum(jnp.where(used, per_column, 0), axis=0), jnp.sum(used))
+    params = _safe.ratio(jnp.sum(jnp.where(used, per_column, 0), axis=0), jnp.sum(used, dtype=points.dtype))
+    bad = jnp.diff(params) <= 64 * jnp.finfo(params.dtype).eps  # equal up to rounding
     expected = "distinct consecutive sections (increasing chord-length parameters)"
-    return _checks.check(params, jnp.diff(params) <= 0, "curves", expected, "coincident sections")
+    params = _checks.check(params, bad, "curves", expected, "coincident sections")
+    # keep the rest finite when the check fails, so that this is the error reported
+    return jnp.where(jnp.any(bad), jnp.linspace(0.0, 1.0, params.shape[0], dtype=params.dtype), params)
 
 
 # --- argument helpers ---------------------------------------------------------------------------
