@@ -99,7 +99,8 @@ def _numbers(seq):
     return any_float
 
 
-def _as_arrays(args, kwargs):
+def as_arrays(args, kwargs):
+    """`(args, kwargs)` with every array-like list (or float tuple) as a numpy array."""
     args = tuple(np.asarray(a) if _array_like(a) else a for a in args)
     if any(_array_like(v) for v in kwargs.values()):
         kwargs = {k: np.asarray(v) if _array_like(v) else v for k, v in kwargs.items()}
@@ -110,10 +111,18 @@ def _unwrap(leaf):
     return leaf.value if isinstance(leaf, _Static) else leaf
 
 
-def _is_dynamic(leaf) -> bool:
+def is_traced(leaf) -> bool:
+    """Whether a leaf of a public call's arguments is traced (arrays, floats) or static."""
     if isinstance(leaf, (bool, np.bool_, _Static)):
         return False
     return isinstance(leaf, (jax.Array, np.ndarray, float, np.floating))
+
+
+def check_failure(err: Exception) -> ValueError | None:
+    """The one-line `ValueError` of a failed bsjax value check (`eqx.error_if`) that a JAX runtime
+    error carries, or None when `err` is something else."""
+    found = _ERROR.search(str(err))
+    return None if found is None else ValueError(found.group(1).strip())
 
 
 class _Compiled:
@@ -167,9 +176,9 @@ class _Compiled:
     def __call__(self, *args, **kwargs):
         if self._static:
             args, kwargs = self._mark_static(args, kwargs)
-        args, kwargs = _as_arrays(args, kwargs)
+        args, kwargs = as_arrays(args, kwargs)
         leaves, treedef = jax.tree_util.tree_flatten((args, kwargs))
-        mask = tuple(_is_dynamic(leaf) for leaf in leaves)
+        mask = tuple(is_traced(leaf) for leaf in leaves)
         static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
         try:
             jitted = self._jitted(treedef, mask, static)
@@ -178,10 +187,10 @@ class _Compiled:
         try:
             return jitted([leaf for m, leaf in zip(mask, leaves) if m])
         except (jax.errors.JaxRuntimeError, ValueError) as err:  # the C++ fast path: a ValueError
-            found = _ERROR.search(str(err))
-            if found is None:
+            failure = check_failure(err)
+            if failure is None:
                 raise
-            raise ValueError(found.group(1).strip()) from None
+            raise failure from None
 
     def __repr__(self) -> str:
         return f"<compiled {self.__qualname__}>"

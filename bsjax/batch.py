@@ -129,7 +129,7 @@ class _MappedCache:
         """The compiled function `run(bound_arrays, *batched)` and `fn`'s bound arrays."""
         core, args, kwargs = _split(fn)
         leaves, treedef = jax.tree_util.tree_flatten((args, kwargs))
-        mask = tuple(_boundary._is_dynamic(leaf) for leaf in leaves)
+        mask = tuple(_boundary.is_traced(leaf) for leaf in leaves)
         static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
         dynamic = [leaf for m, leaf in zip(mask, leaves) if m]
         key = (core, treedef, mask, static, grid)
@@ -273,10 +273,10 @@ def _run(mapped: Callable, inputs: tuple, wait: bool):
         out = mapped(*inputs)
         return jax.block_until_ready(out) if wait else out
     except (jax.errors.JaxRuntimeError, ValueError) as err:
-        found = _boundary._ERROR.search(str(err))
-        if found is None:
+        failure = _boundary.check_failure(err)
+        if failure is None:
             raise
-        raise ValueError(found.group(1).strip()) from None
+        raise failure from None
 
 
 # --- map -------------------------------------------------------------------------------------
@@ -328,7 +328,7 @@ def map(  # the name users expect, as `jax.lax.map`
     grid = _checked_mesh(mesh)
     if progress is not None and not callable(progress):
         raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
-    args = tuple(np.asarray(a) if _boundary._array_like(a) else a for a in args)
+    args = _boundary.as_arrays(args, {})[0]
     n = _batch_size(args)
     devices = grid.size
     step = n if chunk is None else _checks.check_count(chunk, "chunk")
