@@ -30,7 +30,7 @@ from jaxtyping import Array, Float
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
 from bsjax._typing import ArrayLike
-from bsjax.basis import BSplineCurve, BSplineSurface, SplineDirection, elevate_degree, insert_knots
+from bsjax.basis import BSplineCurve, BSplineSurface, SplineDirection, basis_functions, greville
 
 __all__ = ["compatible", "coons", "extrude", "loft", "revolve", "ruled"]
 
@@ -102,31 +102,27 @@ def _cached_plan(dtype: str, key: tuple) -> _Plan:
 
 
 def _transform(knots, degree: int, target_degree: int, target, dtype):
-    """`T (n_new, n_old)` taking control points in the basis (knots, degree) to the target basis,
-    found by elevating and refining the unit control polygons (the maps are linear)."""
+    """`T (n_new, n_old)` taking control points in the basis (knots, degree) to the target basis:
+    `B_old = B_new T`, found by least-squares collocation at more parameters than basis
+    functions — exact, since the target space contains the old one (the change of basis behind
+    `elevate_degree` and `insert_knots`)."""
     if degree == target_degree and knots.shape == target.shape and np.array_equal(knots, target):
         return None
-    n = knots.shape[0] - degree - 1
-    columns = []
-    for start in range(0, n, 3):
-        width = min(3, n - start)
-        probe = np.zeros((n, 3))
-        probe[start + np.arange(width), np.arange(width)] = 1.0
-        curve = BSplineCurve(probe, knots, degree)
-        if target_degree > degree:
-            curve = elevate_degree(curve, target_degree - degree)
-        extra = _missing_knots(np.asarray(curve.knots, np.float64), target)
-        if extra.size:
-            curve = insert_knots(curve, extra)
-        columns.append(np.asarray(curve.ctrl, np.float64)[:, :width])
-    return jnp.asarray(np.concatenate(columns, axis=1), dtype)
+    n_new = target.shape[0] - target_degree - 1
+    t = np.linspace(0.0, 1.0, 4 * (n_new + 1))
+    t = np.unique(np.concatenate([t, greville(target, target_degree)]))
+    a_old, a_new = (np.asarray(a, np.float64) for a in _collocation(knots, degree, target, target_degree, t))
+    return jnp.asarray(np.linalg.lstsq(a_new, a_old, rcond=None)[0], dtype)
 
 
-def _missing_knots(own, target) -> np.ndarray:
-    """The multiset difference `target − own` (both sorted knot vectors, own ⊆ target)."""
-    values, want = np.unique(target, return_counts=True)
-    have = np.array([np.count_nonzero(own == v) for v in values])
-    return np.repeat(values, want - have)
+@compiled
+def _collocation(knots, degree: int, target, target_degree: int, t):
+    """Both bases at the collocation parameters, in one compiled call (not op by op; the knots
+    were checked by the curves, and `basis_functions` is the unchecked kernel, which also keeps
+    this call free of run-time checks inside `ensure_compile_time_eval`)."""
+    old = jax.vmap(lambda x: basis_functions(knots, degree, x))(t)
+    new = jax.vmap(lambda x: basis_functions(target, target_degree, x))(t)
+    return old, new
 
 
 # --- compatibility: traced part -----------------------------------------------------------------
