@@ -48,28 +48,40 @@ class _Plan(NamedTuple):
     check_equal: bool
 
 
+class _FixedPlan:
+    """A cached plan of concrete knots, passed to the compiled kernels as a *static* argument
+    (hashed by identity: the cache hands out one object per knot configuration), so its knots
+    and matrices are constants of the compiled program and the knot checks of the surface built
+    inside fold away (as inputs they would cost run-time checks on every call)."""
+
+    def __init__(self, direction: SplineDirection, transforms: tuple):
+        self.direction, self.transforms, self.check_equal = direction, transforms, False
+
+
+_AnyPlan = _Plan | _FixedPlan
+
+
 def _check_curves(curves, names: Sequence[str]) -> None:
     for curve, name in zip(curves, names):
         if not isinstance(curve, BSplineCurve):
             raise TypeError(f"{name}: expected a BSplineCurve, got {type(curve).__name__}")
 
 
-def _plan(curves: Sequence[BSplineCurve], names: Sequence[str]) -> _Plan:
+def _plan(curves: Sequence[BSplineCurve], names: Sequence[str]) -> _AnyPlan:
     """The compatibility plan of `curves` (structure checked; cached by degrees and knots)."""
     _check_curves(curves, names)
-    first = curves[0]
-    if any(c.periodic for c in curves):
+    directions = [c.direction for c in curves]  # (equinox attribute reads are slow: read once)
+    if any(d.periodic for d in directions):
         _same_structure(curves, names, "periodic curves of one degree and control count (the uniform "
                         "closed basis cannot be refined)")  # fmt: skip
-        return _Plan(first.direction, (None,) * len(curves), False)
-    if not _checks.is_concrete([c.knots for c in curves]):
+        return _Plan(directions[0], (None,) * len(curves), False)
+    knots = [d.knots for d in directions]
+    if not _checks.is_concrete(knots):
         _same_structure(curves, names, "curves of one degree and control count when their knots are "
                         "traced inside jit (call bsjax.construct.compatible outside jit first)")  # fmt: skip
-        return _Plan(first.direction, (None,) * len(curves), True)
-    dtype = jnp.dtype(first.ctrl.dtype).name
-    key = tuple((c.degree, np.asarray(c.knots, np.float64).tobytes()) for c in curves)
-    with jax.ensure_compile_time_eval():  # plan on concrete values inside a caller's jit too
-        return _cached_plan(dtype, key)
+        return _Plan(directions[0], (None,) * len(curves), True)
+    key = tuple((d.degree, np.asarray(k, np.float64).tobytes()) for d, k in zip(directions, knots))
+    return _cached_plan(knots[0].dtype.name, key)
 
 
 def _same_structure(curves, names, expected: str) -> None:
@@ -82,9 +94,15 @@ def _same_structure(curves, names, expected: str) -> None:
 
 
 @host_cache(maxsize=256)
-def _cached_plan(dtype: str, key: tuple) -> _Plan:
+def _cached_plan(dtype: str, key: tuple) -> _FixedPlan:
     """Merged knots (every knot value at its largest multiplicity after raising all curves to the
-    highest degree) and each curve's change-of-basis matrix `T` (`P_new = T P_old`)."""
+    highest degree) and each curve's change-of-basis matrix `T` (`P_new = T P_old`), computed on
+    concrete values also inside a caller's `jit` (`ensure_compile_time_eval`)."""
+    with jax.ensure_compile_time_eval():
+        return _merged_plan(dtype, key)
+
+
+def _merged_plan(dtype: str, key: tuple) -> _FixedPlan:
     degrees = [degree for degree, _ in key]
     knot_vectors = [np.frombuffer(raw, np.float64) for _, raw in key]
     degree = max(degrees)
@@ -98,7 +116,7 @@ def _cached_plan(dtype: str, key: tuple) -> _Plan:
     transforms = tuple(
         _transform(knots, own, degree, target, dtype) for knots, own in zip(knot_vectors, degrees)
     )
-    return _Plan(SplineDirection(jnp.asarray(target, dtype), degree), transforms, False)
+    return _FixedPlan(SplineDirection(jnp.asarray(target, dtype), degree), transforms)
 
 
 def _transform(knots, degree: int, target_degree: int, target, dtype):
@@ -126,27 +144,39 @@ def _collocation(knots, degree: int, target, target_degree: int, t):
 
 
 # --- compatibility: traced part -----------------------------------------------------------------
-def _homogeneous(curve: BSplineCurve, transform, plan: _Plan, name: str) -> Float[Array, "n 4"]:
+class _Part(NamedTuple):
+    """What the compiled kernels need of a curve (fewer leaves to pass than the whole module):
+    its control points and weights, and its knots only when they must be checked equal."""
+
+    ctrl: Array
+    weights: Array | None
+    knots: Array | None
+
+
+def _parts(curves, plan: _AnyPlan) -> tuple[_Part, ...]:
+    return tuple(_Part(c.ctrl, c.weights, c.knots if plan.check_equal else None) for c in curves)
+
+
+def _homogeneous(part: _Part, transform, plan: _AnyPlan, name: str) -> Float[Array, "n 4"]:
     """The curve's control points in the common basis as a homogeneous 3-D net `[w P, w]`
     (planar curves at z = 0; weight 1 for polynomial curves)."""
-    ctrl = curve.ctrl
-    if plan.check_equal:
-        knots = plan.direction.knots
+    ctrl = part.ctrl
+    if part.knots is not None:
         expected = "the knot vector of the first curve (compatible curves under jit)"
-        ctrl = _checks.check(ctrl, curve.knots != knots, name, expected, "other knots")
+        ctrl = _checks.check(ctrl, part.knots != plan.direction.knots, name, expected, "other knots")
     if ctrl.shape[1] == 2:
         ctrl = jnp.concatenate([ctrl, jnp.zeros_like(ctrl[:, :1])], axis=1)
-    w = jnp.ones_like(ctrl[:, 0]) if curve.weights is None else curve.weights
+    w = jnp.ones_like(ctrl[:, 0]) if part.weights is None else part.weights
     net = jnp.concatenate([ctrl * w[:, None], w[:, None]], axis=1)
     return net if transform is None else transform.astype(net.dtype) @ net
 
 
-def _nets(curves, plan: _Plan, names) -> list:
-    return [_homogeneous(c, t, plan, n) for c, t, n in zip(curves, plan.transforms, names)]
+def _nets(parts, plan: _AnyPlan, names) -> list:
+    return [_homogeneous(p, t, plan, n) for p, t, n in zip(parts, plan.transforms, names)]
 
 
-def _rational(curves) -> bool:
-    return any(c.weights is not None for c in curves)
+def _rational(parts) -> bool:
+    return any(p.weights is not None for p in parts)
 
 
 def _surface(net, direction_u, direction_v, rational: bool) -> BSplineSurface:
@@ -187,16 +217,16 @@ def compatible(curves: Sequence[BSplineCurve]) -> list[BSplineCurve]:
     names = [f"curves[{i}]" for i in range(len(curves))]
     _same_dim(curves, names)
     plan = _plan(curves, names)
-    return list(_compatible(tuple(curves), plan, tuple(names)))
+    return list(_compatible(_parts(curves, plan), plan, tuple(names)))
 
 
 @compiled
-def _compatible(curves, plan: _Plan, names):
+def _compatible(parts, plan: _AnyPlan, names):
     out = []
-    for curve, transform, name in zip(curves, plan.transforms, names):
-        net = _homogeneous(curve, transform, plan, name)
-        d, w = curve.dim, net[:, 3]
-        if curve.weights is None:
+    for part, transform, name in zip(parts, plan.transforms, names):
+        net = _homogeneous(part, transform, plan, name)
+        d, w = part.ctrl.shape[1], net[:, 3]
+        if part.weights is None:
             out.append(BSplineCurve.from_direction(net[:, :d], plan.direction))
         else:
             out.append(BSplineCurve.from_direction(net[:, :d] / w[:, None], plan.direction, w))
@@ -215,14 +245,14 @@ def ruled(c0: BSplineCurve, c1: BSplineCurve) -> BSplineSurface:
     in the common basis. Differentiable in both curves' control points.
     """
     plan = _plan([c0, c1], ("c0", "c1"))
-    return _ruled(c0, c1, plan)
+    return _ruled(_parts((c0, c1), plan), plan)
 
 
 @compiled
-def _ruled(c0, c1, plan: _Plan) -> BSplineSurface:
-    h0, h1 = _nets((c0, c1), plan, ("c0", "c1"))
+def _ruled(parts, plan: _AnyPlan) -> BSplineSurface:
+    h0, h1 = _nets(parts, plan, ("c0", "c1"))
     net = jnp.stack([h0, h1], axis=1)
-    return _surface(net, plan.direction, _linear(net.dtype), _rational((c0, c1)))
+    return _surface(net, plan.direction, _linear(net.dtype), _rational(parts))
 
 
 @compiled
@@ -238,7 +268,7 @@ def extrude(curve: BSplineCurve, vector: ArrayLike) -> BSplineSurface:
     vector = _vector(vector, "vector", curve.ctrl.dtype)
     vector = _nonzero(vector, "vector", "a finite nonzero extrusion vector")
     plan = _Plan(curve.direction, (None,), False)
-    (h,) = _nets((curve,), plan, ("curve",))
+    (h,) = _nets(_parts((curve,), plan), plan, ("curve",))
     moved = h.at[:, :3].add(h[:, 3:] * vector[None])
     net = jnp.stack([h, moved], axis=1)
     return _surface(net, curve.direction, _linear(net.dtype), curve.weights is not None)
@@ -348,13 +378,13 @@ def coons(
             _checks.fail(name, "a clamped curve (its end points are corners)", "a periodic curve")
     plan_u = _plan(curves[:2], names[:2])
     plan_v = _plan(curves[2:], names[2:])
-    return _coons(c_bottom, c_top, c_left, c_right, plan_u, plan_v, tol)
+    return _coons(_parts(curves[:2], plan_u), _parts(curves[2:], plan_v), plan_u, plan_v, tol)
 
 
 @compiled
-def _coons(bottom, top, left, right, plan_u: _Plan, plan_v: _Plan, tol) -> BSplineSurface:
-    b, t = (h[:, :3] for h in _nets((bottom, top), plan_u, ("c_bottom", "c_top")))
-    l, r = (h[:, :3] for h in _nets((left, right), plan_v, ("c_left", "c_right")))
+def _coons(parts_u, parts_v, plan_u: _AnyPlan, plan_v: _AnyPlan, tol) -> BSplineSurface:
+    b, t = (h[:, :3] for h in _nets(parts_u, plan_u, ("c_bottom", "c_top")))
+    l, r = (h[:, :3] for h in _nets(parts_v, plan_v, ("c_left", "c_right")))
     gaps = jnp.stack([b[0] - l[0], b[-1] - r[0], t[0] - l[-1], t[-1] - r[-1]])
     scale = jnp.maximum(1.0, jnp.max(jnp.abs(jnp.concatenate([b, t, l, r]))))
     tol = jnp.asarray(tol, b.dtype)
@@ -395,12 +425,12 @@ def loft(curves: Sequence[BSplineCurve], degree: int = 3, ruled: bool = False) -
     names = tuple(f"curves[{i}]" for i in range(len(curves)))
     plan = _plan(curves, names)
     degree_v = 1 if ruled else min(degree, len(curves) - 1)
-    return _loft(tuple(curves), plan, names, degree_v)
+    return _loft(_parts(curves, plan), plan, names, degree_v)
 
 
 @compiled
-def _loft(curves, plan: _Plan, names, degree_v: int) -> BSplineSurface:
-    net = jnp.stack(_nets(curves, plan, names), axis=1)  # (n, K, 4)
+def _loft(parts, plan: _AnyPlan, names, degree_v: int) -> BSplineSurface:
+    net = jnp.stack(_nets(parts, plan, names), axis=1)  # (n, K, 4)
     params = _section_params(net[..., :3] / net[..., 3:])
     count = params.shape[0]
     interior = [params[j : j + degree_v].mean() for j in range(1, count - degree_v)]
@@ -410,7 +440,7 @@ def _loft(curves, plan: _Plan, names, degree_v: int) -> BSplineSurface:
     a = direction_v.matrix(params)
     flat = jnp.moveaxis(net, 1, 0).reshape(count, -1)
     solved = jnp.moveaxis(jnp.linalg.solve(a, flat).reshape(count, net.shape[0], 4), 0, 1)
-    return _surface(solved, plan.direction, direction_v, _rational(curves))
+    return _surface(solved, plan.direction, direction_v, _rational(parts))
 
 
 def _section_params(points):
