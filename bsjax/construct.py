@@ -10,6 +10,8 @@ is `v`. Planar curves (d = 2) lie in the plane z = 0 (except `revolve`, which re
 
 Knot vectors are planned on the host: the merged knots and the change-of-basis matrices are
 cached by the curves' (degree, knots) and re-used, so a direct call is one compiled XLA call.
+The plan is a constant of that call, so each new knot configuration compiles once (256 plans are
+kept; `bsjax._boundary.clear_caches()` forgets them and their compilations).
 Control points (and weights) may be traced: every constructor works under `jit`, `vmap` and
 `grad` in the control points. Curves whose *knots* are traced (curves passed as arguments of
 the caller's own `jit`) must already be compatible — same degree and control count, equal knots

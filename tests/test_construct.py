@@ -101,6 +101,10 @@ def test_compatible_periodic_curves_and_bad_input():
     closed = [BSplineCurve(rng.normal(size=(6, 3)), None, 3, periodic=True) for _ in range(2)]
     out = construct.compatible(closed)
     assert out[0].periodic and np.allclose(out[1].ctrl, closed[1].ctrl)
+    # closed sections give a surface closed in u that passes through them
+    surface = construct.loft([closed[0], closed[1].with_ctrl(np.asarray(closed[1].ctrl) + [0.0, 0.0, 3.0])])
+    assert surface.periodic_u and surface.degree_v == 1
+    np.testing.assert_allclose(surface.evaluate(T, np.zeros_like(T)), closed[0].evaluate(T), atol=1e-12)
     with pytest.raises(ValueError, match=r"curves\[1\]: expected periodic curves"):
         construct.compatible([closed[0], _curve(rng)])
     with pytest.raises(ValueError, match=r"curves\[1\]: expected dimension 3"):
