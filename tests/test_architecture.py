@@ -105,6 +105,7 @@ def _reach(graph, start):
         ("bsjax.merge", ("bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.mss", ("bsjax.merge", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.batch", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.construct", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
     ],
 )
 def test_floors(lower, forbidden):
@@ -146,5 +147,6 @@ def test_public_modules_import():
         "bsjax.shapes",
         "bsjax.plot",
         "bsjax.batch",
+        "bsjax.construct",
     ):
         assert importlib.util.find_spec(name) is not None, name
