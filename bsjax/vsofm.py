@@ -435,4 +435,7 @@ def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):
     springs, thesis §5.3.2); arguments as `mss.hex_lattice` (compiled at the boundary)."""
     from bsjax import mss
 
+    _checks.check_ndim(nodes, "nodes", 4, last=3)
+    _checks.check_real(nodes, "nodes")
+    nodes = _checks.finite(jnp.asarray(nodes), "nodes")
     return mss.hex_lattice(nodes, material=material, **kwargs)

@@ -190,9 +190,10 @@ def test_cli_ctrl_c_writes_zero_force(emulator):
         env=env,
     )
     try:
-        assert _wait(lambda: sum(1 for _, f in emulator.forces if f[0] > 0) > 200, timeout=30)
+        assert _wait(lambda: sum(1 for _, f in emulator.forces if f[0] > 0) > 200, timeout=60)
         proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=20)
+        # generous: in the full suite other tests' SCHED_FIFO servo threads share the 2 cores
+        out, _ = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
             proc.kill()

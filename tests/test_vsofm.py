@@ -157,7 +157,7 @@ _CLOUD = jnp.asarray(fibonacci_sphere(40))
         (
             lambda x: vsofm.lattice(x, material=mss.JELLY),
             (jnp.full((2, 2, 2, 3), jnp.nan),),
-            "rest_positions",
+            "nodes: expected finite",
         ),
         (
             lambda x: vsofm.lattice(x, stiffness=1.0, damping=0.0, mass=-1.0),
