@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 
 from bsjax.cli import _common as c
 from bsjax.device.hid import HidDevice, HidLayout
@@ -108,6 +109,22 @@ def _model(args):
     return SculptModel(physics_hz=args.physics_hz, tool_radius=args.tool_radius, tool_axes=args.ellipsoid)
 
 
+def _wait_for(finished, duration: float, slice_s: float = 0.2) -> None:
+    """Wait until `finished` is set or `duration` s have passed, in slices of `slice_s`.
+
+    A process-directed SIGINT may be delivered to any thread (the real-time servo thread, XLA's
+    threads); Python runs its handler in the main thread only when that thread runs bytecode, so
+    one long `Event.wait` could sleep through Ctrl-C. Waking 5 times a second lets the
+    KeyboardInterrupt through at once, without a main thread that takes the GIL every few ms
+    (which, at normal priority, could be descheduled holding it while the servo waits)."""
+    deadline = time.monotonic() + duration
+    while not finished.is_set():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return
+        finished.wait(min(slice_s, left))
+
+
 def _body(args) -> int:
     print("bsjax haptics: building the model and compiling the physics…", flush=True)
     model = _model(args)
@@ -129,9 +146,7 @@ def _body(args) -> int:
         try:
             loop.start()
             print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
-            # One long wait: a main thread waking every few ms would take the GIL each time and,
-            # at normal priority, could be descheduled holding it (the servo would wait).
-            loop.finished.wait(args.duration)
+            _wait_for(loop.finished, args.duration)
         except KeyboardInterrupt:
             interrupted = True
         finally:
