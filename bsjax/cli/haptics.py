@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import time
 
@@ -143,6 +144,9 @@ def _body(args) -> int:
             record=bool(args.record or args.plot),
             cpu=args.cpu,
         )
+        # Ctrl-C must stop the loop even where SIGINT was inherited ignored (a parent such as a
+        # test runner's worker): Python then keeps it ignored at start-up
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             loop.start()
             print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
