@@ -78,40 +78,43 @@ def from_dict(data: dict, source: str = "data") -> BSplineSurface | BSplineCurve
             f"a JSON object with format {_FORMAT!r} or {_CURVE_FORMAT!r}",
             type(data).__name__ if not isinstance(data, dict) else data.get("format"),
         )
-    missing = [k for k in ("degree_u", "degree_v", "ctrl", "knots_u", "knots_v") if k not in data]
-    if missing:
-        _checks.fail(source, "the fields degree_u, degree_v, ctrl, knots_u, knots_v", f"missing {missing}")
-    field = _Fields(data, source)
-    args = (
-        field.array("ctrl"),
-        field.array("knots_u"),
-        field.array("knots_v"),
-        field.integer("degree_u"),
-        field.integer("degree_v"),
-        field.boolean("periodic_u"),
-        field.boolean("periodic_v"),
-        field.array("weights"),
-    )
-    try:
-        return BSplineSurface(*args)
-    except (ValueError, TypeError) as err:
-        raise ValueError(f"{source}: {err}") from err
+    return _spline_from_fields(data, source, BSplineSurface, _SURFACE_FIELDS)
+
+
+# constructor arguments in order: (field, kind, required)
+_SURFACE_FIELDS = (
+    ("ctrl", "array", True),
+    ("knots_u", "array", True),
+    ("knots_v", "array", True),
+    ("degree_u", "integer", True),
+    ("degree_v", "integer", True),
+    ("periodic_u", "boolean", False),
+    ("periodic_v", "boolean", False),
+    ("weights", "array", False),
+)
+_CURVE_FIELDS = (
+    ("ctrl", "array", True),
+    ("knots", "array", True),
+    ("degree", "integer", True),
+    ("periodic", "boolean", False),
+    ("weights", "array", False),
+)
 
 
 def _curve_from_dict(data: dict, source: str) -> BSplineCurve:
-    missing = [k for k in ("degree", "ctrl", "knots") if k not in data]
+    return _spline_from_fields(data, source, BSplineCurve, _CURVE_FIELDS)
+
+
+def _spline_from_fields(data: dict, source: str, cls, fields):
+    """`cls(*fields)` read through `_Fields`; errors name `source` and the field at fault."""
+    required = [k for k, _, needed in fields if needed]
+    missing = [k for k in required if k not in data]
     if missing:
-        _checks.fail(source, "the fields degree, ctrl, knots", f"missing {missing}")
+        _checks.fail(source, f"the fields {', '.join(required)}", f"missing {missing}")
     field = _Fields(data, source)
-    args = (
-        field.array("ctrl"),
-        field.array("knots"),
-        field.integer("degree"),
-        field.boolean("periodic"),
-        field.array("weights"),
-    )
+    args = [getattr(field, kind)(key) for key, kind, _ in fields]
     try:
-        return BSplineCurve(*args)
+        return cls(*args)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{source}: {err}") from err
 
