@@ -15,7 +15,7 @@ demo: $(PY)
 	$(VENV)/bin/bsjax demo
 
 test: $(PY)
-	$(PY) -m pip install -q -e ".[test,haptics,notebooks]"
+	$(PY) -m pip install -q -e ".[test,haptics,notebooks,cad]"
 	$(VENV)/bin/ruff format --check bsjax tests benchmarks
 	$(VENV)/bin/ruff check bsjax tests benchmarks
 	$(VENV)/bin/pyright

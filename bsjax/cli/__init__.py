@@ -19,6 +19,9 @@ COMMANDS = {
     "collide": ("bsjax.cli.collide", "collision query of a surface file against a tool"),
     "simulate": ("bsjax.cli.simulate", "mass-spring simulation of a surface file"),
     "convert": ("bsjax.cli.convert", "convert a surface between .json, .3dm, .obj, .stl, .ply, .glb"),
+    "sketch": ("bsjax.cli.sketch", "strokes from a JSON file -> curves and a surface (.3dm/.glb + PNG)"),
+    "grammar": ("bsjax.cli.grammar", "curve semantics: symbol string of a curve file; enumerate shapes"),
+    "sweep": ("bsjax.cli.sweep", "parameter study over a grid of designs (spoon, collide, merge)"),
 }
 
 
