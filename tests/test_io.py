@@ -181,9 +181,10 @@ def test_missing_files_are_os_errors_naming_them(tmp_path):
             io.load(tmp_path / name)
 
 
-def test_3dm_objects_not_loaded_are_listed_in_a_warning(tmp_path):
-    """A point, a mesh and a trimmed Brep beside an untrimmed surface: the surface and the
-    Brep's face load, and one warning says what was skipped or loaded untrimmed."""
+def test_3dm_objects_not_loaded_are_listed(tmp_path):
+    """A point, a mesh and a box Brep beside a surface: by default the file is refused with a
+    message listing the point and the mesh; with `on_unsupported="skip"` the surface and the six
+    box faces load and a warning lists the same objects."""
     model = rhino3dm.File3dm()
     model.Objects.AddPoint(rhino3dm.Point3d(1, 2, 3))
     mesh = rhino3dm.Mesh()
@@ -198,9 +199,13 @@ def test_3dm_objects_not_loaded_are_listed_in_a_warning(tmp_path):
     model.Objects.AddBrep(box)
     path = tmp_path / "mixed.3dm"
     assert model.Write(str(path), 7)
-    with pytest.warns(UserWarning, match=r"mixed.3dm: not loaded: 1 Mesh, 1 Point; 6 faces of trimmed"):
-        items = io.load_all(path)
+    listed = r"mixed.3dm: .*object 0 \(Point\), object 1 \(Mesh\)"
+    with pytest.raises(ValueError, match=listed + ".*on_unsupported='skip'"):
+        io.load_all(path)
+    with pytest.warns(UserWarning, match=r"mixed.3dm: not loaded: object 0 \(Point\), object 1 \(Mesh\)"):
+        items = io.load_all(path, on_unsupported="skip")
     assert len(items) == 1 + 6 and all(isinstance(s, BSplineSurface) for s in items)
+    assert items.held == {"Point": 1, "Mesh": 1, "NurbsSurface": 1, "Brep": 1}
 
 
 def test_mesh_with_a_non_finite_vertex_is_refused(tmp_path):

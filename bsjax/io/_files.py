@@ -1,31 +1,16 @@
-"""Surface and curve files: lossless JSON, Rhino `.3dm` (rhino3dm), and tessellated meshes (trimesh).
-
-* `save(spline_or_list, path)` / `load(path)` / `load_all(path)` pick the format by extension:
-  `.json` and `.3dm` keep the exact B-spline surfaces and curves (degrees, knots, control points,
-  weights, periodicity); `.obj`, `.stl`, `.ply`, `.glb` write the tessellated sample grid of
-  surfaces.
-* `.3dm`: a periodic direction is written as Rhino writes a periodic NURBS — uniform unclamped
-  knots with the first `degree` control columns repeated at the end — and read back as periodic,
-  so the round trip is exact and Rhino shows a closed surface. Curves are `NurbsCurve`s of
-  dimension 2 or 3 (control points stored homogeneous, `[w P, w]`, as for surfaces).
-* From the shell: `bsjax convert IN OUT` (`bsjax.cli.convert`).
-
-rhino3dm and trimesh are imported by the functions that use them, so `import bsjax.io` stays light.
-"""
+"""Surface and curve files: JSON, `.3dm`, STEP/IGES, meshes — the dispatch by extension."""
 
 from __future__ import annotations
 
 import json
-import warnings
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from bsjax import _checks, collide
-from bsjax.basis import BSplineCurve, BSplineSurface, periodic_knots
-
-__all__ = ["MESH_FORMATS", "from_dict", "load", "load_all", "save", "tessellate", "to_dict"]
+from bsjax.basis import BSplineCurve, BSplineSurface
+from bsjax.io._cad import CadList, CadObject, Trim, check_units, unit_scale
 
 MESH_FORMATS = (".obj", ".stl", ".ply", ".glb")
 _FORMAT = "bsjax.surface"
@@ -174,163 +159,6 @@ def _json_type(value) -> str:
     )
 
 
-# --- Rhino .3dm -----------------------------------------------------------------------------
-def _to_rhino(surface: BSplineSurface):
-    import rhino3dm
-
-    ctrl = np.asarray(surface.ctrl, dtype=np.float64)
-    w = np.ones(ctrl.shape[:2]) if surface.weights is None else np.asarray(surface.weights, dtype=np.float64)
-    knots = []
-    for axis, d in enumerate("uv"):
-        degree, periodic = getattr(surface, f"degree_{d}"), getattr(surface, f"periodic_{d}")
-        if periodic:  # wrap: n + p control points over the unclamped uniform knots
-            wrap = np.arange(ctrl.shape[axis] + degree) % ctrl.shape[axis]
-            ctrl, w = np.take(ctrl, wrap, axis=axis), np.take(w, wrap, axis=axis)
-        knots.append(_rhino_knots(getattr(surface, f"knots_{d}"), degree, periodic, surface.shape[axis]))
-    r, s = ctrl.shape[:2]
-    srf = rhino3dm.NurbsSurface.Create(
-        3, surface.weights is not None, surface.degree_u + 1, surface.degree_v + 1, r, s
-    )
-    for i, k in enumerate(knots[0]):
-        srf.KnotsU[i] = float(k)
-    for j, k in enumerate(knots[1]):
-        srf.KnotsV[j] = float(k)
-    for i in range(r):
-        for j in range(s):
-            x, y, z = ctrl[i, j] * w[i, j]
-            srf.Points[i, j] = rhino3dm.Point4d(float(x), float(y), float(z), float(w[i, j]))
-    return srf
-
-
-def _rhino_knots(knots, degree: int, periodic: bool, n: int) -> np.ndarray:
-    """Rhino's knots: ours (or the unclamped uniform ones of a periodic direction) without the
-    two superfluous end knots."""
-    full = np.asarray(periodic_knots(n, degree) if periodic else knots, dtype=np.float64)
-    return full[1:-1]
-
-
-def _curve_to_rhino(curve: BSplineCurve):
-    import rhino3dm
-
-    ctrl = np.asarray(curve.ctrl, dtype=np.float64)
-    n, dim = ctrl.shape
-    w = np.ones(n) if curve.weights is None else np.asarray(curve.weights, dtype=np.float64)
-    if curve.periodic:  # n + p control points over the unclamped uniform knots, as Rhino's own
-        wrap = np.arange(n + curve.degree) % n
-        ctrl, w = ctrl[wrap], w[wrap]
-    out = rhino3dm.NurbsCurve(dim, curve.weights is not None, curve.degree + 1, ctrl.shape[0])
-    for i, k in enumerate(_rhino_knots(curve.knots, curve.degree, curve.periodic, n)):
-        out.Knots[i] = float(k)
-    hom = np.concatenate([ctrl * w[:, None], np.zeros((ctrl.shape[0], 3 - dim)), w[:, None]], axis=1)
-    for i, (x, y, z, wi) in enumerate(hom):
-        out.Points[i] = rhino3dm.Point4d(float(x), float(y), float(z), float(wi))
-    return out
-
-
-def _curve_from_rhino(crv, source: str) -> BSplineCurve:
-    hom = np.array([_point4(crv.Points[i]) for i in range(len(crv.Points))])
-    w = hom[:, 3]
-    ctrl = hom[:, : crv.Dimension] / w[:, None]
-    inner = np.array(list(crv.Knots), dtype=np.float64)
-    ctrl, w, knots, periodic = _direction_from_rhino(ctrl, w, inner, crv.Order - 1, 0, source)
-    weights = None if np.allclose(w, 1.0, rtol=0, atol=0) else w
-    return BSplineCurve(ctrl, knots, crv.Order - 1, periodic, weights)
-
-
-def _from_rhino(srf, source: str) -> BSplineSurface:
-    r, s = srf.Points.CountU, srf.Points.CountV
-    hom = np.array([[_point4(srf.Points[i, j]) for j in range(s)] for i in range(r)])
-    w = hom[..., 3]
-    ctrl = hom[..., :3] / w[..., None]
-    knots, periodic = {}, {}
-    degrees = {"u": srf.OrderU - 1, "v": srf.OrderV - 1}
-    for axis, d in enumerate("uv"):
-        inner = np.array(list(srf.KnotsU if d == "u" else srf.KnotsV), dtype=np.float64)
-        ctrl, w, knots[d], periodic[d] = _direction_from_rhino(
-            ctrl, w, inner, degrees[d], axis, f"{source} ({d})"
-        )
-    weights = None if np.allclose(w, 1.0, rtol=0, atol=0) else w
-    return BSplineSurface(
-        ctrl, knots["u"], knots["v"], degrees["u"], degrees["v"], periodic["u"], periodic["v"], weights
-    )
-
-
-def _direction_from_rhino(ctrl, w, inner, degree, axis, source):
-    """Rhino's knots (no superfluous ends) → ours on [0, 1], detecting the periodic layout
-    (`ctrl` and `w` hold the control points along `axis`: a surface net or a curve's points)."""
-    clamped = np.all(inner[:degree] == inner[0]) and np.all(inner[-degree:] == inner[-1])
-    if clamped:
-        full = np.concatenate([[inner[0]], inner, [inner[-1]]])
-        return ctrl, w, (full - full[0]) / (full[-1] - full[0]), False
-    n = ctrl.shape[axis] - degree
-    head, tail = np.take(ctrl, range(degree), axis=axis), np.take(ctrl, range(n, n + degree), axis=axis)
-    uniform = np.allclose(np.diff(inner), np.diff(inner)[0], rtol=1e-9, atol=0)
-    if not (uniform and n > degree and np.allclose(head, tail, rtol=0, atol=1e-12)):
-        _checks.fail(
-            source, "clamped knots, or a uniform periodic spline", f"unclamped knots {inner.tolist()}"
-        )
-    keep = range(n)
-    return np.take(ctrl, keep, axis=axis), np.take(w, keep, axis=axis), None, True
-
-
-def _point4(p):
-    return (p.X, p.Y, p.Z, p.W)
-
-
-def _save_3dm(splines, path: Path) -> None:
-    import rhino3dm
-
-    model = rhino3dm.File3dm()
-    model.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
-    for spline in splines:
-        if isinstance(spline, BSplineCurve):
-            model.Objects.AddCurve(_curve_to_rhino(spline))
-        else:
-            model.Objects.AddSurface(_to_rhino(spline))
-    if not model.Write(str(path), 7):
-        raise OSError(f"{path}: rhino3dm could not write the file")
-
-
-def _load_3dm(path: Path) -> list[BSplineSurface | BSplineCurve]:
-    import rhino3dm
-
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    model = rhino3dm.File3dm.Read(str(path))
-    if model is None:
-        _checks.fail(str(path), "a readable Rhino .3dm file", "a file rhino3dm cannot parse")
-    splines, skipped, untrimmed, reversed_faces = [], Counter(), 0, 0
-    for index, obj in enumerate(model.Objects):
-        geometry, source = obj.Geometry, f"{path} object {index}"
-        if isinstance(geometry, rhino3dm.Curve):
-            splines.append(_curve_from_rhino(geometry.ToNurbsCurve(), source))
-        elif isinstance(geometry, rhino3dm.Brep):
-            if not geometry.IsSurface:  # trimmed or several faces: the faces' underlying surfaces
-                untrimmed += len(geometry.Faces)
-            for face in (geometry.Faces[i] for i in range(len(geometry.Faces))):
-                reversed_faces += bool(face.OrientationIsReversed)
-                splines.append(_from_rhino(face.ToNurbsSurface(), source))
-        elif isinstance(geometry, rhino3dm.Surface):
-            splines.append(_from_rhino(geometry.ToNurbsSurface(), source))
-        else:
-            skipped[type(geometry).__name__] += 1
-    _warn_dropped(path, skipped, untrimmed, reversed_faces)
-    return splines
-
-
-def _warn_dropped(path: Path, skipped: Counter, untrimmed: int, reversed_faces: int) -> None:
-    """One warning listing what a `.3dm` file held that was not loaded as it is in the file."""
-    notes = []
-    if skipped:
-        notes.append("not loaded: " + ", ".join(f"{n} {kind}" for kind, n in sorted(skipped.items())))
-    if untrimmed:
-        notes.append(f"{untrimmed} faces of trimmed or multi-face Breps loaded as their untrimmed surfaces")
-    if reversed_faces:
-        notes.append(f"{reversed_faces} Brep faces have reversed orientation (loaded with the surface's own)")
-    if notes:
-        warnings.warn(f"{path}: " + "; ".join(notes), stacklevel=4)
-
-
 # --- meshes -------------------------------------------------------------------------------
 def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
     """Triangle mesh of the `m × n` sample grid as a `trimesh.Trimesh`: `collide.tessellate`'s
@@ -353,65 +181,169 @@ def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
 
 
 # --- dispatch -----------------------------------------------------------------------------
-def save(surfaces, path, m: int = 82, n: int = 82) -> Path:
-    """Write one surface or curve, or a list of them; the format follows the extension of `path`
-    (meshes: surfaces only)."""
-    path = Path(path)
+_CAD = (".step", ".stp", ".iges", ".igs")
+_SPLINE_FORMATS = (".json", ".3dm", *_CAD)
+_ON_UNSUPPORTED = ("raise", "skip")
+
+
+def _objects(items) -> list[CadObject]:
     splines = (BSplineSurface, BSplineCurve)
-    items = [surfaces] if isinstance(surfaces, splines) else list(surfaces)
-    if not items or not all(isinstance(s, splines) for s in items):
+    listed = [items] if isinstance(items, (*splines, CadObject)) else list(items)
+    if not listed or not all(isinstance(s, (*splines, CadObject)) for s in listed):
         _checks.fail(
             "surfaces",
-            "a BSplineSurface or BSplineCurve, or a non-empty list of them",
-            type(surfaces).__name__,
+            "a BSplineSurface, BSplineCurve or CadObject, or a non-empty list of them",
+            type(items).__name__,
         )
+    if isinstance(items, CadList) and len(items.objects) == len(items):
+        listed = items.objects
+    return [s if isinstance(s, CadObject) else CadObject(s) for s in listed]
+
+
+def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> Path:
+    """Write one surface or curve, or a list of them; the format follows the extension of `path`.
+
+    **Arguments:**
+    - `surfaces`: a `BSplineSurface`, `BSplineCurve` or `CadObject`, a list of them, or what
+      `load_all` returned (its `objects` — names, layers, domains, trims, orientation — and its
+      `units` are written).
+    - `path`: `.json`, `.3dm`, `.step`/`.stp`, `.iges`/`.igs` keep the splines exactly; `.obj`,
+      `.stl`, `.ply`, `.glb` hold the tessellated `m × n` sample grid (surfaces only).
+    - `units`: the unit system recorded in the file (a key of `bsjax.io.UNITS`); default the
+      `CadList`'s own, else metres. The numbers are written unchanged (no conversion).
+    """
+    path = Path(path)
+    objects = _objects(surfaces)
+    check_units(units)
+    units = units or getattr(surfaces, "units", None) or "m"
     ext = path.suffix.lower()
     if ext == ".json":
-        path.write_text(json.dumps(_json_document(items)))
+        path.write_text(json.dumps(_json_document(objects, units)))
     elif ext == ".3dm":
-        _save_3dm(items, path)
+        from bsjax.io._rhino import save_3dm
+
+        save_3dm(objects, path, units)
+    elif ext in _CAD:
+        from bsjax.io._occt import save_occt
+
+        save_occt(objects, path, units)
     elif ext in MESH_FORMATS:
         import trimesh
 
-        if any(isinstance(s, BSplineCurve) for s in items):
+        if any(isinstance(o.geometry, BSplineCurve) for o in objects):
             _checks.fail("surfaces", f"only surfaces for a mesh format ({ext})", "a BSplineCurve")
-        meshes = [tessellate(s, m, n) for s in items]
+        meshes = [tessellate(o.geometry, m, n) for o in objects]  # pyright: ignore[reportArgumentType]
         (meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)).export(str(path))
     else:
-        _checks.fail("path", f"an extension in .json, .3dm, {', '.join(MESH_FORMATS)}", repr(path.suffix))
+        _checks.fail(
+            "path", f"an extension in {', '.join(_SPLINE_FORMATS + MESH_FORMATS)}", repr(path.suffix)
+        )
     return path
 
 
-def _json_document(items) -> dict:
+def _json_item(obj: CadObject) -> dict:
+    item = to_dict(obj.geometry)
+    if obj.name or obj.layer:
+        item.update(name=obj.name, layer=obj.layer)
+    if obj.domain is not None:
+        item["domain"] = [list(d) for d in obj.domain]
+    if obj.reversed:
+        item["reversed"] = True
+    if obj.trim is not None:
+        item["trim"] = {"loops": [loop.tolist() for loop in obj.trim.loops()], "outer": list(obj.trim.outer)}
+    return item
+
+
+def _json_document(objects: list[CadObject], units: str) -> dict:
+    items = [_json_item(o) for o in objects]
     if len(items) == 1:
-        return to_dict(items[0])
-    if all(isinstance(s, BSplineSurface) for s in items):
-        return {"format": _FORMAT + "s", "surfaces": [to_dict(s) for s in items]}
-    return {"format": _MIXED_FORMAT, "splines": [to_dict(s) for s in items]}
+        return {**items[0], "units": units}
+    if all(isinstance(o.geometry, BSplineSurface) for o in objects):
+        return {"format": _FORMAT + "s", "units": units, "surfaces": items}
+    return {"format": _MIXED_FORMAT, "units": units, "splines": items}
 
 
-def load_all(path, kind: str | None = None) -> list[BSplineSurface | BSplineCurve]:
-    """Every surface and curve in a `.json` or `.3dm` file, in file order; `kind="surface"` or
-    `"curve"` keeps only those."""
+def load_all(
+    path,
+    kind: str | None = None,
+    *,
+    units: str | None = None,
+    on_unsupported: str = "raise",
+    trims: bool = False,
+) -> CadList:
+    """Every surface and curve in a `.json`, `.3dm`, STEP or IGES file, in file order.
+
+    **Arguments:**
+    - `kind`: `"surface"` or `"curve"` keeps only those; `None` both.
+    - `units`: `None` keeps the file's numbers; a unit name (`"mm"`, `"m"`, … keys of
+      `bsjax.io.UNITS`) scales them into that unit (the file must have a unit system).
+    - `on_unsupported`: `"raise"` (default) refuses a file holding objects bsjax cannot load
+      (meshes, points, SubD, …) with a message listing them; `"skip"` loads the rest and warns
+      with the same list.
+    - `trims`: `False` returns the splines; `True` returns a `CadObject` per surface or curve
+      (a Brep face with its `Trim` loops in [0, 1]² and its orientation flag `reversed`).
+
+    **Returns:** a `CadList`: a `list` of the splines (or `CadObject`s with `trims=True`), with
+    the attributes `units` (the file's unit system, or `units` when converted), `objects` (a
+    `CadObject` per item: name, layer, domain, orientation, trim) and `held` (what the file held).
+    """
     if kind not in _KINDS:
         _checks.fail("kind", "None, 'surface' or 'curve'", repr(kind))
-    return [s for s in _read_all(Path(path)) if isinstance(s, _KINDS[kind])]
+    if on_unsupported not in _ON_UNSUPPORTED:
+        _checks.fail("on_unsupported", "'raise' or 'skip'", repr(on_unsupported))
+    if not isinstance(trims, bool):
+        _checks.fail("trims", "True or False", repr(trims))
+    check_units(units)
+    read = _read_all(Path(path), units, on_unsupported, trims)
+    objects = [o for o in read.objects if isinstance(o.geometry, _KINDS[kind])]
+    items = objects if trims else [o.geometry for o in objects]
+    return CadList(items, read.units, objects, read.held)
 
 
-def _read_all(path: Path) -> list:
+def _read_all(path: Path, units, on_unsupported: str, trims: bool) -> CadList:
     ext = path.suffix.lower()
     if ext == ".3dm":
-        return _load_3dm(path)
+        from bsjax.io._rhino import load_3dm
+
+        return load_3dm(path, units, on_unsupported, trims)
+    if ext in _CAD:
+        from bsjax.io._occt import load_occt
+
+        return load_occt(path, units, on_unsupported, trims)
     if ext != ".json":
-        _checks.fail("path", "a .json or .3dm file (meshes hold no B-spline)", repr(path.suffix))
+        _checks.fail(
+            "path", f"a {', '.join(_SPLINE_FORMATS)} file (meshes hold no B-spline)", repr(path.suffix)
+        )
     data = _read_json(path)
+    file_units = data.get("units") if isinstance(data, dict) else None
+    if file_units is not None:
+        check_units(file_units, f"{path}: units")
+    scale = unit_scale(file_units, units, str(path))
+    items = [(data, str(path))]
     for fmt, key, what in ((_FORMAT + "s", "surfaces", "surface"), (_MIXED_FORMAT, "splines", "item")):
         if isinstance(data, dict) and data.get("format") == fmt:
-            items = data.get(key)
-            if not isinstance(items, list):
-                _checks.fail(f"{path}: {key}", "a list of spline objects", _json_type(items))
-            return [from_dict(d, f"{path} {what} {k}") for k, d in enumerate(items)]  # pyright: ignore
-    return [from_dict(data, str(path))]
+            listed = data.get(key)
+            if not isinstance(listed, list):
+                _checks.fail(f"{path}: {key}", "a list of spline objects", _json_type(listed))
+            items = [(d, f"{path} {what} {k}") for k, d in enumerate(listed)]  # pyright: ignore
+    objects = [_json_object(d, source, scale) for d, source in items]
+    held = Counter(type(o.geometry).__name__ for o in objects)
+    return CadList([o.geometry for o in objects], units or file_units, objects, held)
+
+
+def _json_object(data, source: str, scale: float) -> CadObject:
+    spline = from_dict(data, source)
+    if scale != 1.0:
+        spline = spline.with_ctrl(spline.ctrl * scale)
+    name, layer = data.get("name", ""), data.get("layer", "")
+    domain = data.get("domain")
+    trim = data.get("trim")
+    try:
+        domain = None if domain is None else tuple((float(a), float(b)) for a, b in domain)
+        trim = None if trim is None else Trim.from_loops(trim["loops"], trim["outer"])
+        return CadObject(spline, str(name), str(layer), domain, bool(data.get("reversed", False)), trim)
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{source}: domain or trim: expected the layout bsjax writes, got {err}") from None
 
 
 def _read_json(path: Path):
@@ -430,13 +362,15 @@ def _read_json(path: Path):
         raise ValueError(f"{path}: not a bsjax JSON file ({err})") from None
 
 
-def load(path, kind: str | None = None) -> BSplineSurface | BSplineCurve:
-    """The single surface or curve in a `.json` or `.3dm` file (use `load_all` for several);
-    `kind="surface"` or `"curve"` looks only at those."""
-    items = load_all(path, kind)
+def load(path, kind: str | None = None, **options) -> BSplineSurface | BSplineCurve:
+    """The single surface or curve in a file (use `load_all` for several); `kind="surface"` or
+    `"curve"` looks only at those; `options` as for `load_all` (`units`, `on_unsupported`)."""
+    items = load_all(path, kind, **options)
     what = {None: "surface or curve", "surface": "surface", "curve": "curve"}[kind]
     if len(items) != 1:
         _checks.fail(
-            str(path), f"exactly one {what} (use bsjax.io.load_all for several)", f"{len(items)} items"
+            str(path),
+            f"exactly one {what} (use bsjax.io.load_all for several)",
+            f"{len(items)} items (the file holds {items.holding()})",
         )
     return items[0]

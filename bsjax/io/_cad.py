@@ -1,0 +1,163 @@
+"""What a CAD file says about its splines beyond the geometry: units, names, layers, parameter
+domains, trimming loops and face orientation.
+
+* `CadObject(geometry, name, layer, domain, reversed, trim)`: one surface (a Brep face, a
+  surface, an extrusion wall or cap, an expanded block member) or one curve, with what the file
+  says about it. `geometry` is the `BSplineSurface` / `BSplineCurve` on bsjax's [0, 1]
+  parametrisation; `domain` the file's own parameter interval per direction, so a save maps
+  [0, 1] back onto it.
+* `Trim`: a face's trimming loops as closed polylines in the surface's [0, 1]² parameter space
+  (outer loops counter-clockwise, inner loops — holes — clockwise, as in "The NURBS Book" §12 and
+  OpenNURBS), with a vectorised point-in-region test `mask(u, v)`.
+* `CadList`: what `bsjax.io.load_all` returns — a plain `list` of the splines (so callers that
+  iterate, index or `len` it see only surfaces and curves, as before), with the file's `units`,
+  its `objects` (one `CadObject` per item, same order) and `held` (a count of every kind of object
+  the file held, loaded or not).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import Counter
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from bsjax import _checks
+from bsjax._boundary import compiled
+from bsjax.basis import BSplineCurve, BSplineSurface
+
+# unit name → metres; the names `load_all(units=...)` accepts and `CadList.units` holds
+UNITS = {
+    "nm": 1e-9,
+    "um": 1e-6,
+    "mm": 1e-3,
+    "cm": 1e-2,
+    "dm": 1e-1,
+    "m": 1.0,
+    "km": 1e3,
+    "in": 0.0254,
+    "ft": 0.3048,
+    "yd": 0.9144,
+    "mi": 1609.344,
+}
+
+
+def check_units(units, name: str = "units") -> None:
+    if units is not None and units not in UNITS:
+        _checks.fail(name, f"None or one of {', '.join(UNITS)}", repr(units))
+
+
+def unit_scale(source: str | None, target: str | None, what: str) -> float:
+    """The factor that turns lengths in `source` units into `target` units (1 when no target)."""
+    if target is None or source == target:
+        return 1.0
+    if source is None:
+        _checks.fail("units", f"a file with a unit system to convert {what} from", "a file without units")
+    return UNITS[source] / UNITS[target]  # pyright: ignore[reportArgumentType]
+
+
+class Trim(eqx.Module):
+    """A face's trimming loops in its surface's [0, 1]² parameter space.
+
+    **Fields:**
+    - `segments (S, 2, 2)`: every loop's polyline edges `(start, end)` in `(u, v)`, loop after loop.
+    - `loop_sizes`: the number of edges of each loop (static).
+    - `outer`: per loop, `True` for an outer boundary, `False` for a hole (static).
+
+    `mask(u, v)` is the even–odd (crossing-number) rule over all edges at once, so a point inside
+    an outer loop and outside every hole is kept, whatever the loops' orientation.
+    """
+
+    segments: Float[Array, "S 2 2"]
+    loop_sizes: tuple[int, ...] = eqx.field(static=True)
+    outer: tuple[bool, ...] = eqx.field(static=True)
+
+    @classmethod
+    def from_loops(cls, loops, outer) -> Trim:
+        """From closed polylines `loops[i] (k_i, 2)` (the last point may repeat the first)."""
+        segments, sizes = [], []
+        for k, loop in enumerate(loops):
+            loop = np.asarray(loop, dtype=np.float64)
+            _checks.check_ndim(loop, 2, f"loops[{k}]")
+            if loop.shape[1] != 2 or loop.shape[0] < 3:
+                _checks.fail(f"loops[{k}]", "a closed polyline of shape (k >= 3, 2)", loop.shape)
+            if np.array_equal(loop[0], loop[-1]):
+                loop = loop[:-1]
+            segments.append(np.stack([loop, np.roll(loop, -1, axis=0)], axis=1))
+            sizes.append(loop.shape[0])
+        if not segments:
+            _checks.fail("loops", "at least one loop", "none")
+        return cls(jnp.asarray(np.concatenate(segments)), tuple(sizes), tuple(bool(o) for o in outer))
+
+    def loops(self) -> list[np.ndarray]:
+        """Each loop as a closed polyline `(k + 1, 2)` (first point repeated at the end)."""
+        segments = np.asarray(self.segments)
+        ends = np.cumsum((0, *self.loop_sizes))
+        return [np.vstack([segments[a:b, 0], segments[a, :1]]) for a, b in itertools.pairwise(ends)]
+
+    @compiled
+    def mask(self, u: Float[Array, "..."], v: Float[Array, "..."]) -> Bool[Array, "..."]:
+        """`True` where `(u, v)` lies inside the trimmed face (even–odd rule; "Computational
+        Geometry in C", O'Rourke, §7.4 crossing test).
+
+        **Arguments:** `u`, `v`: parameters of the same shape, in [0, 1].
+        **Returns:** a boolean array of that shape.
+        """
+        u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
+        (u0, v0), (u1, v1) = self.segments[:, 0].T, self.segments[:, 1].T
+        pu, pv = u[..., None], v[..., None]
+        straddles = (v0 > pv) != (v1 > pv)
+        dv = jnp.where(straddles, v1 - v0, 1.0)
+        crossing_u = u0 + (pv - v0) * (u1 - u0) / dv
+        crosses = straddles & (pu < crossing_u)
+        return jnp.sum(crosses, axis=-1) % 2 == 1
+
+
+class CadObject(eqx.Module):
+    """One surface or curve of a CAD file with what the file says about it.
+
+    **Fields:**
+    - `geometry`: the `BSplineSurface` or `BSplineCurve`, parametrised over [0, 1].
+    - `name`, `layer`: the object's name and layer path ("" when the file has none).
+    - `domain`: the file's parameter interval per direction, `((u0, u1), (v0, v1))` for a
+      surface, `((t0, t1),)` for a curve; a save maps [0, 1] back onto it.
+    - `reversed`: `True` when the face's normal is opposite to the surface's `S_u × S_v`
+      (a Brep face with a reversed orientation flag).
+    - `trim`: the face's `Trim`, or `None` for an untrimmed surface.
+    """
+
+    geometry: BSplineSurface | BSplineCurve
+    name: str = eqx.field(static=True, default="")
+    layer: str = eqx.field(static=True, default="")
+    domain: tuple[tuple[float, float], ...] | None = eqx.field(static=True, default=None)
+    reversed: bool = eqx.field(static=True, default=False)
+    trim: Trim | None = None
+
+    @property
+    def surface(self) -> BSplineSurface:
+        if not isinstance(self.geometry, BSplineSurface):
+            _checks.fail("geometry", "a BSplineSurface", type(self.geometry).__name__)
+        return self.geometry  # pyright: ignore[reportReturnType]
+
+    def mask(self, u, v):
+        """`Trim.mask`, or all `True` for an untrimmed object."""
+        if self.trim is None:
+            return jnp.ones(jnp.broadcast_shapes(jnp.shape(u), jnp.shape(v)), dtype=bool)
+        return self.trim.mask(u, v)
+
+
+class CadList(list):
+    """The splines `bsjax.io.load_all` read (a `list`), with the file's `units` (a key of
+    `bsjax.io.UNITS` or `None`), `objects` (a `CadObject` per item) and `held` (a `Counter` of
+    every kind of object the file held)."""
+
+    def __init__(self, items=(), units: str | None = None, objects=(), held: Counter | None = None):
+        super().__init__(items)
+        self.units, self.objects, self.held = units, list(objects), held or Counter()
+
+    def holding(self) -> str:
+        """'2 Brep faces, 1 Mesh' — what the file held, for error messages."""
+        return ", ".join(f"{n} {kind}" for kind, n in sorted(self.held.items())) or "nothing"

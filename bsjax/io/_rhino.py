@@ -1,0 +1,317 @@
+"""Rhino `.3dm` files through rhino3dm (OpenNURBS): surfaces, Brep faces (trims, orientation),
+extrusions with caps, block instances, curves, units, names and layers.
+
+* Knots: Rhino stores `n + p - 1` knots (no superfluous end knots) on any domain. A clamped
+  direction maps its domain onto [0, 1]; a uniform periodic one (as bsjax writes) loads as a
+  periodic direction; any other unclamped direction — Rhino's closed lofts, revolves, sweeps —
+  is clamped exactly by knot insertion at the domain ends (`_knots.clamp`). The domain is kept
+  in `CadObject.domain`, so a save maps [0, 1] back onto it.
+* Trims: rhino3dm exposes a Brep trim's loop, edge and direction but not its 2-D curve; the
+  loops are recovered by projecting the 3-D edge curves onto the face's surface
+  (`bsjax.basis.closest_points`, point inversion, "The NURBS Book" §6.1) as polylines in [0, 1]².
+  rhino3dm cannot build a trimmed Brep either: a trimmed face is written as its surface (a
+  Brep, flipped when reversed) with its loops in the user string `bsjax.trim`, which bsjax reads
+  back exactly; Rhino itself shows the untrimmed surface.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from bsjax import _checks
+from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
+from bsjax.io import _knots
+from bsjax.io._cad import CadList, CadObject, Trim, unit_scale
+
+_RHINO_UNITS = {  # bsjax unit name → rhino3dm.UnitSystem member
+    "nm": "Nanometers",
+    "um": "Microns",
+    "mm": "Millimeters",
+    "cm": "Centimeters",
+    "dm": "Decimeters",
+    "m": "Meters",
+    "km": "Kilometers",
+    "in": "Inches",
+    "ft": "Feet",
+    "yd": "Yards",
+    "mi": "Miles",
+}
+_TRIM_KEY = "bsjax.trim"
+EDGE_SAMPLES = 33  # points per trim edge projected onto the face's surface
+
+
+# --- knots and control nets ---------------------------------------------------------------
+def _direction(hom, inner, degree: int, axis: int):
+    """Rhino's knots along `axis` → `(hom, knots01 or None, periodic, domain)`."""
+    p, n = degree, hom.shape[axis]
+    domain = (float(inner[p - 1]), float(inner[n - 1]))
+    full = np.concatenate([[inner[0]], inner, [inner[-1]]])
+    if _knots.is_clamped(full, p):
+        return hom, (full - full[0]) / (full[-1] - full[0]), False, domain
+    m = n - p
+    head, tail = np.take(hom, range(p), axis=axis), np.take(hom, range(m, n), axis=axis)
+    steps = np.diff(inner)
+    uniform = np.allclose(steps, steps[0], rtol=1e-9, atol=0) and steps[0] > 0
+    if uniform and m > p and np.allclose(head, tail, rtol=0, atol=1e-12 * max(1.0, np.abs(hom).max())):
+        return np.take(hom, range(m), axis=axis), None, True, domain
+    hom, knots01, domain = _knots.clamp(hom, full, p, axis)
+    return hom, knots01, False, domain
+
+
+def _split(hom):
+    w = hom[..., 3]
+    return hom[..., :3] / w[..., None], (None if np.all(w == 1.0) else w)
+
+
+def surface_from_rhino(srf, scale: float = 1.0):
+    """A rhino3dm `NurbsSurface` → `(BSplineSurface, ((u0, u1), (v0, v1)))`."""
+    r, s = srf.Points.CountU, srf.Points.CountV
+    hom = np.array([[_point4(srf.Points[i, j]) for j in range(s)] for i in range(r)], dtype=np.float64)
+    degrees = (srf.OrderU - 1, srf.OrderV - 1)
+    knots, periodic, domain = {}, {}, {}
+    for axis, rhino_knots in enumerate((srf.KnotsU, srf.KnotsV)):
+        inner = np.array(list(rhino_knots), dtype=np.float64)
+        hom, knots[axis], periodic[axis], domain[axis] = _direction(hom, inner, degrees[axis], axis)
+    ctrl, weights = _split(hom)
+    surface = BSplineSurface(ctrl * scale, knots[0], knots[1], *degrees, periodic[0], periodic[1], weights)
+    return surface, (domain[0], domain[1])
+
+
+def curve_from_rhino(crv, scale: float = 1.0):
+    """A rhino3dm `NurbsCurve` → `(BSplineCurve, ((t0, t1),))`."""
+    hom = np.array([_point4(crv.Points[i]) for i in range(len(crv.Points))], dtype=np.float64)
+    inner = np.array(list(crv.Knots), dtype=np.float64)
+    hom, knots, periodic, domain = _direction(hom, inner, crv.Order - 1, 0)
+    ctrl, weights = _split(hom)
+    return BSplineCurve(ctrl[:, : crv.Dimension] * scale, knots, crv.Order - 1, periodic, weights), (domain,)
+
+
+def _point4(p):
+    return (p.X, p.Y, p.Z, p.W)
+
+
+def _rhino_knots(knots, degree: int, periodic: bool, n: int, domain) -> np.ndarray:
+    """Rhino's knots: ours (or the unclamped uniform ones of a periodic direction) mapped onto
+    `domain`, without the two superfluous end knots."""
+    full = np.asarray(periodic_knots(n, degree) if periodic else knots, dtype=np.float64)
+    if domain is not None:
+        full = domain[0] + (domain[1] - domain[0]) * full
+    return full[1:-1]
+
+
+def surface_to_rhino(surface: BSplineSurface, domain=None):
+    import rhino3dm
+
+    ctrl = np.asarray(surface.ctrl, dtype=np.float64)
+    w = np.ones(ctrl.shape[:2]) if surface.weights is None else np.asarray(surface.weights, dtype=np.float64)
+    knots = []
+    for axis, d in enumerate("uv"):
+        degree, periodic = getattr(surface, f"degree_{d}"), getattr(surface, f"periodic_{d}")
+        if periodic:  # wrap: n + p control points over the unclamped uniform knots
+            wrap = np.arange(ctrl.shape[axis] + degree) % ctrl.shape[axis]
+            ctrl, w = np.take(ctrl, wrap, axis=axis), np.take(w, wrap, axis=axis)
+        dom = None if domain is None else domain[axis]
+        knots.append(_rhino_knots(getattr(surface, f"knots_{d}"), degree, periodic, surface.shape[axis], dom))
+    r, s = ctrl.shape[:2]
+    srf = rhino3dm.NurbsSurface.Create(
+        3, surface.weights is not None, surface.degree_u + 1, surface.degree_v + 1, r, s
+    )
+    for i, k in enumerate(knots[0]):
+        srf.KnotsU[i] = float(k)
+    for j, k in enumerate(knots[1]):
+        srf.KnotsV[j] = float(k)
+    for i in range(r):
+        for j in range(s):
+            x, y, z = ctrl[i, j] * w[i, j]
+            srf.Points[i, j] = rhino3dm.Point4d(float(x), float(y), float(z), float(w[i, j]))
+    return srf
+
+
+def curve_to_rhino(curve: BSplineCurve, domain=None):
+    import rhino3dm
+
+    ctrl = np.asarray(curve.ctrl, dtype=np.float64)
+    n, dim = ctrl.shape
+    w = np.ones(n) if curve.weights is None else np.asarray(curve.weights, dtype=np.float64)
+    if curve.periodic:  # n + p control points over the unclamped uniform knots, as Rhino's own
+        wrap = np.arange(n + curve.degree) % n
+        ctrl, w = ctrl[wrap], w[wrap]
+    out = rhino3dm.NurbsCurve(dim, curve.weights is not None, curve.degree + 1, ctrl.shape[0])
+    dom = None if domain is None else domain[0]
+    for i, k in enumerate(_rhino_knots(curve.knots, curve.degree, curve.periodic, n, dom)):
+        out.Knots[i] = float(k)
+    hom = np.concatenate([ctrl * w[:, None], np.zeros((ctrl.shape[0], 3 - dim)), w[:, None]], axis=1)
+    for i, (x, y, z, wi) in enumerate(hom):
+        out.Points[i] = rhino3dm.Point4d(float(x), float(y), float(z), float(wi))
+    return out
+
+
+# --- reading ------------------------------------------------------------------------------
+class _Reader:
+    """One pass over a model's objects, collecting `CadObject`s and what was not loaded."""
+
+    def __init__(self, model, path: Path, scale: float, trims: bool):
+        self.model, self.path, self.scale, self.trims = model, path, scale, trims
+        self.objects: list[CadObject] = []
+        self.unsupported: list[str] = []
+        self.held: Counter = Counter()
+        self.untrimmed = self.reversed = 0
+        self.layers = [layer.FullPath for layer in model.Layers]
+        self.members = {}  # block definition id → [(geometry, attributes)]
+        by_id = {obj.Attributes.Id: obj for obj in model.Objects}
+        for idef in model.InstanceDefinitions:
+            self.members[idef.Id] = [by_id[i] for i in idef.GetObjectIds() if i in by_id]
+
+    def read(self) -> None:
+        for index, obj in enumerate(self.model.Objects):
+            if not obj.Attributes.IsInstanceDefinitionObject:  # block members load where placed
+                self.add(obj.Geometry, obj.Attributes, f"object {index}")
+
+    def add(self, geometry, attributes, where: str) -> None:
+        import rhino3dm
+
+        kind = type(geometry).__name__
+        self.held[kind] += 1
+        name, layer = attributes.Name or "", self._layer(attributes.LayerIndex)
+        label = f"{where} ({kind}{f' {name!r}' if name else ''})"
+        if isinstance(geometry, rhino3dm.InstanceReference):
+            for k, member in enumerate(self.members.get(geometry.ParentIdefId, [])):
+                placed = member.Geometry.Duplicate()
+                placed.Transform(geometry.Xform)
+                self.add(placed, member.Attributes, f"{where} block member {k}")
+        elif isinstance(geometry, rhino3dm.Curve):
+            curve, domain = curve_from_rhino(geometry.ToNurbsCurve(), self.scale)
+            self.objects.append(CadObject(curve, name, layer, domain))
+        elif isinstance(geometry, rhino3dm.Extrusion):
+            self.add_brep(geometry.ToBrep(False), name, layer, label)
+        elif isinstance(geometry, rhino3dm.Brep):
+            self.add_brep(geometry, name, layer, label)
+        elif isinstance(geometry, rhino3dm.Surface) and geometry.ToNurbsSurface() is not None:
+            surface, domain = surface_from_rhino(geometry.ToNurbsSurface(), self.scale)
+            self.objects.append(CadObject(surface, name, layer, domain))
+        else:
+            self.unsupported.append(label)
+
+    def add_brep(self, brep, name: str, layer: str, label: str) -> None:
+        stored = brep.GetUserString(_TRIM_KEY)
+        stored = json.loads(stored) if stored else None
+        for k in range(len(brep.Faces)):
+            face = brep.Faces[k]
+            nurbs = face.ToNurbsSurface()
+            if nurbs is None:
+                self.unsupported.append(f"{label} face {k}")
+                continue
+            surface, domain = surface_from_rhino(nurbs, self.scale)
+            trimmed = not face.DuplicateFace(False).IsSurface
+            reverse = bool(face.OrientationIsReversed)
+            trim = None
+            if stored is not None and len(brep.Faces) == 1:
+                trim = Trim.from_loops([np.asarray(loop) for loop in stored["loops"]], stored["outer"])
+            elif trimmed and self.trims:
+                trim = _face_trim(brep, face, surface)
+            self.untrimmed += trimmed and trim is None
+            self.reversed += reverse and not self.trims
+            self.objects.append(CadObject(surface, name, layer, domain, reverse, trim))
+
+    def _layer(self, index: int) -> str:
+        return self.layers[index] if 0 <= index < len(self.layers) else ""
+
+
+def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
+    """The face's loops as polylines in [0, 1]²: each trim's 3-D edge sampled and projected."""
+    loops, outer = [], []
+    for loop in face.Loops:
+        pieces = []
+        for trim in loop.Trims:
+            if trim.EdgeIndex < 0:  # a singular trim (a pole): its uv segment is the gap closed
+                continue
+            edge = brep.Edges[trim.EdgeIndex]
+            t0, t1 = edge.Domain.T0, edge.Domain.T1
+            ts = np.linspace(t0, t1, EDGE_SAMPLES)
+            ts = ts[::-1] if trim.IsReversed else ts
+            pieces.append(np.array([[*edge.PointAt(float(t))] for t in ts]))
+        points = np.concatenate(pieces)
+        uv = np.asarray(closest_points(surface, points.astype(surface.ctrl.dtype)).uv, dtype=np.float64)
+        loops.append(uv)
+        outer.append(str(loop.LoopType).endswith("Outer"))
+    return Trim.from_loops(loops, outer)
+
+
+def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) -> CadList:
+    import rhino3dm
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    model = rhino3dm.File3dm.Read(str(path))
+    if model is None:
+        _checks.fail(str(path), "a readable Rhino .3dm file", "a file rhino3dm cannot parse")
+    file_units = _units_of(model.Settings.ModelUnitSystem)
+    reader = _Reader(model, path, unit_scale(file_units, units, str(path)), trims)
+    reader.read()
+    report(path, reader.unsupported, on_unsupported)
+    notes = []
+    if reader.untrimmed:
+        notes.append(
+            f"{reader.untrimmed} trimmed faces loaded as their untrimmed surfaces (trims=True keeps trims)"
+        )
+    if reader.reversed:
+        notes.append(f"{reader.reversed} faces have reversed orientation (CadList.objects[i].reversed)")
+    if notes:
+        warnings.warn(f"{path}: " + "; ".join(notes), stacklevel=4)
+    held = reader.held
+    return CadList([o.geometry for o in reader.objects], units or file_units, reader.objects, held)
+
+
+def report(path: Path, unsupported: list[str], on_unsupported: str) -> None:
+    """Raise (or, with `on_unsupported="skip"`, warn) listing the objects not loaded."""
+    if not unsupported:
+        return
+    listed = ", ".join(unsupported[:20]) + (
+        f" and {len(unsupported) - 20} more" if len(unsupported) > 20 else ""
+    )
+    if on_unsupported == "raise":
+        raise ValueError(
+            f"{path}: {len(unsupported)} objects bsjax cannot load: {listed} "
+            "(pass on_unsupported='skip' to load the rest)"
+        )
+    warnings.warn(f"{path}: not loaded: {listed}", stacklevel=4)
+
+
+def _units_of(system) -> str | None:
+    name = str(system).rsplit(".", 1)[-1]
+    return next((k for k, v in _RHINO_UNITS.items() if v == name), None)
+
+
+# --- writing ------------------------------------------------------------------------------
+def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
+    import rhino3dm
+
+    model = rhino3dm.File3dm()
+    model.Settings.ModelUnitSystem = getattr(rhino3dm.UnitSystem, _RHINO_UNITS[units] if units else "None")
+    layers = {}
+    for obj in objects:
+        attributes = rhino3dm.ObjectAttributes()
+        attributes.Name = obj.name
+        if obj.layer:
+            if obj.layer not in layers:
+                layers[obj.layer] = model.Layers.AddLayer(obj.layer, (0, 0, 0, 255))
+            attributes.LayerIndex = layers[obj.layer]
+        if isinstance(obj.geometry, BSplineCurve):
+            model.Objects.AddCurve(curve_to_rhino(obj.geometry, obj.domain), attributes)
+        elif obj.trim is None and not obj.reversed:
+            model.Objects.AddSurface(surface_to_rhino(obj.geometry, obj.domain), attributes)
+        else:
+            brep = rhino3dm.Brep.CreateFromSurface(surface_to_rhino(obj.geometry, obj.domain))
+            if obj.reversed:
+                brep.Flip()
+            if obj.trim is not None:
+                loops = [loop.tolist() for loop in obj.trim.loops()]
+                brep.SetUserString(_TRIM_KEY, json.dumps({"loops": loops, "outer": list(obj.trim.outer)}))
+            model.Objects.AddBrep(brep, attributes)
+    if not model.Write(str(path), 7):
+        raise OSError(f"{path}: rhino3dm could not write the file")

@@ -1,0 +1,217 @@
+"""CAD exchange (issue #17): Rhino's unclamped and periodic knots, units, names, layers, domains,
+trims and orientation, extrusions, blocks, STEP/IGES through OCCT. Every file is generated here
+with rhino3dm or OCCT, and every loaded surface is compared with the file's own evaluator
+(OpenNURBS `PointAt`, OCCT `Value`)."""
+
+
+import numpy as np
+import pytest
+import rhino3dm
+
+from bsjax import io
+from bsjax.basis import BSplineCurve, BSplineSurface
+from bsjax.io import _knots
+
+GRID = np.linspace(0.0, 1.0, 13)
+
+
+def _xyz(p):
+    return (p.X, p.Y, p.Z)
+
+
+def _rhino_grid(srf, count: int = 13):
+    """OpenNURBS's points at a count × count grid over the surface's own domain."""
+    (u0, u1), (v0, v1) = [(srf.Domain(d).T0, srf.Domain(d).T1) for d in (0, 1)]
+    t = np.linspace(0.0, 1.0, count)
+    return np.array([[_xyz(srf.PointAt(u0 + (u1 - u0) * a, v0 + (v1 - v0) * b)) for b in t] for a in t])
+
+
+def _assert_same_surface(surface: BSplineSurface, srf, rtol: float = 1e-10):
+    theirs = _rhino_grid(srf)
+    u, v = np.meshgrid(GRID, GRID, indexing="ij")
+    ours = np.asarray(surface.evaluate(u, v))
+    scale = np.abs(theirs).max()
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=rtol * scale)
+
+
+def _unclamped_surface(rng, p: int, q: int, r: int, s: int, rational: bool, wrap_u: bool):
+    """A rhino3dm NurbsSurface with random nondecreasing unclamped knots on an odd domain;
+    with `wrap_u` the first `p` control rows repeat at the end (a closed, non-uniform periodic
+    surface as Rhino's lofts and revolves hold)."""
+    srf = rhino3dm.NurbsSurface.Create(3, rational, p + 1, q + 1, r, s)
+    for count, knots, offset in ((r + p - 1, srf.KnotsU, -3.0), (s + q - 1, srf.KnotsV, 10.0)):
+        values = offset + np.cumsum(rng.uniform(0.2, 1.5, count))
+        for i, k in enumerate(values):
+            knots[i] = float(k)
+    ctrl = rng.normal(size=(r, s, 3)) * 10
+    if wrap_u:
+        ctrl[r - p :] = ctrl[:p]
+    w = rng.uniform(0.5, 2.0, (r, s)) if rational else np.ones((r, s))
+    if wrap_u:
+        w[r - p :] = w[:p]
+    for i in range(r):
+        for j in range(s):
+            x, y, z = ctrl[i, j] * w[i, j]
+            srf.Points[i, j] = rhino3dm.Point4d(float(x), float(y), float(z), float(w[i, j]))
+    return srf
+
+
+def _write(tmp_path, name, *geometry, units=None):
+    model = rhino3dm.File3dm()
+    if units is not None:
+        model.Settings.ModelUnitSystem = units
+    for g in geometry:
+        if isinstance(g, rhino3dm.Curve):
+            model.Objects.AddCurve(g)
+        elif isinstance(g, rhino3dm.Brep):
+            model.Objects.AddBrep(g)
+        elif isinstance(g, rhino3dm.Extrusion):
+            model.Objects.AddExtrusion(g)
+        else:
+            model.Objects.AddSurface(g)
+    path = tmp_path / name
+    assert model.Write(str(path), 7)
+    return path
+
+
+# --- 1. every NURBS surface Rhino can hold ----------------------------------------------------
+def test_clamp_matches_the_unclamped_spline_by_collocation():
+    """`_knots.clamp` against scipy's B-spline evaluation of the original unclamped curve."""
+    from scipy.interpolate import BSpline
+
+    rng = np.random.default_rng(0)
+    for p in (1, 2, 3, 5):
+        n = p + 4
+        knots = np.cumsum(rng.uniform(0.1, 1.0, n + p + 1))
+        ctrl = rng.normal(size=(n, 2))
+        hom, k01, (a, b) = _knots.clamp(ctrl, knots, p)
+        assert (a, b) == (knots[p], knots[n]) and _knots.is_clamped(k01, p)
+        t = np.linspace(0, 1, 41)
+        ref = BSpline(knots, ctrl, p)(a + (b - a) * t)
+        np.testing.assert_allclose(BSpline(k01, hom, p)(t), ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "p, q, r, s, rational, wrap_u",
+    [
+        (3, 3, 9, 7, False, True),
+        (2, 3, 8, 6, True, True),
+        (1, 2, 5, 4, False, False),
+        (11, 4, 14, 6, True, True),
+    ],
+)
+def test_unclamped_rhino_surfaces_load_exactly(tmp_path, p, q, r, s, rational, wrap_u):
+    srf = _unclamped_surface(np.random.default_rng(p * 10 + q), p, q, r, s, rational, wrap_u)
+    loaded = io.load_all(_write(tmp_path, "u.3dm", srf))
+    surface = loaded[0]
+    assert not surface.periodic_u and (surface.degree_u, surface.degree_v) == (p, q)
+    assert (surface.weights is not None) == rational
+    _assert_same_surface(surface, srf)
+    (u0, u1), (v0, v1) = loaded.objects[0].domain
+    assert (u0, u1, v0, v1) == (srf.Domain(0).T0, srf.Domain(0).T1, srf.Domain(1).T0, srf.Domain(1).T1)
+
+
+def _rhino_primitives():
+    origin = rhino3dm.Point3d(1.0, -2.0, 0.5)
+    circle = rhino3dm.Circle(origin, 3.0)
+    return {
+        "sphere (collapsed poles)": rhino3dm.NurbsSurface.CreateFromSphere(rhino3dm.Sphere(origin, 2.5)),
+        "cylinder": rhino3dm.NurbsSurface.CreateFromCylinder(rhino3dm.Cylinder(circle, 4.0)),
+        "ruled": rhino3dm.NurbsSurface.CreateRuledSurface(
+            rhino3dm.LineCurve(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(5, 1, 0)).ToNurbsCurve(),
+            circle.ToNurbsCurve(),
+        ),
+    }
+
+
+@pytest.mark.parametrize("name", list(_rhino_primitives()))
+def test_rhino_primitives_load_exactly_and_round_trip(tmp_path, name):
+    srf = _rhino_primitives()[name]
+    loaded = io.load_all(_write(tmp_path, "p.3dm", srf))
+    _assert_same_surface(loaded[0], srf)
+    back = io.load_all(io.save(loaded, tmp_path / "back.3dm"))
+    assert back.objects[0].domain == loaded.objects[0].domain
+    written = rhino3dm.File3dm.Read(str(tmp_path / "back.3dm")).Objects[0].Geometry
+    _assert_same_surface(loaded[0], written)
+    assert [(written.Domain(d).T0, written.Domain(d).T1) for d in (0, 1)] == list(loaded.objects[0].domain)
+
+
+def test_non_uniform_periodic_curve_loads_exactly(tmp_path):
+    rng = np.random.default_rng(5)
+    p, n = 3, 9
+    crv = rhino3dm.NurbsCurve(3, True, p + 1, n)
+    for i, k in enumerate(np.cumsum(rng.uniform(0.3, 1.2, n + p - 1))):
+        crv.Knots[i] = float(k)
+    pts = rng.normal(size=(n, 3))
+    pts[n - p :] = pts[:p]
+    w = rng.uniform(0.5, 2, n)
+    w[n - p :] = w[:p]
+    for i in range(n):
+        crv.Points[i] = rhino3dm.Point4d(*(pts[i] * w[i]).tolist(), float(w[i]))
+    circle = rhino3dm.NurbsCurve.CreateFromCircle(rhino3dm.Circle(rhino3dm.Point3d(0, 0, 0), 2.0))
+    loaded = io.load_all(_write(tmp_path, "c.3dm", crv, circle))
+    for curve, ref, obj in zip(loaded, (crv, circle), loaded.objects):
+        assert isinstance(curve, BSplineCurve)
+        t0, t1 = obj.domain[0]
+        t = np.linspace(0, 1, 57)
+        theirs = np.array([_xyz(ref.PointAt(t0 + (t1 - t0) * x)) for x in t])
+        np.testing.assert_allclose(
+            np.asarray(curve.evaluate(t)), theirs, rtol=0, atol=1e-10 * np.abs(theirs).max()
+        )
+
+
+# --- 2. units and names -----------------------------------------------------------------------
+def test_units_are_read_converted_and_written_back(tmp_path):
+    srf = _rhino_primitives()["sphere (collapsed poles)"]
+    path = _write(tmp_path, "mm.3dm", srf, units=rhino3dm.UnitSystem.Millimeters)
+    loaded = io.load_all(path)
+    assert loaded.units == "mm"
+    metres = io.load_all(path, units="m")
+    assert metres.units == "m"
+    np.testing.assert_allclose(np.asarray(metres[0].ctrl), np.asarray(loaded[0].ctrl) / 1000, rtol=1e-15)
+    for ext in (".3dm", ".json"):
+        again = io.load_all(io.save(loaded, tmp_path / f"back{ext}"))
+        assert again.units == "mm"
+        np.testing.assert_array_equal(np.asarray(again[0].ctrl), np.asarray(loaded[0].ctrl))
+    model = rhino3dm.File3dm.Read(str(tmp_path / "back.3dm"))
+    assert model.Settings.ModelUnitSystem == rhino3dm.UnitSystem.Millimeters
+    with pytest.raises(ValueError, match="units: expected None or one of"):
+        io.load_all(path, units="furlong")
+
+
+def test_names_and_layers_travel(tmp_path):
+    model = rhino3dm.File3dm()
+    layer = model.Layers.AddLayer("Hull", (255, 0, 0, 255))
+    attributes = rhino3dm.ObjectAttributes()
+    attributes.Name, attributes.LayerIndex = "port side", layer
+    model.Objects.AddSurface(_rhino_primitives()["cylinder"], attributes)
+    path = tmp_path / "named.3dm"
+    assert model.Write(str(path), 7)
+    loaded = io.load_all(path)
+    assert (loaded.objects[0].name, loaded.objects[0].layer) == ("port side", "Hull")
+    for ext in (".3dm", ".json"):
+        again = io.load_all(io.save(loaded, tmp_path / f"back{ext}"))
+        assert (again.objects[0].name, again.objects[0].layer) == ("port side", "Hull")
+
+
+def test_load_of_a_file_without_surfaces_says_what_it_held(tmp_path):
+    model = rhino3dm.File3dm()
+    model.Objects.AddPoint(rhino3dm.Point3d(1, 2, 3))
+    model.Objects.AddCurve(
+        rhino3dm.NurbsCurve.CreateFromCircle(rhino3dm.Circle(rhino3dm.Point3d(0, 0, 0), 1))
+    )
+    path = tmp_path / "curve.3dm"
+    assert model.Write(str(path), 7)
+    with pytest.raises(
+        ValueError, match=r"exactly one surface.*0 items \(the file holds 1 NurbsCurve, 1 Point\)"
+    ):
+        io.load(path, "surface", on_unsupported="skip")
+
+
+def test_bad_options_are_named():
+    with pytest.raises(ValueError, match="on_unsupported: expected 'raise' or 'skip', got 'ignore'"):
+        io.load_all("x.3dm", on_unsupported="ignore")
+    with pytest.raises(ValueError, match="trims: expected True or False"):
+        io.load_all("x.3dm", trims="yes")
+    with pytest.raises(FileNotFoundError, match="absent.step"):
+        io.load_all("absent.step")
