@@ -47,6 +47,7 @@ scanning the whole (JAX-sized) heap inside a servo tick. Both are process-wide a
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import gc
 import math
 import numbers
@@ -57,6 +58,7 @@ import time
 
 import numpy as np
 
+from bsjax.device import _process
 from bsjax.device._shaping import ForceShaper, VelocityFilter, Watchdog, fresh
 from bsjax.device.protocol import DeviceError, DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
@@ -114,6 +116,7 @@ class ServoLoop:
         spin_us: float = 150.0,
         switch_interval: float | None = 1e-4,
         freeze_gc: bool = True,
+        mode: str = "thread",
     ):
         positive = dict(
             rate_hz=rate_hz,
@@ -138,7 +141,10 @@ class ServoLoop:
         if not isinstance(record, (bool, np.bool_, str, os.PathLike)):
             raise TypeError(f"record: expected a bool or a file path, got {type(record).__name__}")
         cpu = _check_cpu(cpu)
-        for method in ("read", "write"):
+        if mode not in ("thread", "process"):
+            raise ValueError(f"mode: expected 'thread' or 'process', got {mode!r}")
+        factory = mode == "process" and _process.is_factory(device)
+        for method in ("read", "write") if not factory else ():
             if not callable(getattr(device, method, None)):
                 raise TypeError(
                     f"device: expected a HapticDevice with read() and write(force), got "
@@ -157,6 +163,17 @@ class ServoLoop:
         self.realtime, self.cpu, self.spin_ns = bool(realtime), cpu, int(spin_us * 1e3)
         self.switch_interval = switch_interval
         self.freeze_gc = bool(freeze_gc)
+        self.mode = mode
+        # where the servo actually ran: {"mode", "pid", "cpu" (None: not pinned), "realtime"}
+        self.placement: dict = {"mode": mode, "pid": None, "cpu": None, "realtime": False}
+        self._link: _process.ChildLink | None = None  # set in the servo process (process mode)
+        self._parent: _process.ParentLink | None = None  # the physics process's end of it
+        self._proc = None
+        self._final: tuple[ServoStats, Recording | None] | None = None
+        self._stopping = False
+        self._collect_lock = threading.Lock()
+        self._pinned: int | None = None
+        self._saved_affinity: dict[int, set[int]] = {}
         self._record_path = record if isinstance(record, (str, os.PathLike)) else None
         self._recorder = Recorder(int(self.rate_hz) * 16) if record else None
         self._static = isinstance(model, Proxy)
@@ -186,6 +203,7 @@ class ServoLoop:
         self._force_sum = self._force_max = 0.0
         self._t_start = self._t_end = 0
         self._realtime_ok = False
+        self._last_out = (0.0, 0.0, 0.0)
 
     def start(self) -> "ServoLoop":
         """Warm up the model (compile its jitted functions), then start both threads."""
@@ -210,8 +228,11 @@ class ServoLoop:
             gc.collect()
             gc.freeze()
         self._running = True
-        self._servo = threading.Thread(target=self._servo_main, name="bsjax-servo", daemon=True)
-        self._servo.start()
+        if self.mode == "process":
+            self._start_process()
+        else:
+            self._servo = threading.Thread(target=self._servo_main, name="bsjax-servo", daemon=True)
+            self._servo.start()
         if not self._static:
             self._physics = threading.Thread(target=self._physics_main, name="bsjax-physics", daemon=True)
             self._physics.start()
@@ -226,10 +247,16 @@ class ServoLoop:
         zero); it is counted in `stats.physics_errors` and kept in `physics_error`.
         """
         self._running = False
+        if self.mode == "process":
+            self._stop_process()
         for thread in (self._servo, self._physics):
             if thread is not None and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
         self._zero()
+        if self._parent is not None:
+            self._parent.close()
+            self._parent = None
+        self._restore_affinity()
         atexit.unregister(self.stop)
         if self.freeze_gc:
             gc.unfreeze()
@@ -264,11 +291,55 @@ class ServoLoop:
     def recording(self) -> Recording:
         if self._recorder is None:
             raise ValueError("record: the loop was created with record=False")
+        if self.mode == "process":
+            if self._final is None or self._final[1] is None:
+                raise ValueError("recording: the servo process has not reported one (still running?)")
+            return self._final[1]
         return self._recorder.recording()
 
+    def snapshot(self) -> dict:
+        """The servo's newest output, cheap enough for a 50 Hz viewer: `position` (3,) of the
+        tool (NaN before the first sample), `force` (3,) written, watchdog `gain`, `ticks`,
+        `rate_hz` and `physics_updates`. Never waits on the servo (read from the shared memory in
+        process mode, from the servo thread's last values in thread mode)."""
+        if self._parent is not None:
+            c = self._parent.counters()
+            pos, force, gain, ticks = (
+                (c["x"], c["y"], c["z"]),
+                (c["fx"], c["fy"], c["fz"]),
+                c["gain"],
+                c["ticks"],
+            )
+            t0, now = c["t_start"], c["t_now"]
+        else:
+            sample, out = self._sample, self._last_out
+            pos = tuple(sample.position) if sample is not None else (math.nan,) * 3
+            force, gain, ticks = out, self._watchdog.gain, self._ticks
+            t0, now = self._t_start, time.perf_counter_ns()
+        elapsed = (now - t0) * 1e-9 if t0 else 0.0
+        return {
+            "position": [float(v) for v in pos],
+            "force": [float(v) for v in force],
+            "gain": float(gain),
+            "ticks": int(ticks),
+            "rate_hz": float(ticks / elapsed) if elapsed > 0 else 0.0,
+            "physics_updates": int(self._physics_updates),
+        }
+
     def _zero(self) -> None:
+        """Write zero force from this process (in process mode: after the servo process ended,
+        through the parent's own device object, or one made by the device factory)."""
         try:
-            self.device.write((0.0, 0.0, 0.0))
+            if _process.is_factory(self.device):
+                if self.mode == "process" and self._proc is not None and self._proc.is_alive():
+                    return  # the servo process holds the device and zeroes it itself
+                device = self.device()
+                try:
+                    device.write((0.0, 0.0, 0.0))
+                finally:
+                    getattr(device, "close", lambda: None)()
+            else:
+                self.device.write((0.0, 0.0, 0.0))
         except Exception as err:
             log.error("could not write zero force: %r", err)
 
@@ -277,6 +348,7 @@ class ServoLoop:
         if self.cpu is not None and hasattr(os, "sched_setaffinity"):
             try:
                 os.sched_setaffinity(0, {self.cpu})
+                self._pinned = self.cpu
             except OSError as err:
                 log.warning("servo: cannot pin to CPU %s: %s", self.cpu, err)
         if self.realtime and hasattr(os, "sched_setscheduler"):
@@ -301,6 +373,15 @@ class ServoLoop:
             self._t_end = time.perf_counter_ns()
             self.finished.set()
 
+    def _run_in_this_thread(self) -> None:
+        """Run the servo loop in the calling thread until stopped (the servo process's main)."""
+        self._running = True
+        self.finished.clear()
+        if self.freeze_gc:
+            gc.collect()
+            gc.freeze()
+        self._servo_main()
+
     def _servo_loop(self) -> None:
         period = int(round(1e9 / self.rate_hz))
         self._shaper = ForceShaper(self.max_force, self.max_force_rate * period * 1e-9)
@@ -310,8 +391,11 @@ class ServoLoop:
         accepts = getattr(self.model, "accepts", None) if not self._static else None
         accepts = accepts if callable(accepts) else _always
         prev: DeviceSample | None = None
+        link = self._link
         self._t_start = deadline = last_start = time.perf_counter_ns()
         while self._running:
+            if link is not None and not link.alive(self._ticks):
+                break
             start = time.perf_counter_ns()
             late = start - deadline
             self._max_late = max(self._max_late, late)
@@ -332,9 +416,14 @@ class ServoLoop:
             if sample is not prev and sample is not None and not (_good(sample) and accepts(sample)):
                 self._bad_samples += 1
                 sample = prev  # never rendered, never handed to the physics; prev ages
-            proxy = clock.see(start, self._proxy_slot, sample)
+            slot = self._proxy_slot if link is None else link.proxy_slot()
+            proxy = clock.see(start, slot, sample)
             out = self._render(proxy, sample, velocity(sample, prev), clock.fresh(start), start - last_start)
             self._write(out, sample, start)
+            if link is not None:
+                link.publish_sample(sample)
+                if self._ticks % _process.TELEMETRY_EVERY == 0:
+                    link.publish(self, out, sample, start, self._watchdog.gain)
             prev, last_start = sample, start
             self._ticks += 1
             deadline += period
@@ -350,7 +439,8 @@ class ServoLoop:
             force = proxy.force(sample.position, velocity)
         fx, fy, fz = self._shaper(*force)
         gain = self._watchdog(fresh, elapsed_ns * 1e-9)
-        return fx * gain, fy * gain, fz * gain
+        self._last_out = out = (fx * gain, fy * gain, fz * gain)
+        return out
 
     def _write(self, out, sample, start: int) -> None:
         try:
@@ -375,8 +465,9 @@ class ServoLoop:
                 pass
         period = 1.0 / self.physics_hz
         next_t = time.perf_counter()
+        parent = self._parent
         while self._running:
-            sample = self._sample
+            sample = self._sample if parent is None else parent.latest_sample()
             if sample is None:
                 time.sleep(0.001)
                 next_t = time.perf_counter()
@@ -394,6 +485,8 @@ class ServoLoop:
             self._physics_updates += 1
             # one reference swap: the servo sees the old or the new (version, proxy) pair
             self._proxy_slot = (self._physics_updates, proxy)
+            if parent is not None:
+                parent.publish_proxy(proxy)
             self._physics_ns[(self._physics_updates - 1) % len(self._physics_ns)] = (
                 time.perf_counter_ns() - t0
             )
@@ -408,21 +501,43 @@ class ServoLoop:
     @property
     def stats(self) -> ServoStats:
         """A snapshot of the telemetry (safe to call while running)."""
-        n = self._ticks
+        if self.mode == "process":
+            return self._process_stats()
         end = self._t_end if (self._t_end and not self._running) else time.perf_counter_ns()
-        elapsed = max(end - self._t_start, 1) * 1e-9 if self._t_start else 0.0
+        counters = dict(getattr(self.device, "counters", {}) or {})
+        c = dict(
+            ticks=self._ticks,
+            t_start=self._t_start,
+            t_now=end,
+            missed=self._missed,
+            max_late=self._max_late,
+            device_errors=self._device_errors,
+            bad_samples=self._bad_samples,
+            watchdog_trips=self._watchdog.trips,
+            watchdog_ticks=self._watchdog.attenuated,
+            clamped=self._shaper.clamped,
+            rate_limited=self._shaper.limited,
+            nonfinite=self._shaper.nonfinite,
+            force_sum=self._force_sum,
+            force_max=self._force_max,
+            realtime=self._realtime_ok,
+            dropped_frames=sum(int(counters.get(k, 0)) for k in DROPPED_COUNTERS),
+        )
+        return self._stats_from(c, self._periods, self._work, counters)
+
+    def _stats_from(self, c: dict, periods_ring, work_ring, counters: dict) -> ServoStats:
+        n = int(c["ticks"])
+        t0 = int(c["t_start"])
+        elapsed = max(int(c["t_now"]) - t0, 1) * 1e-9 if t0 else 0.0
         count = min(max(n - 1, 0), _WINDOW)
-        periods = self._periods[1:n] if n <= _WINDOW else self._periods.copy()
-        periods = periods[:count]
-        nominal = 1e9 / self.rate_hz
-        jitter = np.abs(periods - nominal)
-        work = self._work[: min(n, _WINDOW)]
+        periods = np.array(periods_ring[1:n] if n <= _WINDOW else periods_ring)[:count]
+        jitter = np.abs(periods - 1e9 / self.rate_hz)
+        work = np.array(work_ring[: min(n, _WINDOW)])
         phys = self._physics_ns[: min(self._physics_updates, len(self._physics_ns))]
         p50, p99, pmax = percentiles(periods)
         j50, j99, jmax = percentiles(jitter)
         w50, w99, wmax = percentiles(work)
         f50, f99, _ = percentiles(phys)
-        counters = dict(getattr(self.device, "counters", {}) or {})
         return ServoStats(
             ticks=n,
             elapsed_s=elapsed,
@@ -434,8 +549,8 @@ class ServoLoop:
             jitter_p50=j50,
             jitter_p99=j99,
             jitter_max=jmax,
-            missed_deadlines=int(self._missed),
-            max_late_ms=self._max_late * 1e-6,
+            missed_deadlines=int(c["missed"]),
+            max_late_ms=c["max_late"] * 1e-6,
             work_p50=w50,
             work_p99=w99,
             work_max=wmax,
@@ -445,19 +560,188 @@ class ServoLoop:
             physics_p50=f50,
             physics_p99=f99,
             physics_errors=self._physics_errors,
-            device_errors=self._device_errors,
-            bad_samples=self._bad_samples,
-            dropped_frames=sum(int(counters.get(k, 0)) for k in DROPPED_COUNTERS),
-            watchdog_trips=self._watchdog.trips,
-            watchdog_ticks=self._watchdog.attenuated,
-            clamped=self._shaper.clamped,
-            rate_limited=self._shaper.limited,
-            nonfinite=self._shaper.nonfinite,
-            force_mean=self._force_sum / n if n else 0.0,
-            force_max=self._force_max,
-            realtime=self._realtime_ok,
+            device_errors=int(c["device_errors"]),
+            bad_samples=int(c["bad_samples"]),
+            dropped_frames=int(c["dropped_frames"]),
+            watchdog_trips=int(c["watchdog_trips"]),
+            watchdog_ticks=int(c["watchdog_ticks"]),
+            clamped=int(c["clamped"]),
+            rate_limited=int(c["rate_limited"]),
+            nonfinite=int(c["nonfinite"]),
+            force_mean=c["force_sum"] / n if n else 0.0,
+            force_max=float(c["force_max"]),
+            realtime=bool(c["realtime"]),
             device_counters=counters,
         )
+
+    # --- process mode ---------------------------------------------------------------------------
+    def _process_stats(self) -> ServoStats:
+        if self._final is not None:  # the servo process's own final stats, with our physics
+            s = self._final[0]
+            phys = self._physics_ns[: min(self._physics_updates, len(self._physics_ns))]
+            f50, f99, _ = percentiles(phys)
+            return dataclasses.replace(
+                s,
+                physics_updates=self._physics_updates,
+                physics_rate_hz=self._physics_updates / s.elapsed_s if s.elapsed_s else 0.0,
+                physics_p50=f50,
+                physics_p99=f99,
+                physics_errors=self._physics_errors,
+            )
+        if self._parent is None:
+            return ServoStats(target_hz=self.rate_hz)
+        c = self._parent.counters()
+        return self._stats_from(c, self._parent.periods.array, self._parent.work.array, {})
+
+    def _start_process(self) -> None:
+        """Spawn the servo process (see `_process`) and wait until it ticks."""
+        import multiprocessing
+
+        cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        cpu = self.cpu if self.cpu is not None else (cpus[-1] if len(cpus) > 1 else None)
+        self._parent = parent = _process.ParentLink(_WINDOW)
+        gate = None
+        if not self._static and hasattr(self.model, "reach") and hasattr(self.model, "_centre"):
+            gate = _process.ReachGate(self.model._centre, self.model.reach)
+        options = dict(
+            rate_hz=self.rate_hz,
+            max_force=self.max_force,
+            max_force_rate=self.max_force_rate,
+            physics_hz=self.physics_hz,
+            proxy_timeout=self.proxy_timeout,
+            device_timeout=self.device_timeout,
+            ramp_time=self.ramp_time,
+            velocity_tau=self.velocity_tau,
+            record=self._recorder is not None,
+            realtime=self.realtime,
+            cpu=cpu,
+            spin_us=self.spin_ns * 1e-3,
+            switch_interval=None,
+            freeze_gc=self.freeze_gc,
+        )
+        config = dict(
+            device=self.device,
+            static=self.model if self._static else None,
+            gate=gate,
+            options=options,
+            names=parent.names,
+        )
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child_conn = ctx.Pipe(duplex=False)
+        self._proc = proc = ctx.Process(
+            target=_process.servo_process, args=(config, child_conn), name="bsjax-servo", daemon=True
+        )
+        self._final, self._stopping = None, False
+        try:
+            proc.start()
+        except Exception as err:  # e.g. a device that cannot be pickled
+            self._running = False
+            parent.close()
+            self._parent = None
+            raise TypeError(
+                f"device: process mode sends the device to the servo process; {type(self.device).__name__} "
+                f"could not be sent ({err}); pass a picklable device or a factory (its class or a "
+                "functools.partial)"
+            ) from err
+        child_conn.close()
+        deadline = time.monotonic() + 60.0
+        while parent.counters()["ticks"] < 1:
+            if not proc.is_alive() or time.monotonic() > deadline:
+                self._collect(timeout=1.0)
+                self._running = False
+                self.finished.set()
+                error, self.error = self.error, None
+                raise DeviceError(f"servo process failed to start: {error!r}") from error
+            time.sleep(0.005)
+        c = parent.counters()
+        self._t_start = int(c["t_start"])
+        self.placement = {
+            "mode": "process",
+            "pid": proc.pid,
+            "cpu": None if c["cpu"] < 0 else int(c["cpu"]),
+            "realtime": bool(c["realtime"]),
+        }
+        self._isolate(cpu, cpus)
+        self._servo = threading.Thread(target=self._watch_process, name="bsjax-servo-watch", daemon=True)
+        self._servo.start()
+
+    def _isolate(self, cpu: int | None, cpus: list[int]) -> None:
+        """Keep this process's threads (XLA's included) off the servo's CPU, where allowed."""
+        others = set(cpus) - {cpu}
+        if cpu is None or not others or not os.path.isdir("/proc/self/task"):
+            return
+        for tid in map(int, os.listdir("/proc/self/task")):
+            try:
+                self._saved_affinity[tid] = os.sched_getaffinity(tid)
+                os.sched_setaffinity(tid, others)
+            except OSError:
+                pass
+
+    def _restore_affinity(self) -> None:
+        for tid, cpus in self._saved_affinity.items():
+            try:
+                os.sched_setaffinity(tid, cpus)
+            except OSError:
+                pass
+        self._saved_affinity = {}
+
+    def _watch_process(self) -> None:
+        """Parent side: when the servo process ends (stopped, finished or killed) write zero force
+        from here too, and make an unexpected death visible (`error`, `running` False)."""
+        from multiprocessing.connection import wait
+
+        proc = self._proc
+        assert proc is not None
+        conn = self._conn
+        if proc.sentinel not in wait([proc.sentinel, conn]):
+            self._collect(timeout=0.0)  # the report comes before the exit: read it (or the child
+        wait([proc.sentinel])  # blocks on a full pipe)
+        self._zero()  # first: a killed servo process wrote nothing on its way out
+        self._collect(timeout=0.5)
+        if not self._stopping and self.error is None and proc.exitcode != 0:
+            self.error = DeviceError(f"servo process died (exit code {proc.exitcode})")
+        self._running = False
+        self.finished.set()
+
+    def _collect(self, timeout: float) -> None:
+        """Receive the servo process's final report (stats, recording, error), if it sent one."""
+        conn = getattr(self, "_conn", None)
+        with self._collect_lock:
+            if conn is None or self._final is not None:
+                return
+            self._receive(conn, timeout)
+
+    def _receive(self, conn, timeout: float) -> None:
+        try:
+            if conn.poll(timeout):
+                result = conn.recv()
+                stats = result.get("stats")
+                if stats is not None:
+                    self._final = (stats, result.get("recording"))
+                error = result.get("error")
+                if error is not None:
+                    self.error = error if isinstance(error, BaseException) else RuntimeError(str(error))
+                    if self._final is not None:
+                        self._t_end = self._t_start + int(self._final[0].elapsed_s * 1e9)
+        except (EOFError, OSError):
+            pass
+
+    def _stop_process(self) -> None:
+        self._stopping = True
+        proc, parent = self._proc, self._parent
+        if parent is not None:
+            parent.request_stop()
+        self._collect(timeout=3.0)  # before join: the report may not fit the pipe's buffer
+        if proc is not None:
+            proc.join(timeout=3.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=2.0)
+        if self._servo is not None:
+            self._servo.join(timeout=2.0)
+        self._collect(timeout=0.5)
+        if self._final is not None:
+            self._ticks = self._final[0].ticks
 
 
 class _Arrivals:
