@@ -1,0 +1,645 @@
+"""Curve semantics of planar B-spline curves: curvature extrema, the symbol string, Leyton's
+process grammar, quantitative parameters, aesthetic measures and operators (thesis ch. 7).
+
+A planar curve's *characteristic points* are its curvature extrema — `M` (local maximum) or `m`
+(local minimum) followed by the sign of κ — and its inflections `0` (κ = 0). Read along a closed
+curve oriented counter-clockwise they form its *symbol string*, e.g. `"M+m+M+m+"` for an
+ellipse; Leyton's vocabulary (thesis eq. 7-1): M+ protrusion, m− indentation, m+ squashing,
+M− internal resistance. Strings are written in ASCII (`"M+"`, `"m+"`, `"M-"`, `"m-"`, `"0"`).
+
+The process grammar (Leyton, *A process-grammar for shape*; thesis eq. 7-2) rewrites one symbol
+of a valid string: two continuations `Cm+: m+ → 0m-0`, `CM-: M- → 0M+0` and four bifurcations
+`BM+: M+ → M+m+M+`, `Bm-: m- → m-M-m-`, `Bm+: m+ → m+M+m+`, `BM-: M- → M-m-M-`.
+
+Numerical functions (`characteristic_points`, `point_parameters`, `measures`) are compiled at
+the boundary; string functions (`is_valid`, `canonical`, `apply_rule`, `enumerate_shapes`) are
+plain Python on strings.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+from collections.abc import Iterator
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from bsjax import _checks, _safe
+from bsjax._boundary import compiled
+from bsjax.basis import BSplineCurve
+
+# --- the vocabulary ---------------------------------------------------------------------------
+SYMBOLS: tuple[str, ...] = ("0", "M+", "m+", "M-", "m-")
+"""Kind codes of `CharacteristicPoints.kind`: index into this tuple (−1 marks an empty slot)."""
+
+_FLIP = {"0": "0", "M+": "m-", "m-": "M+", "m+": "M-", "M-": "m+"}  # κ → −κ
+_RANK = {"M+": 0, "m+": 1, "0": 2, "m-": 3, "M-": 4}  # canonical order: M+ first
+_TOKEN = re.compile(r"[Mm][+-]|0")
+
+RULES: dict[str, tuple[str, tuple[str, ...]]] = {
+    "Cm+": ("m+", ("0", "m-", "0")),
+    "CM-": ("M-", ("0", "M+", "0")),
+    "BM+": ("M+", ("M+", "m+", "M+")),
+    "Bm-": ("m-", ("m-", "M-", "m-")),
+    "Bm+": ("m+", ("m+", "M+", "m+")),
+    "BM-": ("M-", ("M-", "m-", "M-")),
+}
+"""The six processes of Leyton's grammar (thesis eq. 7-2): name → (symbol, its replacement).
+CM+ and Cm− are no processes (they change no extremum) and are absent."""
+
+SAMPLES_PER_CTRL = 32
+"""Default κ sampling density: `max(256, 32 · n_ctrl)` samples on [0, 1] (at least ~32 per knot
+span), then bracketed bisection of each sign change of κ (inflections) or of its differences
+(extrema) to machine precision in the parameter."""
+
+MERGE_REL = 1e-2
+"""Default relative κ threshold of `simplify`: adjacent extrema with
+`|Δκ| < 1e-2 · (κ_max − κ_min)` are interpolation ripple and are merged (an inverse
+bifurcation; thesis §7.3.2 "redundant extrema")."""
+
+_FLAT = 1e-9  # κ differences below 1e-9 · max|κ| are rounding noise (a circle has no extrema)
+_BISECT = 60
+_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(5)
+
+
+# --- symbol strings ---------------------------------------------------------------------------
+def tokens(name: str) -> list[str]:
+    """The symbols of a string, e.g. `tokens("M+0m-0") == ["M+", "0", "m-", "0"]`.
+
+    Accepts ASCII or the typographic minus `−`; raises ValueError on anything else.
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"name: expected a symbol string such as 'M+m+M+m+', got {type(name).__name__}")
+    text = name.replace("−", "-").replace(" ", "")
+    found = _TOKEN.findall(text)
+    if "".join(found) != text:
+        _checks.fail("name", "a string of the symbols M+, m+, M-, m-, 0", repr(name))
+    return found
+
+
+def _signs_ok(seq: list[str], closed: bool) -> bool:
+    """Alternation of maxima and minima, the one 0 between opposite signs, none between equal."""
+    extrema = [(i, s) for i, s in enumerate(seq) if s != "0"]
+    pairs = list(itertools.pairwise(extrema))
+    if closed and extrema:
+        pairs.append((extrema[-1], (extrema[0][0] + len(seq), extrema[0][1])))
+    for (i, a), (j, b) in pairs:
+        zeros = j - i - 1
+        if a[0] == b[0] or zeros != (a[1] != b[1]) or {a, b} == {"M-", "m+"}:
+            return False
+    if closed:
+        return bool(extrema) or not seq
+    return _open_ends_ok(seq, extrema)
+
+
+def _open_ends_ok(seq, extrema) -> bool:
+    if not extrema:
+        return seq.count("0") <= 1
+    (first, a), (last, b) = extrema[0], extrema[-1]
+    lead, trail = first, len(seq) - 1 - last
+    # through 0 into the first extremum: κ rises to an M+ or falls to an m-
+    return lead <= 1 and trail <= 1 and (lead == 0 or a in ("M+", "m-")) and (trail == 0 or b in ("M+", "m-"))
+
+
+def is_valid(name: str, closed: bool = True) -> bool:
+    """Whether a symbol string can be the curvature string of a smooth planar curve.
+
+    Rules (thesis §7.1, reconstructed): maxima `M` and minima `m` alternate; `M-` stands only
+    next to `m-` and `m+` only next to `M+` (a maximum exceeds its neighbouring minima); exactly
+    one `0` between neighbours of opposite sign, none between neighbours of equal sign; a closed
+    curve has at least two `M+` (the four-vertex theorem) and is read cyclically. An open curve
+    (end points excluded, Fig. 7-9) may start or end with one `0` next to an `M+` or `m-`.
+    The empty string is valid (constant curvature: a circle, a line).
+    """
+    seq = tokens(name)
+    if not seq:
+        return True
+    if not _signs_ok(seq, closed):
+        return False
+    return not closed or seq.count("M+") >= 2
+
+
+def canonical(name: str, closed: bool = True) -> str:
+    """The canonical spelling of a shape name.
+
+    Closed: the least of every rotation and of the reversal's rotations (two strings name the
+    same closed shape when one is a rotation or the reversal of the other; thesis §7.1), in the
+    order M+ < m+ < 0 < m- < M- — so it starts with M+ (`"m+M+m+M+"` → `"M+m+M+m+"`).
+    Open: the string or the same curve traversed backwards (reversed, κ negated), whichever is
+    less.
+    """
+    seq = tokens(name)
+    if closed:
+        variants = [s[r:] + s[:r] for s in (seq, seq[::-1]) for r in range(max(len(s), 1))]
+    else:
+        variants = [seq, [_FLIP[s] for s in reversed(seq)]]
+    return "".join(min(variants, key=lambda s: [_RANK[x] for x in s]))
+
+
+def _rule(rule: str) -> tuple[str, tuple[str, ...]]:
+    if rule not in RULES:
+        _checks.fail("rule", f"one of {sorted(RULES)}", repr(rule))
+    return RULES[rule]
+
+
+def _index(seq, index, name):
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+        raise TypeError(f"index: expected an int, got {type(index).__name__}")
+    if not 0 <= index < len(seq):
+        _checks.fail("index", f"a symbol index in 0..{len(seq) - 1} of {name!r}", index)
+    return int(index)
+
+
+def apply_rule(name: str, rule: str, index: int) -> str:
+    """Apply one process of `RULES` at symbol `index` of `name` (counting every symbol, 0s too).
+
+    `apply_rule("M+m+M+m+", "Cm+", 1) == "M+0m-0M+m+"`. The result keeps the input's rotation
+    (call `canonical` to compare shapes). Raises ValueError when the symbol at `index` is not the
+    rule's left-hand side. Thesis eq. 7-2.
+    """
+    seq = tokens(name)
+    lhs, rhs = _rule(rule)
+    i = _index(seq, index, name)
+    if seq[i] != lhs:
+        _checks.fail("index", f"a {lhs} symbol for rule {rule}", f"{seq[i]} at {i} of {name!r}")
+    return "".join(seq[:i] + list(rhs) + seq[i + 1 :])
+
+
+def apply_inverse(name: str, rule: str, index: int, closed: bool = True) -> str:
+    """Undo `rule` on the three symbols starting at `index` (cyclically when `closed`):
+    `apply_inverse(apply_rule(s, r, i), r, i) == s`. The inverse processes are the aesthetic
+    operators' building blocks (thesis §7.4: inverse Cm+ removes an indentation "0m-0").
+    Raises ValueError when those symbols are not the rule's right-hand side."""
+    seq = tokens(name)
+    lhs, rhs = _rule(rule)
+    i = _index(seq, index, name)
+    n = len(seq)
+    window = [seq[(i + k) % n] for k in range(3)] if closed and n >= 3 else seq[i : i + 3]
+    if tuple(window) != rhs:
+        _checks.fail("index", f"the symbols {''.join(rhs)} of rule {rule}", f"{''.join(window)} at {i}")
+    if i + 3 <= n:
+        return "".join(seq[:i] + [lhs] + seq[i + 3 :])
+    wrap = i + 3 - n  # the pattern runs over the end: the replaced symbol goes first
+    return "".join([lhs] + seq[wrap:i])
+
+
+def _closed_shapes(pairs: int) -> Iterator[tuple[str, ...]]:
+    for signs in itertools.product("+-", repeat=2 * pairs):
+        extrema = [("M" if k % 2 == 0 else "m") + s for k, s in enumerate(signs)]
+        seq: list[str] = []
+        for k, a in enumerate(extrema):
+            seq.append(a)
+            if a[1] != extrema[(k + 1) % len(extrema)][1]:
+                seq.append("0")
+        yield tuple(seq)
+
+
+def enumerate_shapes(max_extrema: int, closed: bool = True) -> list[str]:
+    """Every closed shape the grammar allows with at most `max_extrema` curvature extrema, in
+    canonical spelling, sorted by length then name.
+
+    Counts: 3 shapes up to 4 extrema, 9 up to 6, **21 up to 8 — the twenty-one shapes of the
+    thesis §7.1** (after Leyton), 43 up to 10. Only closed curves are enumerated.
+    """
+    _checks.check_count(max_extrema, "max_extrema", 1)
+    if not closed:
+        raise ValueError("closed: expected True (only closed shapes are enumerated), got False")
+    found = {
+        canonical("".join(s))
+        for pairs in range(1, max_extrema // 2 + 1)
+        for s in _closed_shapes(pairs)
+        if is_valid("".join(s))
+    }
+    return sorted(found, key=lambda s: (len(tokens(s)), [_RANK[x] for x in tokens(s)]))
+
+
+# --- characteristic points --------------------------------------------------------------------
+class CharacteristicPoints(eqx.Module):
+    """Curvature extrema and inflections of a planar curve, in parameter order, fixed capacity.
+
+    **Fields:** `params (c,)` parameters in [0, 1]; `kind (c,)` codes into `SYMBOLS`
+    (0 inflection, 1 M+, 2 m+, 3 M-, 4 m-; −1 empty slot); `curvature (c,)` κ at each point;
+    `count ()` filled slots (the first `count`); `overflow ()` True when more points existed
+    than the capacity (the rest were dropped: call again with a larger `capacity`);
+    `closed` (static) whether the curve was read as closed.
+    """
+
+    params: Float[Array, " c"]
+    kind: Int[Array, " c"]
+    curvature: Float[Array, " c"]
+    count: Int[Array, ""]
+    overflow: Bool[Array, ""]
+    closed: bool = eqx.field(static=True)
+
+    @property
+    def valid(self) -> Bool[Array, " c"]:
+        """Which slots hold a point."""
+        return jnp.arange(self.params.shape[0]) < self.count
+
+    def symbols(self) -> list[str]:
+        """The filled slots as symbols (host side)."""
+        return [SYMBOLS[k] for k in np.asarray(self.kind)[: int(self.count)]]
+
+
+def _planar(curve, name="curve") -> BSplineCurve:
+    if not isinstance(curve, BSplineCurve):
+        _checks.fail(name, "a bsjax.basis.BSplineCurve", type(curve).__name__)
+    if curve.dim != 2:
+        _checks.fail(name, "a planar curve (control points of dimension 2)", f"dimension {curve.dim}")
+    return eqx.tree_at(lambda c: c.ctrl, curve, _checks.finite(curve.ctrl, f"{name}.ctrl"))
+
+
+def is_closed(curve: BSplineCurve, tol: float = 1e-9) -> bool:
+    """The `closed=None` rule: a periodic curve, or a clamped one whose end points coincide and
+    whose unit end tangents agree (within `tol` relative to the control polygon's size).
+
+    Needs concrete control points (host side); inside `jit`/`vmap` pass `closed` explicitly.
+    """
+    if curve.periodic:
+        return True
+    if not _checks.is_concrete(curve.ctrl):
+        raise TypeError(
+            "closed: expected True or False when the curve's control points are traced (jit, vmap, grad), "
+            "got None"
+        )
+    p = np.asarray(curve.ctrl, dtype=np.float64)
+    size = float(np.ptp(p, axis=0).max()) or 1.0
+    if np.linalg.norm(p[0] - p[-1]) > tol * size:
+        return False
+    start = next((q - p[0] for q in p[1:] if np.linalg.norm(q - p[0]) > tol * size), None)
+    end = next((p[-1] - q for q in p[-2::-1] if np.linalg.norm(q - p[-1]) > tol * size), None)
+    if start is None or end is None:
+        return False
+    cos = start @ end / (np.linalg.norm(start) * np.linalg.norm(end))
+    return bool(cos > 1 - tol)
+
+
+def _closed(curve, closed) -> bool:
+    if closed is None:
+        return is_closed(curve)
+    if not isinstance(closed, (bool, np.bool_)):
+        raise TypeError(f"closed: expected True, False or None, got {type(closed).__name__}")
+    return bool(closed)
+
+
+def _samples(curve, samples) -> int:
+    if samples is None:
+        return max(256, SAMPLES_PER_CTRL * curve.n_ctrl)
+    return _checks.check_count(samples, "samples", 8)
+
+
+def _derivatives(curve: BSplineCurve, t, top: int = 2) -> list:
+    """`[C^(1), …, C^(top)]` at parameters `t (m,)` from the blending matrices (thesis eq. 3.6);
+    rational curves by the quotient rule on the homogeneous form (The NURBS Book eq. 4.8):
+    `C^(k) = (H^(k) − Σ_{i=1..k} binom(k, i) w^(i) C^(k−i)) / w`."""
+    a = curve.direction.matrices(t, tuple(range(top + 1)))
+    if curve.weights is None:
+        return [a[k] @ curve.ctrl for k in range(1, top + 1)]
+    w = curve.weights
+    h = [ak @ (curve.ctrl * w[:, None]) for ak in a]
+    wd = [(ak @ w)[:, None] for ak in a]
+    c = [h[0] / wd[0]]
+    binom = ((1,), (1, 1), (1, 2, 1), (1, 3, 3, 1))
+    for k in range(1, top + 1):
+        rest = sum(binom[k][i] * wd[i] * c[k - i] for i in range(1, k + 1))
+        c.append((h[k] - rest) / wd[0])
+    return c[1:]
+
+
+def _cross(a, b):
+    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+
+
+def _kappa(curve, t):
+    """Signed curvature κ(t) = (x'y'' − y'x'') / |C'|³ (0 where the speed vanishes)."""
+    d1, d2 = _derivatives(curve, t)
+    return _safe.ratio(_cross(d1, d2), _safe.norm(d1) ** 3)
+
+
+def _kappa_and_slope(curve, t):
+    """κ(t) and dκ/dt = [(C1×C3)|C1|² − 3 (C1×C2)(C1·C2)] / |C1|⁵ with Ck = C^(k)
+    (0 where the speed vanishes)."""
+    d1, d2, d3 = _derivatives(curve, t, 3)
+    speed2 = jnp.sum(d1 * d1, axis=-1)
+    turn = _cross(d1, d2)
+    kappa = _safe.ratio(turn, _safe.norm(d1) ** 3)
+    slope = _safe.ratio(_cross(d1, d3) * speed2 - 3 * turn * jnp.sum(d1 * d2, axis=-1), _safe.norm(d1) ** 5)
+    return kappa, slope
+
+
+def _bisect(f, lo, hi, rising):
+    """The point of [lo, hi] where `f` changes sign (from − to + when `rising`), per element,
+    and the auxiliary value `f` returned there: `f(s) -> (g, aux)`, bisection on the sign of g."""
+
+    def step(_, state):
+        lo, hi, _, _ = state
+        mid = 0.5 * (lo + hi)
+        value, aux = f(mid)
+        up = (value < 0) == rising
+        return jnp.where(up, mid, lo), jnp.where(up, hi, mid), mid, aux
+
+    init = (lo, hi, lo, jnp.zeros_like(lo))
+    _, _, mid, aux = jax.lax.fori_loop(0, _BISECT, step, init)
+    return mid, aux
+
+
+def _last_nonzero(sign):
+    """For each index j, the last index < j where `sign` ≠ 0 (−1 when none)."""
+    idx = jnp.where(sign != 0, jnp.arange(sign.shape[0]), -1)
+    before = jax.lax.cummax(idx)
+    return jnp.concatenate([jnp.array([-1]), before[:-1]])
+
+
+def _grid(n, closed, dtype):
+    if closed:  # n samples on the circle [0, 1), read twice so every bracket may cross the seam
+        t = jnp.arange(n, dtype=dtype) / n
+        return jnp.concatenate([t, t + 1]), n
+    return jnp.linspace(0.0, 1.0, n, dtype=dtype), 0
+
+
+def characteristic_points(
+    curve: BSplineCurve, closed: bool | None = None, samples: int | None = None, capacity: int = 32
+) -> CharacteristicPoints:
+    """Curvature extrema (M±, m±) and inflections (0) of a planar curve, sorted by parameter.
+
+    κ is sampled at `samples` points (default `max(256, 32 · n_ctrl)`, see `SAMPLES_PER_CTRL`);
+    an inflection is a sign change of κ, an extremum a sign change of its differences (changes
+    within `1e-9 · max|κ|` are rounding noise and skipped, so a circle has none); each is then
+    refined by 60 bisections of κ (inflections) or dκ/dt (extrema, by forward differentiation).
+    Open curves exclude their end points (thesis Fig. 7-9); closed curves are read cyclically.
+
+    **Arguments:**
+    - `curve`: a planar `BSplineCurve` (d = 2), polynomial or rational.
+    - `closed`: True, False, or None — then `is_closed(curve)` decides (a periodic curve, or a
+      clamped one whose ends and unit end tangents coincide; needs concrete control points).
+    - `samples`: κ samples (int ≥ 8); `capacity`: slots of the result (int ≥ 1).
+
+    **Returns:** `CharacteristicPoints` (fixed capacity, `overflow` flag).
+
+    κ = (x'y'' − y'x'') / (x'² + y'²)^{3/2} (thesis eq. 7-4), positive where the curve turns left.
+    The `closed=None` decision is taken on the host before the compiled kernel runs.
+    """
+    curve = _planar(curve)
+    return _points(
+        curve, _closed(curve, closed), _samples(curve, samples), _checks.check_count(capacity, "capacity")
+    )
+
+
+@compiled
+def _points(curve: BSplineCurve, closed: bool, n: int, capacity: int) -> CharacteristicPoints:
+    t, offset = _grid(n, closed, curve.ctrl.dtype)
+    wrap = (lambda s: jnp.mod(s, 1.0)) if closed else (lambda s: s)
+    kappa = _kappa(curve, wrap(t))
+    flat = _FLAT * jnp.max(jnp.abs(kappa))
+
+    # inflections: sign changes of κ between sample j and the last non-flat sample before it
+    sign = jnp.where(jnp.abs(kappa) > flat, jnp.sign(kappa), 0.0)
+    prev = _last_nonzero(sign)
+    at = jnp.arange(t.shape[0])
+    is_zero = (sign != 0) & (prev >= 0) & (sign[prev] != sign) & (at >= offset)
+    zi, z_count = _compact(is_zero, capacity)
+
+    # extrema: sign changes of the differences Δ_j = κ_{j+1} − κ_j (interval j)
+    delta = kappa[1:] - kappa[:-1]
+    dsign = jnp.where(jnp.abs(delta) > flat, jnp.sign(delta), 0.0)
+    dprev = _last_nonzero(dsign)
+    at = jnp.arange(delta.shape[0])
+    in_turn = (at >= offset - 1) & (at < offset - 1 + n)  # each interval of a closed curve once
+    is_ext = (dsign != 0) & (dprev >= 0) & (dsign[dprev] != dsign) & in_turn
+    ei, e_count = _compact(is_ext, capacity)
+    is_max = dsign[ei] < 0
+
+    # one bisection for both: of κ in the inflection brackets, of dκ/dt in the extremum brackets
+    lo = jnp.concatenate([t[prev[zi]], t[dprev[ei]]])
+    hi = jnp.concatenate([t[zi], t[ei + 1]])
+    rising = jnp.concatenate([sign[zi] > 0, ~is_max])
+    of_slope = jnp.arange(2 * capacity) >= capacity
+
+    def f(s):
+        value, slope = _kappa_and_slope(curve, wrap(s))
+        return jnp.where(of_slope, slope, value), value
+
+    found, found_kappa = _bisect(f, lo, hi, rising)
+    return _merge(wrap(found), found_kappa, (z_count, e_count, is_max), capacity, closed)
+
+
+def _compact(mask, capacity):
+    (idx,) = jnp.nonzero(mask, size=capacity, fill_value=0)
+    return idx, jnp.sum(mask)
+
+
+def _merge(found, found_kappa, counts, capacity, closed) -> CharacteristicPoints:
+    z_count, e_count, is_max = counts
+    e_kappa = found_kappa[capacity:]
+    e_kind = jnp.where(is_max, jnp.where(e_kappa > 0, 1, 3), jnp.where(e_kappa > 0, 2, 4))
+    slot = jnp.arange(capacity)
+    used = jnp.concatenate([slot < z_count, slot < e_count])
+    params = jnp.where(used, found, jnp.inf)
+    kind = jnp.concatenate([jnp.zeros(capacity, dtype=jnp.int32), e_kind.astype(jnp.int32)])
+    kappa = jnp.concatenate([jnp.zeros_like(e_kappa), e_kappa])
+    order = jnp.argsort(params)[:capacity]
+    total = z_count + e_count
+    count = jnp.minimum(total, capacity)
+    filled = slot < count
+    return CharacteristicPoints(
+        params=jnp.where(filled, params[order], 0.0),
+        kind=jnp.where(filled, kind[order], -1),
+        curvature=jnp.where(filled, kappa[order], 0.0),
+        count=count,
+        overflow=total > capacity,
+        closed=closed,
+    )
+
+
+# --- merging spurious extrema and the symbol string -------------------------------------------
+def simplify(points: CharacteristicPoints, rel: float = MERGE_REL) -> CharacteristicPoints:
+    """Merge the spurious extrema of an approximating spline (host side, concrete input).
+
+    Repeatedly drops the adjacent pair of extrema (cyclically when closed) with the smallest
+    `|Δκ|` while it is below `max(rel · (κ_max − κ_min), 1e-8 · max|κ|)` — an inverse
+    bifurcation (thesis §7.3.2 "redundant extrema"; a 64-sample interpolant of an ellipse shows
+    8 extrema, its shape 4). Then keeps one inflection between extrema of opposite sign (the
+    middle one) and none between extrema of equal sign; at the open ends one when their count is
+    odd. Default `rel = MERGE_REL = 1e-2`.
+
+    **Returns:** `CharacteristicPoints` of the same capacity.
+    """
+    if not isinstance(points, CharacteristicPoints):
+        _checks.fail("points", "CharacteristicPoints", type(points).__name__)
+    if not isinstance(rel, (int, float)) or not 0 <= rel < 1:
+        _checks.fail("rel", "a number in [0, 1)", rel)
+    n = int(points.count)
+    entries = list(
+        zip(
+            np.asarray(points.params)[:n].tolist(),
+            np.asarray(points.kind)[:n].tolist(),
+            np.asarray(points.curvature)[:n].tolist(),
+        )
+    )
+    extrema = [e for e in entries if e[1] != 0]
+    extrema = _drop_ripple(extrema, rel, points.closed)
+    kept = _with_inflections(entries, extrema, points.closed)
+    return _pack(kept, points)
+
+
+def _drop_ripple(extrema, rel, closed):
+    if not extrema:
+        return extrema
+    values = [e[2] for e in extrema]
+    threshold = max(rel * (max(values) - min(values)), 1e-8 * max(abs(v) for v in values))
+    while len(extrema) >= 2:
+        m = len(extrema)
+        pairs = range(m if closed and m > 2 else m - 1)
+        gaps = [(abs(extrema[i][2] - extrema[(i + 1) % m][2]), i) for i in pairs]
+        gap, i = min(gaps)
+        if gap >= threshold:
+            break
+        drop = {i, (i + 1) % m}
+        extrema = [e for k, e in enumerate(extrema) if k not in drop]
+    return extrema
+
+
+def _with_inflections(entries, extrema, closed):
+    """The kept extrema with the inflections their signs call for, in parameter order."""
+    zeros = [e for e in entries if e[1] == 0]
+    if not extrema:
+        return [] if closed or len(zeros) % 2 == 0 else [zeros[len(zeros) // 2]]
+    out = []
+    m = len(extrema)
+    for k, e in enumerate(extrema):
+        out.append(e)
+        if k == m - 1 and not closed:
+            break
+        nxt = extrema[(k + 1) % m]
+        if (e[2] > 0) != (nxt[2] > 0):
+            between = [z for z in zeros if _between(z[0], e[0], nxt[0])]
+            if between:
+                out.append(between[len(between) // 2])
+    if not closed:
+        head = [z for z in zeros if z[0] < extrema[0][0]]
+        tail = [z for z in zeros if z[0] > extrema[-1][0]]
+        out = head[-1:] * (len(head) % 2) + out + tail[:1] * (len(tail) % 2)
+    return sorted(out, key=lambda e: e[0])
+
+
+def _between(t, a, b):
+    return a < t < b if a < b else (t > a or t < b)  # (b < a: the arc runs over the seam)
+
+
+def _pack(entries, like: CharacteristicPoints) -> CharacteristicPoints:
+    c = like.params.shape[0]
+    params = np.zeros(c, like.params.dtype)
+    kind = np.full(c, -1, np.int32)
+    kappa = np.zeros(c, like.curvature.dtype)
+    for i, (t, k, v) in enumerate(entries):
+        params[i], kind[i], kappa[i] = t, k, v
+    return CharacteristicPoints(
+        params=jnp.asarray(params),
+        kind=jnp.asarray(kind),
+        curvature=jnp.asarray(kappa),
+        count=jnp.asarray(len(entries), dtype=like.count.dtype),
+        overflow=like.overflow,
+        closed=like.closed,
+    )
+
+
+def symbols(
+    curve: BSplineCurve,
+    closed: bool | None = None,
+    rel: float = MERGE_REL,
+    samples: int | None = None,
+    capacity: int = 64,
+) -> str:
+    """The symbol string of a planar curve (thesis §7.1), e.g. `"M+m+M+m+"` for an ellipse.
+
+    `characteristic_points`, then `simplify(points, rel)`. A closed curve is read
+    counter-clockwise (a clockwise one is reversed: κ changes sign, M+ ↔ m-, m+ ↔ M-) and
+    returned in `canonical` spelling; an open curve is read along its parameter, end points
+    excluded. A circle (constant curvature) has no characteristic points: `""`.
+
+    **Arguments:** as `characteristic_points`; `rel`: merging threshold of `simplify`.
+    **Returns:** `str`. Raises ValueError when the points overflow `capacity`.
+    """
+    curve = _planar(curve)
+    closed = _closed(curve, closed)
+    points = characteristic_points(curve, closed, samples, capacity)
+    if bool(points.overflow):
+        _checks.fail("capacity", f"room for every characteristic point (more than {capacity})", "an overflow")
+    seq = simplify(points, rel).symbols()
+    if not closed:
+        return "".join(seq)
+    if float(_signed_area(curve, 64)) < 0:
+        seq = [_FLIP[s] for s in reversed(seq)]
+    return canonical("".join(seq))
+
+
+# --- arc length, area ---------------------------------------------------------------------------
+def _gauss(lo, hi):
+    """Gauss–Legendre nodes `(m, 5)` and weights on each interval [lo, hi]."""
+    x = jnp.asarray(_GAUSS_X, dtype=lo.dtype)
+    w = jnp.asarray(_GAUSS_W, dtype=lo.dtype)
+    half = (0.5 * (hi - lo))[:, None]
+    return (0.5 * (hi + lo))[:, None] + half * x[None, :], half * w[None, :]
+
+
+def _integrate(curve, lo, hi, integrand):
+    """`∫_lo^hi integrand(C', C'') dt` per interval, 5-point Gauss–Legendre."""
+    nodes, weights = _gauss(lo, hi)
+    d1, d2 = _derivatives(curve, nodes.reshape(-1))
+    return jnp.sum(integrand(d1, d2).reshape(nodes.shape) * weights, axis=1)
+
+
+def _speed(d1, d2):
+    return _safe.norm(d1)
+
+
+class _ArcLength(eqx.Module):
+    """Cumulative arc length at `knots (N+1,)` = linspace(0, 1); `at(t)` adds the partial span."""
+
+    grid: Float[Array, " N1"]
+    cumulative: Float[Array, " N1"]
+
+    def at(self, curve, t):
+        n = self.grid.shape[0] - 1
+        j = jnp.clip(jnp.floor(t * n).astype(jnp.int32), 0, n - 1)
+        return self.cumulative[j] + _integrate(curve, self.grid[j], t, _speed)
+
+    @property
+    def total(self):
+        return self.cumulative[-1]
+
+
+def _arc_length(curve, n: int) -> _ArcLength:
+    grid = jnp.linspace(0.0, 1.0, n + 1, dtype=curve.ctrl.dtype)
+    pieces = _integrate(curve, grid[:-1], grid[1:], _speed)
+    return _ArcLength(grid, jnp.concatenate([jnp.zeros(1, pieces.dtype), jnp.cumsum(pieces)]))
+
+
+@compiled
+def _signed_area(curve: BSplineCurve, n: int):
+    """Signed area enclosed by the curve and its end chord, `½ ∮ (x dy − y dx)` (Green)."""
+    return _area(curve, n)
+
+
+def _area(curve, n):
+    grid = jnp.linspace(0.0, 1.0, n + 1, dtype=curve.ctrl.dtype)
+    nodes, weights = _gauss(grid[:-1], grid[1:])
+    flat = nodes.reshape(-1)
+    a = curve.direction.matrices(flat, (0,))[0]
+    point = a @ curve.ctrl if curve.weights is None else _rational_points(curve, a)
+    (d1,) = _derivatives(curve, flat, 1)
+    sweep = jnp.sum((_cross(point, d1)).reshape(nodes.shape) * weights)
+    ends = _rational_points(curve, curve.direction.matrices(grid[jnp.array([0, -1])], (0,))[0])
+    chord = ends[1, 0] * ends[0, 1] - ends[1, 1] * ends[0, 0]
+    return 0.5 * (sweep + chord)
+
+
+def _rational_points(curve, a):
+    if curve.weights is None:
+        return a @ curve.ctrl
+    w = curve.weights
+    return (a @ (curve.ctrl * w[:, None])) / (a @ w)[:, None]
