@@ -643,3 +643,276 @@ def _rational_points(curve, a):
         return a @ curve.ctrl
     w = curve.weights
     return (a @ (curve.ctrl * w[:, None])) / (a @ w)[:, None]
+
+
+def _wrapper(closed):
+    return (lambda s: jnp.mod(s, 1.0)) if closed else (lambda s: jnp.clip(s, 0.0, 1.0))
+
+
+# --- aesthetic measures -------------------------------------------------------------------------
+class Measures(eqx.Module):
+    """Aesthetic measures of a planar curve (thesis §7.3.3, FIORES-II terms); scalars.
+
+    **Fields:** `acceleration` = (κ_max − κ_min) / (arc length between their locations; the
+    shorter way round a closed curve); `softness` = 1 / κ_max (the smallest radius of curvature;
+    inf when κ_max ≤ 0); `flatness` = 1 − d_min / d_max of the minimum-area enclosing rectangle
+    (0 for a square's worth of extent, 1 for a segment); `convexity` = signed area between the
+    curve and its end chord / (d_max · d_min) (∈ [−1, 1], + when the curve turns left);
+    `tension` = (κ_max − κ_min) / κ_avg with κ_avg = ∫κ ds / L (arc-length average);
+    also `kappa_max`, `kappa_min`, `length` (L), `d_max`, `d_min`.
+    """
+
+    acceleration: Float[Array, ""]
+    softness: Float[Array, ""]
+    flatness: Float[Array, ""]
+    convexity: Float[Array, ""]
+    tension: Float[Array, ""]
+    kappa_max: Float[Array, ""]
+    kappa_min: Float[Array, ""]
+    length: Float[Array, ""]
+    d_max: Float[Array, ""]
+    d_min: Float[Array, ""]
+
+
+def measures(curve: BSplineCurve, closed: bool | None = None, samples: int | None = None) -> Measures:
+    """The aesthetic measures of a planar curve (thesis §7.3.3): acceleration, softness,
+    flatness, convexity and tension, as defined in `Measures`.
+
+    κ_max and κ_min: the largest and smallest of `samples` κ samples (default as in
+    `characteristic_points`), refined by bisection of dκ/dt (end points count on open curves);
+    arc length and ∫κ ds by 5-point Gauss–Legendre on every sample interval; the enclosing
+    rectangle of the sampled curve (its Gauss nodes) over 90 orientations in [0, π/2), refined by
+    golden-section search. Compiled; `closed` as in `characteristic_points`.
+
+    **Returns:** `Measures` of scalars.
+    """
+    curve = _planar(curve)
+    return _measures(curve, _closed(curve, closed), _samples(curve, samples))
+
+
+@compiled
+def _measures(curve: BSplineCurve, closed: bool, n: int) -> Measures:
+    wrap = _wrapper(closed)
+    dtype = curve.ctrl.dtype
+    grid = jnp.linspace(0.0, 1.0, n + 1, dtype=dtype)
+    kappa = _kappa(curve, grid)
+    (t_max, k_max), (t_min, k_min) = _extreme_kappa(curve, grid, kappa, wrap)
+    arc = _arc_length(curve, n)
+    total = arc.total
+    between = jnp.abs(arc.at(curve, t_max[None])[0] - arc.at(curve, t_min[None])[0])
+    between = jnp.minimum(between, total - between) if closed else between
+    turning = jnp.sum(_integrate(curve, grid[:-1], grid[1:], _turning))
+    spread = k_max - k_min
+    d_max, d_min = _rectangle(_sample_points(curve, grid))
+    area = _area(curve, n)
+    return Measures(
+        acceleration=_safe.ratio(spread, between),
+        softness=jnp.where(k_max > 0, 1 / jnp.where(k_max > 0, k_max, 1), jnp.inf),
+        flatness=1 - _safe.ratio(d_min, d_max),
+        convexity=_safe.ratio(area, d_max * d_min),
+        tension=_safe.ratio(spread * total, turning),
+        kappa_max=k_max,
+        kappa_min=k_min,
+        length=total,
+        d_max=d_max,
+        d_min=d_min,
+    )
+
+
+def _turning(d1, d2):
+    return _safe.ratio(_cross(d1, d2), jnp.sum(d1 * d1, axis=-1))  # κ |C'|
+
+
+def _extreme_kappa(curve, grid, kappa, wrap):
+    """(t, κ) of the largest and smallest κ: best sample, then bisection of dκ/dt around it."""
+    h = grid[1] - grid[0]
+    centre = grid[jnp.stack([jnp.argmax(kappa), jnp.argmin(kappa)])]
+    lo, hi = centre - h, centre + h
+    rising = jnp.array([False, True])
+
+    def f(s):
+        value, slope = _kappa_and_slope(curve, wrap(s))
+        return slope, value
+
+    t, k = _bisect(f, lo, hi, rising)
+    best = jnp.stack([jnp.max(kappa), jnp.min(kappa)])
+    better = jnp.array([k[0] >= best[0], k[1] <= best[1]])  # an end maximum stays at its end
+    t = jnp.where(better, wrap(t), centre)
+    k = jnp.where(better, k, best)
+    return (t[0], k[0]), (t[1], k[1])
+
+
+def _sample_points(curve, grid):
+    nodes, _ = _gauss(grid[:-1], grid[1:])
+    a = curve.direction.matrices(jnp.concatenate([nodes.reshape(-1), grid]), (0,))[0]
+    return _rational_points(curve, a)
+
+
+_GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
+
+
+def _rectangle(points):
+    """(d_max, d_min) of the minimum-area enclosing rectangle of `points (m, 2)`: 90 coarse
+    orientations, then 60 golden-section steps around the best (the area is continuous in the
+    angle and its minimum lies at a hull-edge direction, a kink the search converges to)."""
+    dtype = points.dtype
+
+    def extent(theta):
+        u = jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)
+        v = jnp.stack([-jnp.sin(theta), jnp.cos(theta)], axis=-1)
+        pu, pv = points @ u.T, points @ v.T
+        return jnp.ptp(pu, axis=0), jnp.ptp(pv, axis=0)
+
+    coarse = jnp.arange(90, dtype=dtype) * (0.5 * np.pi / 90)
+    wu, wv = extent(coarse)
+    best = coarse[jnp.argmin(wu * wv)]
+    step = 0.5 * np.pi / 90
+
+    def area(theta):
+        a, b = extent(jnp.reshape(theta, (1,)))
+        return (a * b)[0]
+
+    def golden(_, bounds):
+        lo, hi = bounds
+        x1 = hi - _GOLDEN * (hi - lo)
+        x2 = lo + _GOLDEN * (hi - lo)
+        left = area(x1) < area(x2)
+        return jnp.where(left, lo, x1), jnp.where(left, x2, hi)
+
+    lo, hi = jax.lax.fori_loop(0, 60, golden, (best - step, best + step))
+    a, b = extent(jnp.reshape(0.5 * (lo + hi), (1,)))
+    a, b = a[0], b[0]
+    return jnp.maximum(a, b), jnp.minimum(a, b)
+
+
+# --- quantitative parameters ----------------------------------------------------------------------
+class PointParameters(eqx.Module):
+    """Quantitative parameters of each characteristic point (thesis §7.3.2), slots as in the
+    `CharacteristicPoints` they were computed from.
+
+    **Fields:** `dk_left`, `dk_right` — |κ(CP) − κ(neighbour)| to the left / right characteristic
+    point; `d_left`, `d_right` — arc length to it; `range_left`, `range_right` — arc length from
+    the CP to the point where κ = κ(CP) ∓ Δκ/2 (half way in κ to the neighbour, so the ranges
+    of neighbours tile the curve); `left`, `right` — slot of the neighbour (−1: the curve's end
+    on an open curve, whose ends act as neighbours); `kind` (codes into `SYMBOLS`), `valid`.
+    """
+
+    dk_left: Float[Array, " c"]
+    dk_right: Float[Array, " c"]
+    d_left: Float[Array, " c"]
+    d_right: Float[Array, " c"]
+    range_left: Float[Array, " c"]
+    range_right: Float[Array, " c"]
+    left: Int[Array, " c"]
+    right: Int[Array, " c"]
+    kind: Int[Array, " c"]
+    valid: Bool[Array, " c"]
+
+    @property
+    def visibility(self) -> tuple[Float[Array, " c"], Float[Array, " c"]]:
+        """`(D_L · Δκ_L, D_R · Δκ_R)` — how visible a characteristic point is from each side."""
+        return self.d_left * self.dk_left, self.d_right * self.dk_right
+
+    @compiled
+    def small_visibility(self, gamma: float, beta: float) -> Bool[Array, " c"]:
+        """`(D_L < γ ∨ D_R < γ) ∧ (Δκ_L < β ∨ Δκ_R < β)` (thesis §7.3.2; γ, β user thresholds)."""
+        near = (self.d_left < gamma) | (self.d_right < gamma)
+        return self.valid & near & ((self.dk_left < beta) | (self.dk_right < beta))
+
+    @compiled
+    def sharp_corner(self, gamma: float, mu: float) -> Bool[Array, " c"]:
+        """`D_L + D_R < γ ∧ Δκ_L > μ ∧ Δκ_R > μ` (thesis §7.3.2)."""
+        short = self.d_left + self.d_right < gamma
+        return self.valid & short & (self.dk_left > mu) & (self.dk_right > mu)
+
+    @compiled
+    def symmetric(self, rtol: float = 1e-6) -> Bool[Array, " c"]:
+        """`Δκ_L = Δκ_R ∧ D_L = D_R ∧ R_L = R_R` within `rtol` relative (thesis §7.3.2)."""
+
+        def same(a, b):
+            return jnp.abs(a - b) <= rtol * jnp.maximum(jnp.abs(a), jnp.abs(b))
+
+        pairs = ((self.dk_left, self.dk_right), (self.d_left, self.d_right))
+        ok = same(*pairs[0]) & same(*pairs[1]) & same(self.range_left, self.range_right)
+        return self.valid & ok
+
+    @compiled
+    def redundant_extrema(self, distance: float) -> Bool[Array, " c"]:
+        """The middle extremum of "M+m+M+", "m+M+m+", "m-M-m-" or "M-m-M-" whose neighbours lie
+        within arc length `distance` on both sides: the triple collapses to its outer symbol
+        (an inverse bifurcation; thesis §7.3.2)."""
+        outer = jnp.array([-1, 2, 1, 4, 3], dtype=jnp.int32)  # middle kind → its neighbours' kind
+        kind_l = jnp.where(self.left >= 0, self.kind[self.left], -2)
+        kind_r = jnp.where(self.right >= 0, self.kind[self.right], -2)
+        want = outer[jnp.clip(self.kind, 0, 4)]
+        pattern = (self.kind > 0) & (kind_l == want) & (kind_r == want)
+        return self.valid & pattern & (self.d_left < distance) & (self.d_right < distance)
+
+
+@compiled
+def point_parameters(
+    curve: BSplineCurve, points: CharacteristicPoints, samples: int = 256
+) -> PointParameters:
+    """Quantitative parameters ΔκL, ΔκR, DL, DR and the ranges of every characteristic point
+    (thesis §7.3.2), see `PointParameters`.
+
+    **Arguments:** the planar `curve` and its `points` (usually `simplify(characteristic_points
+    (curve))`; read closed or open as they were); `samples`: intervals of the arc-length table
+    (5-point Gauss–Legendre each). **Returns:** `PointParameters`.
+    """
+    curve = _planar(curve)
+    if not isinstance(points, CharacteristicPoints):
+        _checks.fail("points", "CharacteristicPoints", type(points).__name__)
+    n = _checks.check_count(samples, "samples", 8)
+    closed = points.closed
+    wrap = _wrapper(closed)
+    c = points.params.shape[0]
+    slot = jnp.arange(c)
+    count = jnp.maximum(points.count, 1)
+    t, k = points.params, points.curvature
+    if closed:
+        left, right = jnp.mod(slot - 1, count), jnp.mod(slot + 1, count)
+        t_l, t_r = t[left], t[right]
+        t_l = jnp.where(t_l >= t, t_l - 1, t_l)
+        t_r = jnp.where(t_r <= t, t_r + 1, t_r)
+    else:
+        left = jnp.where(slot == 0, -1, slot - 1)
+        right = jnp.where(slot == points.count - 1, -1, slot + 1)
+        t_l = jnp.where(left >= 0, t[left], 0.0)
+        t_r = jnp.where(right >= 0, t[jnp.maximum(right, 0)], 1.0)
+    ends = _kappa(curve, jnp.stack([t[0] * 0, t[0] * 0 + 1]))
+    k_l = jnp.where(left >= 0, k[left], ends[0])
+    k_r = jnp.where(right >= 0, k[jnp.maximum(right, 0)], ends[1])
+    arc = _arc_length(curve, n)
+
+    def length(a, b):  # arc length from a to b ≥ a (unwrapped parameters)
+        s = arc.at(curve, wrap(b)) - arc.at(curve, wrap(a))
+        return jnp.where(s < 0, s + arc.total, s) if closed else s
+
+    full = (points.count == 1) & closed
+    d_l = jnp.where(full, arc.total, length(t_l, t))
+    d_r = jnp.where(full, arc.total, length(t, t_r))
+    mid = jnp.concatenate([0.5 * (k + k_l), 0.5 * (k + k_r)])
+
+    def f(s):
+        value = _kappa(curve, wrap(s)) - mid
+        return value, value
+
+    lo = jnp.concatenate([t_l, t])
+    hi = jnp.concatenate([t, t_r])
+    rising = jnp.concatenate([k > k_l, k_r > k])
+    half, _ = _bisect(f, lo, hi, rising)
+    valid = points.valid
+    zero = jnp.zeros_like(t)
+    return PointParameters(
+        dk_left=jnp.where(valid, jnp.abs(k - k_l), zero),
+        dk_right=jnp.where(valid, jnp.abs(k - k_r), zero),
+        d_left=jnp.where(valid, d_l, zero),
+        d_right=jnp.where(valid, d_r, zero),
+        range_left=jnp.where(valid, length(half[:c], t), zero),
+        range_right=jnp.where(valid, length(t, half[c:]), zero),
+        left=jnp.where(valid, left, -1),
+        right=jnp.where(valid, right, -1),
+        kind=points.kind,
+        valid=valid,
+    )
