@@ -117,7 +117,7 @@ def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
 
 def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(0.0, 10.0, 20.0)):
     """Throw a jelly (sphere surface + 12³ VSOFM lattice) into the tilted bowl; optimise the tilt."""
-    from bsjax import mss, shapes, vsofm
+    from bsjax import mss, optimise, shapes, vsofm
     from bsjax.examples import spoon
 
     rot, origin = spoon.bowl_frame(bent, bowl)
@@ -156,21 +156,23 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
         print(
             f"  tilt {deg:4.1f}°: spilled {100 * float(sp):5.1f} % of the jelly, spill risk {float(risk):.4f}"
         )
-    risk_grad = jax.jit(jax.value_and_grad(lambda t: outcome(t)[1]))
-    tilt, history = jnp.asarray(0.0), []
-    max_step = np.deg2rad(4.0)  # the landscape is steep where the jelly starts to spill: clip steps
-    print("  jax.grad through the drop: gradient descent on the tilt …")
-    for k in range(sizes["opt_steps"]):
-        value, g = risk_grad(tilt)
-        history.append(
-            {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_risk": float(value), "d_risk_d_tilt": float(g)}
-        )
-        print(
-            f"    step {k}: tilt {history[-1]['tilt_deg']:6.2f}°  risk {float(value):.4f}"
-            f"  d/dθ {float(g):+.4f}"
-        )
-        tilt = tilt - jnp.clip(0.5 * g, -max_step, max_step)
-    tilt = jnp.deg2rad(min(history, key=lambda h: h["spill_risk"])["tilt_deg"])  # best visited
+    print("  jax.grad through the drop: BFGS (Armijo line search) on the tilt, bounded to [-10°, 20°] …")
+    found = optimise.minimise(
+        lambda t, _: outcome(t)[1],
+        jnp.asarray(0.0),
+        lower=float(np.deg2rad(-10.0)),
+        upper=float(np.deg2rad(20.0)),
+        max_steps=sizes["opt_steps"],
+        throw=False,  # a fixed budget of evaluations: keep the last accepted tilt
+        progress=_print_step,
+    )
+    values = found.accepted()
+    history = [{"step": k, "spill_risk": float(v)} for k, v in enumerate(values)]
+    tilt = found.design
+    print(
+        f"    {optimise.STATUS[int(found.status)]}: {int(found.steps)} accepted steps in"
+        f" {int(found.evaluations)} evaluations, risk {' → '.join(f'{v:.4f}' for v in values)}"
+    )
     sp, risk, pos = run(tilt)
     best = {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_fraction": float(sp), "spill_risk": float(risk)}
     finals[best["tilt_deg"]] = np.asarray(pos)
@@ -188,9 +190,19 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
         "throw_velocity": list(throw),
         "tilts": rows,
         "optimisation": history,
+        "optimiser": {
+            "method": "bfgs",
+            "status": optimise.STATUS[int(found.status)],
+            "accepted_steps": int(found.steps),
+            "evaluations": int(found.evaluations),
+        },
         "best": best,
     }
     return hm, finals
+
+
+def _print_step(step: int, value: float) -> None:
+    print(f"    step {step}: spill risk {value:.4f}", flush=True)
 
 
 def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
