@@ -362,7 +362,7 @@ def _grid(n, closed, dtype):
 
 
 def characteristic_points(
-    curve: BSplineCurve, closed: bool | None = None, samples: int | None = None, capacity: int = 32
+    curve: BSplineCurve, closed: bool | None = None, samples: int | None = None, capacity: int = 64
 ) -> CharacteristicPoints:
     """Curvature extrema (M±, m±) and inflections (0) of a planar curve, sorted by parameter.
 
