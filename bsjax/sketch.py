@@ -367,14 +367,16 @@ def _fit_arrays(points, n_ctrl, n_max: int, degree: int, params_method: str, fix
     a = jax.vmap(lambda t: basis_functions(knots, degree, t))(params)
     last = n_ctrl - 1
     if fix_ends:
-        ends = (column == 0)[:, None] * points[0] + (column == last)[:, None] * points[-1]
+        ends = jnp.where((column == 0)[:, None], points[:1], 0) + jnp.where(
+            (column == last)[:, None], points[-1:], 0
+        )
         free = (column >= 1) & (column < last)
     else:
         ends = jnp.zeros((n_max, points.shape[1]), points.dtype)
         free = column <= last
     rhs = points - a @ ends
     rows = slice(1, -1) if fix_ends else slice(None)
-    a_free = a[rows] * free[None]
+    a_free = jnp.where(free[None], a[rows], 0)
     normal = a_free.T @ a_free + jnp.diag(jnp.where(free, 0.0, 1.0).astype(a.dtype))
     ctrl = jnp.linalg.solve(normal, a_free.T @ rhs[rows]) + ends
     residuals = _safe.norm(a @ ctrl - points)
@@ -459,7 +461,7 @@ def _fewest(piece, tol: float, degree: int, params: str) -> BSplineCurve:
     lo, hi = deg + 1, count
     while lo < hi:
         mid = (lo + hi) // 2
-        if float(_max_error(piece, np.asarray(mid), count, deg, params)) <= tol:
+        if float(np.max(_padded_fit(piece, np.asarray(mid), count, deg, params)[3])) <= tol:
             hi = mid
         else:
             lo = mid + 1
@@ -470,11 +472,6 @@ def _fewest(piece, tol: float, degree: int, params: str) -> BSplineCurve:
 @compiled
 def _padded_fit(points, n_ctrl, n_max: int, degree: int, params: str):
     return _fit_arrays(points, n_ctrl, n_max, degree, params, True)
-
-
-@compiled
-def _max_error(points, n_ctrl, n_max: int, degree: int, params: str):
-    return jnp.max(_fit_arrays(points, n_ctrl, n_max, degree, params, True)[3])
 
 
 # --- over-sketching (host-side) -------------------------------------------------------------------
@@ -609,7 +606,7 @@ def _replace(curve: BSplineCurve, stroke_curve: BSplineCurve, stroke, scale: flo
     spacing = float(np.mean(np.linalg.norm(np.diff(ctrl, axis=0), axis=1)))  # M (eq. 4-25, prose)
     start = min(_transition(ctrl, xi, stroke[0], -1, spacing), ts)
     end = max(_transition(ctrl, xi, stroke[-1], +1, spacing), te)
-    refined = _refine(curve, start, end, stroke_curve.n_ctrl)
+    refined = _refine(curve, start, end, stroke_curve.n_ctrl * (end - start) / (te - ts))
     knots = np.asarray(refined.knots, np.float64)
     n = refined.n_ctrl
     free = np.flatnonzero((knots[:n] >= start) & (knots[p + 1 : n + p + 1] <= end))
@@ -618,9 +615,10 @@ def _replace(curve: BSplineCurve, stroke_curve: BSplineCurve, stroke, scale: flo
     if end == 1.0:
         free = np.union1d(free, [n - 1])
     params = np.linspace(start, end, 8 * (n + p))
-    target = _target(curve, stroke, params, ts, te, start, end)
     a = np.asarray(blending_matrix(refined.knots, p, jnp.asarray(params, refined.ctrl.dtype)))
-    base = a @ np.asarray(refined.ctrl, np.float64)
+    base = a @ np.asarray(refined.ctrl, np.float64)  # the original curve at `params`
+    gaps = (stroke[0] - samples[np.searchsorted(t, ts)], stroke[-1] - samples[np.searchsorted(t, te)])
+    target = _target(base, stroke, params, (ts, te), (start, end), gaps)
     delta = np.linalg.lstsq(a[:, free], target - base, rcond=None)[0]
     new = np.asarray(refined.ctrl, np.float64).copy()
     new[free] += scale * delta  # eq. 4-23: y' = y − (1 − scale) d, d = y − c
@@ -628,11 +626,12 @@ def _replace(curve: BSplineCurve, stroke_curve: BSplineCurve, stroke, scale: flo
     return Oversketch(edited, float(start), float(end))
 
 
-def _refine(curve: BSplineCurve, start: float, end: float, stroke_ctrl: int) -> BSplineCurve:
-    """The curve with knots inserted uniformly in `[start, end]` (and at its ends), enough for
-    `stroke_ctrl + 2 (p + 1)` basis functions supported inside the span."""
+def _refine(curve: BSplineCurve, start: float, end: float, density: float) -> BSplineCurve:
+    """The curve with knots inserted uniformly in `[start, end]` (and at its ends): about as many
+    spans per parameter length on the stroke's part as the stroke has control points, and
+    `p + 1` more for each transition."""
     p = curve.degree
-    intervals = stroke_ctrl + 3 * p + 2
+    intervals = math.ceil(density) + 3 * p + 2
     values = np.linspace(start, end, intervals + 1)
     knots = np.asarray(curve.knots, np.float64)
     values = values[(values > 0) & (values < 1)]
@@ -640,21 +639,18 @@ def _refine(curve: BSplineCurve, start: float, end: float, stroke_ctrl: int) -> 
     return insert_knots(curve, np.asarray(new)) if new else curve
 
 
-def _target(curve, stroke, params, ts, te, start, end):
+def _target(base, stroke, params, stroke_span, span, gaps):
     """Target points on the span: the stroke on `[ts, te]` (linear in the parameter), and on the
-    transitions the curve plus a smoothstep ramp to the gap between the stroke's end and its
-    projection."""
-    c = np.asarray(curve.evaluate(jnp.asarray(params, curve.ctrl.dtype)), np.float64)
-    s = np.clip((params - ts) / (te - ts), 0.0, 1.0)
-    on_stroke = _along(stroke, s)
-    at_ts = np.asarray(curve.evaluate(ts), np.float64)
-    at_te = np.asarray(curve.evaluate(te), np.float64)
+    transitions the curve (`base`) plus a smoothstep ramp to the gap between the stroke's end and
+    its projection."""
+    (ts, te), (start, end) = stroke_span, span
+    on_stroke = _along(stroke, np.clip((params - ts) / (te - ts), 0.0, 1.0))
     before = np.clip(_ratio(params - start, ts - start), 0.0, 1.0)
     after = np.clip(_ratio(end - params, end - te), 0.0, 1.0)
     ramp = lambda x: x * x * (3 - 2 * x)
-    out = np.where(((params >= ts) & (params <= te))[:, None], on_stroke, c)
-    out = out + np.where((params < ts)[:, None], ramp(before)[:, None] * (stroke[0] - at_ts)[None], 0)
-    return out + np.where((params > te)[:, None], ramp(after)[:, None] * (stroke[-1] - at_te)[None], 0)
+    out = np.where(((params >= ts) & (params <= te))[:, None], on_stroke, base)
+    out = out + np.where((params < ts)[:, None], ramp(before)[:, None] * gaps[0][None], 0)
+    return out + np.where((params > te)[:, None], ramp(after)[:, None] * gaps[1][None], 0)
 
 
 def _ratio(a, b):
@@ -699,10 +695,12 @@ class Camera(eqx.Module):
     def ray(self, window_xy: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
         """Unit ray directions from the eye through window points `(..., 2)` (a kernel)."""
         forward, right, up = self.frame()
+        flat = window_xy.reshape(-1, 2)
         h = jnp.tan(self.fov / 2)
-        x = (2 * window_xy[..., :1] - 1) * h * self.aspect
-        y = (2 * window_xy[..., 1:] - 1) * h
-        return _safe.unit(forward + x * right + y * up)
+        x = (2 * flat[:, :1] - 1) * (h * self.aspect)
+        y = (2 * flat[:, 1:] - 1) * h
+        ray = _safe.unit(forward[None] + x * right[None] + y * up[None])
+        return ray.reshape(window_xy.shape[:-1] + (3,))
 
 
 def _vector(x, name: str, dtype):
@@ -740,4 +738,4 @@ def unproject(window_xy: Float[Array, "... 2"], camera: Camera, plane: Plane) ->
     bad = ~(jnp.abs(facing) > 64 * jnp.finfo(ray.dtype).eps) | ~(s > 0)
     s = _checks.check(s, bad, "window_xy", "points whose rays meet the plane in front of the camera", "a ray "
                       "parallel to the plane or meeting it behind the eye")  # fmt: skip
-    return camera.eye + s[..., None] * ray
+    return jnp.expand_dims(camera.eye, tuple(range(ray.ndim - 1))) + s[..., None] * ray
