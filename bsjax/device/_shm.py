@@ -167,7 +167,11 @@ def decode_proxy(v) -> Proxy:
     kind = int(v[0])
     if not (0 <= kind < len(_KINDS)) or kind != v[0]:
         raise ValueError(f"proxy record: bad kind {v[0]}")
-    return Proxy(_KINDS[kind], tuple(v[1:4]), tuple(v[4:7]), v[7], v[8] != 0.0, v[9], v[10], v[11], v[12])  # type: ignore[arg-type]
+    normal = (v[4], v[5], v[6])
+    proxy = Proxy(_KINDS[kind], (v[1], v[2], v[3]), normal, v[7], v[8] != 0.0, v[9], v[10], v[11], v[12])
+    if proxy.kind == PLANE and proxy.normal != normal and abs(math.hypot(*normal) - 1.0) < 1e-12:
+        object.__setattr__(proxy, "normal", normal)  # unit already: keep it bit for bit
+    return proxy
 
 
 def encode_sample(s: DeviceSample) -> list[float]:

@@ -229,7 +229,11 @@ class ServoLoop:
             gc.freeze()
         self._running = True
         if self.mode == "process":
-            self._start_process()
+            try:
+                self._start_process()
+            except BaseException:
+                self._undo_process_settings()
+                raise
         else:
             self._servo = threading.Thread(target=self._servo_main, name="bsjax-servo", daemon=True)
             self._servo.start()
@@ -258,11 +262,7 @@ class ServoLoop:
             self._parent = None
         self._restore_affinity()
         atexit.unregister(self.stop)
-        if self.freeze_gc:
-            gc.unfreeze()
-        if self._saved_switch is not None:
-            sys.setswitchinterval(self._saved_switch)
-            self._saved_switch = None
+        self._undo_process_settings()
         if self._record_path is not None and self._recorder is not None:
             self.recording().save(self._record_path)
         stats = self.stats
@@ -272,6 +272,14 @@ class ServoLoop:
         if error is not None and not isinstance(error, EOFError):
             raise DeviceError(f"servo loop failed: {error!r}") from error
         return stats
+
+    def _undo_process_settings(self) -> None:
+        """Undo `start`'s interpreter-wide settings (garbage collector, switch interval)."""
+        if self.freeze_gc:
+            gc.unfreeze()
+        if self._saved_switch is not None:
+            sys.setswitchinterval(self._saved_switch)
+            self._saved_switch = None
 
     def __enter__(self) -> "ServoLoop":
         return self.start()
@@ -648,8 +656,12 @@ class ServoLoop:
         while parent.counters()["ticks"] < 1:
             if not proc.is_alive() or time.monotonic() > deadline:
                 self._collect(timeout=1.0)
+                if proc.is_alive():
+                    proc.kill()
                 self._running = False
                 self.finished.set()
+                parent.close()
+                self._parent = None
                 error, self.error = self.error, None
                 raise DeviceError(f"servo process failed to start: {error!r}") from error
             time.sleep(0.005)
@@ -692,13 +704,20 @@ class ServoLoop:
 
         proc = self._proc
         assert proc is not None
+        if self.realtime and hasattr(os, "sched_setscheduler"):
+            try:  # it sleeps until the servo process ends, then must write zero at once
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(_SERVO_PRIORITY))
+            except (OSError, PermissionError):
+                pass
         conn = self._conn
         if proc.sentinel not in wait([proc.sentinel, conn]):
             self._collect(timeout=0.0)  # the report comes before the exit: read it (or the child
         wait([proc.sentinel])  # blocks on a full pipe)
+        unexpected = not self._stopping
         self._zero()  # first: a killed servo process wrote nothing on its way out
         self._collect(timeout=0.5)
-        if not self._stopping and self.error is None and proc.exitcode != 0:
+        proc.join(1.0)  # reap it: its exit code
+        if unexpected and self.error is None and proc.exitcode != 0:
             self.error = DeviceError(f"servo process died (exit code {proc.exitcode})")
         self._running = False
         self.finished.set()
