@@ -636,7 +636,11 @@ def _refine(curve: BSplineCurve, start: float, end: float, density: float) -> BS
     knots = np.asarray(curve.knots, np.float64)
     values = values[(values > 0) & (values < 1)]
     new = [v for v in values if not np.any(np.isclose(knots, v, rtol=0, atol=1e-12))]
-    return insert_knots(curve, np.asarray(new)) if new else curve
+    if not new:
+        return curve
+    refined = insert_knots(curve, np.asarray(new))
+    assert isinstance(refined, BSplineCurve)
+    return refined
 
 
 def _target(base, stroke, params, stroke_span, span, gaps):
@@ -682,8 +686,9 @@ class Camera(eqx.Module):
         self.eye, self.target, self.up = (
             _vector(v, n, dtype) for v, n in ((eye, "eye"), (target, "target"), (up, "up"))
         )
-        fov = jnp.asarray(fov, dtype)
-        self.fov = _checks.check(fov, ~((fov > 0) & (fov < math.pi)), "fov", "an angle in (0, π)", "outside")
+        angle = jnp.asarray(fov, dtype)
+        bad = ~((angle > 0) & (angle < math.pi))
+        self.fov = _checks.check(angle, bad, "fov", "an angle in (0, π)", "a value outside (or NaN)")
         self.aspect = _checks.positive(jnp.asarray(aspect, dtype), "aspect")
 
     def frame(self):
