@@ -24,6 +24,7 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -32,9 +33,21 @@ from jaxtyping import Array, Float
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
 from bsjax._typing import ArrayLike
-from bsjax.basis import BSplineCurve, BSplineSurface, SplineDirection, basis_functions, greville
+from bsjax.basis import BSplineCurve, BSplineSurface, SplineDirection, change_of_basis
 
-__all__ = ["compatible", "coons", "extrude", "loft", "revolve", "ruled"]
+__all__ = [
+    "SurfaceFit",
+    "boundary_rotation",
+    "compatible",
+    "coons",
+    "extrude",
+    "interpolate_grid",
+    "loft",
+    "rail_rotation",
+    "revolve",
+    "ruled",
+    "sweep",
+]
 
 _TWO_PI = 2.0 * math.pi
 _LINEAR = (0.0, 0.0, 1.0, 1.0)  # the clamped degree-1 knot vector of two control points
@@ -122,27 +135,13 @@ def _merged_plan(dtype: str, key: tuple) -> _FixedPlan:
 
 
 def _transform(knots, degree: int, target_degree: int, target, dtype):
-    """`T (n_new, n_old)` taking control points in the basis (knots, degree) to the target basis:
-    `B_old = B_new T`, found by least-squares collocation at more parameters than basis
-    functions — exact, since the target space contains the old one (the change of basis behind
-    `elevate_degree` and `insert_knots`)."""
+    """`T (n_new, n_old)` taking control points in the basis (knots, degree) to the target basis
+    (`bsjax.basis.change_of_basis`, exact here: the target space contains the old one), or
+    `None` when the bases are equal."""
     if degree == target_degree and knots.shape == target.shape and np.array_equal(knots, target):
         return None
-    n_new = target.shape[0] - target_degree - 1
-    t = np.linspace(0.0, 1.0, 4 * (n_new + 1))
-    t = np.unique(np.concatenate([t, greville(target, target_degree)]))
-    a_old, a_new = (np.asarray(a, np.float64) for a in _collocation(knots, degree, target, target_degree, t))
-    return jnp.asarray(np.linalg.lstsq(a_new, a_old, rcond=None)[0], dtype)
-
-
-@compiled
-def _collocation(knots, degree: int, target, target_degree: int, t):
-    """Both bases at the collocation parameters, in one compiled call (not op by op; the knots
-    were checked by the curves, and `basis_functions` is the unchecked kernel, which also keeps
-    this call free of run-time checks inside `ensure_compile_time_eval`)."""
-    old = jax.vmap(lambda x: basis_functions(knots, degree, x))(t)
-    new = jax.vmap(lambda x: basis_functions(target, target_degree, x))(t)
-    return old, new
+    old, new = SplineDirection(knots, degree), SplineDirection(target, target_degree)
+    return jnp.asarray(change_of_basis(old, new), dtype)
 
 
 # --- compatibility: traced part -----------------------------------------------------------------
@@ -433,21 +432,35 @@ def loft(curves: Sequence[BSplineCurve], degree: int = 3, ruled: bool = False) -
 @compiled
 def _loft(parts, plan: _AnyPlan, names, degree_v: int) -> BSplineSurface:
     net = jnp.stack(_nets(parts, plan, names), axis=1)  # (n, K, 4)
-    params = _section_params(net[..., :3] / net[..., 3:])
+    expected = "distinct consecutive sections (increasing chord-length parameters)"
+    params = _chord_params(net[..., :3] / net[..., 3:], "curves", expected, "coincident sections")
+    direction_v = SplineDirection(_averaged_knots(params, degree_v), degree_v)
+    return _surface(
+        _interpolate(net, direction_v, params, axis=1), plan.direction, direction_v, _rational(parts)
+    )
+
+
+def _averaged_knots(params, degree: int):
+    """Clamped knots by averaging `degree` consecutive parameters (The NURBS Book eq. 9.8)."""
     count = params.shape[0]
-    interior = [params[j : j + degree_v].mean() for j in range(1, count - degree_v)]
-    ends = jnp.zeros(degree_v + 1, params.dtype)
-    knots = jnp.concatenate([ends, jnp.stack(interior), ends + 1] if interior else [ends, ends + 1])
-    direction_v = SplineDirection(knots, degree_v)
-    a = direction_v.matrix(params)
-    flat = jnp.moveaxis(net, 1, 0).reshape(count, -1)
-    solved = jnp.moveaxis(jnp.linalg.solve(a, flat).reshape(count, net.shape[0], 4), 0, 1)
-    return _surface(solved, plan.direction, direction_v, _rational(parts))
+    interior = [params[j : j + degree].mean() for j in range(1, count - degree)]
+    ends = jnp.zeros(degree + 1, params.dtype)
+    return jnp.concatenate([ends, jnp.stack(interior), ends + 1] if interior else [ends, ends + 1])
 
 
-def _section_params(points):
-    """Averaged chord-length parameters `(K,)` of the sections, from control points `(n, K, 3)`
-    (The NURBS Book eq. 10.8); consecutive sections must differ."""
+def _interpolate(net, direction: SplineDirection, params, axis: int):
+    """The control points along `axis` of `net` whose spline in `direction` passes through the
+    data at `params` (one square collocation solve, The NURBS Book eq. 9.9)."""
+    a = direction.matrix(params)
+    moved = jnp.moveaxis(net, axis, 0)
+    solved = jnp.linalg.solve(a, moved.reshape(moved.shape[0], -1)).reshape(moved.shape)
+    return jnp.moveaxis(solved, 0, axis)
+
+
+def _chord_params(points, name: str, expected: str, got: str):
+    """Averaged chord-length parameters `(K,)` along axis 1 of `points (n, K, 3)` (The NURBS
+    Book eqs. 9.5 and 10.8: each of the n lines' cumulated chord lengths, normalised, averaged;
+    lines of zero length left out); consecutive parameters must increase."""
     steps = _safe.norm(points[:, 1:] - points[:, :-1])  # (n, K-1)
     cumulative = jnp.concatenate([jnp.zeros_like(steps[:, :1]), jnp.cumsum(steps, axis=1)], axis=1)
     total = cumulative[:, -1:]
@@ -455,10 +468,373 @@ def _section_params(points):
     per_column = _safe.ratio(cumulative, total)
     params = _safe.ratio(jnp.sum(jnp.where(used, per_column, 0), axis=0), jnp.sum(used, dtype=points.dtype))
     bad = jnp.diff(params) <= 64 * jnp.finfo(params.dtype).eps  # equal up to rounding
-    expected = "distinct consecutive sections (increasing chord-length parameters)"
-    params = _checks.check(params, bad, "curves", expected, "coincident sections")
+    params = _checks.check(params, bad, name, expected, got)
     # keep the rest finite when the check fails, so that this is the error reported
     return jnp.where(jnp.any(bad), jnp.linspace(0.0, 1.0, params.shape[0], dtype=params.dtype), params)
+
+
+# --- global interpolation of a point grid -------------------------------------------------------
+@compiled
+def interpolate_grid(points: Float[Array, "m n 3"], degree: tuple[int, int] = (3, 3)) -> BSplineSurface:
+    """The B-spline surface through an `(m, n)` grid of points (global interpolation).
+
+    Parameters per direction by averaged chord length (each row's, or column's, cumulated chord
+    lengths normalised to [0, 1], then averaged: The NURBS Book eq. 9.5 and §9.2.5), knots by
+    averaging `degree` consecutive parameters (eq. 9.8), and the control net by curve
+    interpolation twice — first every column along u, then every row of that result along v
+    (The NURBS Book §9.2.5; thesis eq. 5-8, "applying the technique of B-spline curve
+    interpolation twice"): `S(u_k, v_l) = Q_kl` exactly.
+
+    **Arguments:**
+    - `points (m, n, 3)`: the grid, finite; `m ≥ degree[0] + 1`, `n ≥ degree[1] + 1`; no two
+      consecutive rows (or columns) may coincide everywhere.
+    - `degree`: `(p, q)`, ints ≥ 1 (static).
+
+    **Returns:** a `BSplineSurface` with control net `(m, n, 3)`, clamped knots. Differentiable
+    in `points` (the parameters and knots follow them).
+    """
+    p, q = _degree_pair(degree)
+    _checks.check_real(points, "points")
+    points = jnp.asarray(points, _float(points))
+    _checks.check_ndim(points, "points", 3, last=3)
+    m, n = points.shape[:2]
+    if m < p + 1 or n < q + 1:
+        expected = f"at least degree + 1 = ({p + 1}, {q + 1}) points per direction, shape (m, n, 3)"
+        _checks.fail("points", expected, f"shape {points.shape}")
+    points = _checks.finite(points, "points")
+    expected = "distinct consecutive rows and columns (increasing chord-length parameters)"
+    params_u = _chord_params(jnp.swapaxes(points, 0, 1), "points", expected, "coincident rows")
+    params_v = _chord_params(points, "points", expected, "coincident columns")
+    direction_u = SplineDirection(_averaged_knots(params_u, p), p)
+    direction_v = SplineDirection(_averaged_knots(params_v, q), q)
+    net = _interpolate(_interpolate(points, direction_u, params_u, 0), direction_v, params_v, 1)
+    return BSplineSurface.from_directions(net, direction_u, direction_v)
+
+
+def _degree_pair(degree) -> tuple[int, int]:
+    if not isinstance(degree, tuple) or len(degree) != 2:
+        raise TypeError(f"degree: expected a pair of ints (p, q), got {degree!r}")
+    return _checks.check_count(degree[0], "degree[0]", 1), _checks.check_count(degree[1], "degree[1]", 1)
+
+
+def _float(x):
+    dtype = jnp.result_type(x)
+    return dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.result_type(float)
+
+
+# --- surfaces through moving sections (sweep, rail rotation) ------------------------------------
+class SurfaceFit(eqx.Module):
+    """A constructed surface and how far it is from the construction it approximates.
+
+    **Fields:** `surface` (`BSplineSurface`); `max_error` (scalar): the largest distance between
+    the surface and the exact construction over the sample grid the constructor names (the
+    surface interpolates its sections exactly; the error is between them).
+    """
+
+    surface: BSplineSurface
+    max_error: Float[Array, ""]
+
+
+_FRAMES = ("rmf", "frenet", "fixed")
+_SUBSTEPS = 8  # frames and error samples per section interval
+
+
+def _section_grid(count: int, dtype):
+    """`(t_fine, every)`: `(count − 1) · _SUBSTEPS + 1` uniform parameters on [0, 1], of which
+    every `_SUBSTEPS`-th is a section parameter."""
+    return jnp.linspace(0.0, 1.0, (count - 1) * _SUBSTEPS + 1, dtype=dtype), _SUBSTEPS
+
+
+def _moving_sections(profile: BSplineCurve, local, origins, maps, t_fine, every: int) -> SurfaceFit:
+    """Sections `origins_k + maps_k @ local_i` at `t_fine[::every]`, interpolated across v at
+    those parameters (cubic, knots by averaging), and the largest distance to the exact moving
+    section `origins(t) + maps(t) @ profile(u)` over `t_fine` × 4 n profile parameters."""
+    t = t_fine[::every]
+    sections = origins[None, ::every] + jnp.einsum("kab,ib->ika", maps[::every], local)  # (n, K, 3)
+    degree_v = min(3, t.shape[0] - 1)
+    direction_v = SplineDirection(_averaged_knots(t, degree_v), degree_v)
+    net = _interpolate(sections, direction_v, t, axis=1)
+    weights = None if profile.weights is None else jnp.broadcast_to(profile.weights[:, None], net.shape[:2])
+    surface = BSplineSurface.from_directions(net, profile.direction, direction_v, weights)
+    u = jnp.linspace(0.0, 1.0, 4 * profile.n_ctrl, dtype=t.dtype)
+    shape = _local_points(profile, u)  # (m_u, 3)
+    exact = origins[None] + jnp.einsum("fab,ub->ufa", maps, shape)
+    uu, tt = jnp.meshgrid(u, t_fine, indexing="ij")
+    error = jnp.max(_safe.norm(surface.evaluate(uu, tt) - exact))
+    return SurfaceFit(surface, error)
+
+
+def _local_points(curve: BSplineCurve, t):
+    points = curve.evaluate(t)
+    return _planar_to_3d(points)
+
+
+def _planar_to_3d(points):
+    if points.shape[-1] == 3:
+        return points
+    return jnp.concatenate([points, jnp.zeros_like(points[..., :1])], axis=-1)
+
+
+def sweep(
+    profile: BSplineCurve,
+    path: BSplineCurve,
+    frame: str = "rmf",
+    n_sections: int | None = None,
+    *,
+    normal: ArrayLike | None = None,
+) -> SurfaceFit:
+    """The surface swept by a profile carried along a path in a moving frame (thesis §5.1,
+    sweeping mode; The NURBS Book §10.4, swept surfaces by skinning sections).
+
+    The profile is given in the frame's local coordinates — x → the frame's normal `N(t)`,
+    y → binormal `B(t)`, z → tangent `T(t)`, origin → the path point `C(t)` — so the exact sweep
+    is `S*(u, t) = C(t) + [N B T](t) P(u)`. `n_sections` copies of the profile (exact: a frame is
+    affine, so the copy's control points are the moved control points, weights kept) are placed
+    at uniform path parameters `t_k` and interpolated across v at `v = t_k` (cubic, knots by
+    averaging, The NURBS Book eq. 9.8): `S(u, t_k) = S*(u, t_k)` exactly and `S(u, t) ≈ S*(u, t)`
+    between sections.
+
+    Frames (`frame`):
+    - `"rmf"`: rotation-minimising, by the double reflection method (Wang, Jüttler, Zheng & Liu,
+      *Computation of rotation minimizing frames*, 2008, algorithm of §4) on 8 steps per section
+      interval; no twist about the tangent (on a planar path the binormal stays the plane normal).
+    - `"frenet"`: `T = C'/|C'|`, `N` along the part of `C''` normal to `T`, `B = T × N`; the
+      path must have nonzero curvature at every sampled parameter.
+    - `"fixed"`: the start frame kept (the profile translated along the path, not turned).
+    The start normal (rmf and fixed) is `normal` made orthogonal to `T(0)`; by default the
+    coordinate axis least aligned with `T(0)`, made orthogonal to it.
+
+    **Arguments:**
+    - `profile`: a `BSplineCurve` (d = 2: z = 0 in the local frame), clamped or periodic.
+    - `path`: a `BSplineCurve` (d = 2 lies at z = 0), regular (nonzero tangent) on [0, 1]; read
+      on [0, 1] (a closed path gives a surface open in v).
+    - `frame`: `"rmf"`, `"frenet"` or `"fixed"`.
+    - `n_sections`: the number K ≥ 2 of sections (default `4 · path.n_ctrl + 4`).
+    - `normal (3,)`: the start normal, finite, not parallel to `T(0)` (keyword only).
+
+    **Returns:** `SurfaceFit(surface, max_error)`: `surface` has control net `(n, K, 3)`, u along
+    the profile (its basis and weights), v the path parameter; `max_error` is the largest
+    distance `|S(u, t) − S*(u, t)|` over `4 n` uniform `u` × `8 (K − 1) + 1` uniform `t`.
+    Differentiable in both curves' control points (and `normal`).
+    """
+    _check_curves([profile, path], ["profile", "path"])
+    if frame not in _FRAMES:
+        _checks.fail("frame", "'rmf', 'frenet' or 'fixed'", repr(frame))
+    count = 4 * path.n_ctrl + 4 if n_sections is None else _checks.check_count(n_sections, "n_sections", 2)
+    return _sweep(profile, path, frame, count, normal)
+
+
+@compiled
+def _sweep(profile: BSplineCurve, path: BSplineCurve, frame: str, count: int, normal) -> SurfaceFit:
+    dtype = path.ctrl.dtype
+    t_fine, every = _section_grid(count, dtype)
+    points = _planar_to_3d(path.evaluate(t_fine))
+    d1 = _planar_to_3d(path.evaluate(t_fine, 1))
+    speed = _safe.norm(d1)
+    scale = jnp.maximum(1.0, jnp.max(jnp.abs(points)))
+    d1 = _checks.check(d1, speed <= 1e-12 * scale, "path", "a regular path (nonzero tangent)", "zero")
+    tangents = _safe.unit(d1)
+    if frame == "frenet":
+        d2 = _planar_to_3d(path.evaluate(t_fine, 2))
+        bent = d2 - jnp.sum(d2 * tangents, axis=-1, keepdims=True) * tangents
+        flat = _safe.norm(bent) <= 1e-9 * speed**2 / scale
+        expected = "nonzero curvature at every section for frame='frenet' (use 'rmf')"
+        normals = _safe.unit(_checks.check(bent, flat, "path", expected, "a straight stretch"))
+    else:
+        start = _start_normal(tangents[0], normal, dtype)
+        if frame == "rmf":
+            normals = _rotation_minimising(points, tangents, start)
+        else:
+            normals = jnp.broadcast_to(start, points.shape)
+            tangents = jnp.broadcast_to(tangents[0], points.shape)
+    binormals = jnp.cross(tangents, normals)
+    maps = jnp.stack([normals, binormals, tangents], axis=-1)  # columns: local x, y, z
+    local = _planar_to_3d(profile.ctrl)
+    return _moving_sections(profile, local, points, maps, t_fine, every)
+
+
+def _start_normal(tangent, normal, dtype):
+    """The start normal ⟂ `tangent`: `normal` (checked) or the least aligned coordinate axis."""
+    if normal is None:
+        return _perpendicular(tangent)
+    normal = _checks.finite(_vector(normal, "normal", dtype), "normal")
+    along = normal - (normal @ tangent) * tangent
+    bad = _safe.norm(along) <= 1e-9 * _safe.norm(normal)
+    along = _checks.check(along, bad, "normal", "a vector not parallel to the path's start tangent", "one")
+    return _safe.unit(along)
+
+
+def _rotation_minimising(points, tangents, start):
+    """Normals of the rotation-minimising frame by double reflection (Wang, Jüttler, Zheng &
+    Liu, *Computation of rotation minimizing frames*, §4): reflect the frame in the bisector
+    plane of `x_i x_{i+1}`, then in the one that maps the reflected tangent to `t_{i+1}`."""
+
+    def reflect(x, v, c):
+        return x - _safe.ratio(2.0 * (v @ x), c) * v
+
+    def step(r, inputs):
+        x0, x1, t0, t1 = inputs
+        v1 = x1 - x0
+        c1 = v1 @ v1
+        r_l, t_l = reflect(r, v1, c1), reflect(t0, v1, c1)
+        v2 = t1 - t_l
+        r_next = reflect(r_l, v2, v2 @ v2)
+        r_next = _safe.unit(r_next - (r_next @ t1) * t1)  # keep it unit and ⟂ against rounding
+        return r_next, r_next
+
+    _, rest = jax.lax.scan(step, start, (points[:-1], points[1:], tangents[:-1], tangents[1:]))
+    return jnp.concatenate([start[None], rest], axis=0)
+
+
+def rail_rotation(
+    rail_a: BSplineCurve, rail_b: BSplineCurve, profile: BSplineCurve, n_sections: int | None = None
+) -> SurfaceFit:
+    """The surface of a profile moved along two rails, its ends riding on them (thesis §5.2.2,
+    rail-based rotation, eq. 5-9: `C_i(u) = M_i · C3(u)` with `M_i p_0 = p_i`, `M_i p'_0 = p'_i`).
+
+    Design choices where the thesis is terse: the section at rail parameter `t` is the image of
+    the profile under the similarity `M(t)` that maps the profile's end points `C3(0), C3(1)` to
+    `P(t) = rail_a(t)`, `P'(t) = rail_b(t)` and turns the profile's reference frame into the
+    section's: each frame is (chord direction `e1 = (P' − P)/|P' − P|`, the direction of travel
+    — the mean of the rails' unit tangents — made orthogonal to `e1` as `e3`, and
+    `e2 = e3 × e1`); the profile's reference frame uses its own chord `C3(1) − C3(0)` and the
+    direction of travel at `t = 0`; the scale is the chord-length ratio. The rails are read at
+    equal parameters (the thesis takes equal angles about the axis through the rails'
+    bounding-box centres; for coaxial circles parametrised alike the two agree, and the frame
+    then turns about that axis, so a planar profile in an axial half-plane gives its surface of
+    revolution). `n_sections` sections at uniform `t_k` are interpolated across v at `v = t_k`
+    (cubic, knots by averaging), as in `sweep`: `S(0, t_k) = rail_a(t_k)`,
+    `S(1, t_k) = rail_b(t_k)` exactly, and exactly for every t when the rails are polynomials of
+    degree ≤ 3 in t and the frames are constant (e.g. straight parallel rails: a translation).
+
+    **Arguments:**
+    - `rail_a`, `rail_b`: `BSplineCurve`s (d = 2 at z = 0; closed or open), regular, parametrised
+      alike, apart at every section, not travelling along the chord between them.
+    - `profile`: a clamped `BSplineCurve` in world coordinates with distinct end points (its
+      first point rides on `rail_a`, its last on `rail_b`).
+    - `n_sections`: the number K ≥ 2 of sections (default `2 · max(n_a, n_b) + 4`).
+
+    **Returns:** `SurfaceFit(surface, max_error)`: `surface` `(n, K, 3)` with u along the profile,
+    v the rails' parameter; `max_error` the largest distance to the exact moving section
+    `M(t) C3(u)` over `4 n` uniform `u` × `8 (K − 1) + 1` uniform `t`. Differentiable in the
+    three curves' control points.
+    """
+    _check_curves([rail_a, rail_b, profile], ["rail_a", "rail_b", "profile"])
+    if profile.periodic:
+        _checks.fail("profile", "a clamped curve (its ends ride on the rails)", "a periodic curve")
+    n = max(rail_a.n_ctrl, rail_b.n_ctrl)
+    count = 2 * n + 4 if n_sections is None else _checks.check_count(n_sections, "n_sections", 2)
+    return _rail_rotation(rail_a, rail_b, profile, count)
+
+
+@compiled
+def _rail_rotation(rail_a: BSplineCurve, rail_b: BSplineCurve, profile: BSplineCurve, count: int):
+    t_fine, every = _section_grid(count, rail_a.ctrl.dtype)
+    p, p_prime = (_planar_to_3d(rail.evaluate(t_fine)) for rail in (rail_a, rail_b))
+    travel = sum(_safe.unit(_planar_to_3d(rail.evaluate(t_fine, 1))) for rail in (rail_a, rail_b))
+    chord = p_prime - p
+    length = _safe.norm(chord)
+    scale = jnp.maximum(1.0, jnp.max(jnp.abs(jnp.concatenate([p, p_prime]))))
+    chord = _checks.check(
+        chord, length <= 1e-12 * scale, "rail_b", "rails apart at every section", "a meeting"
+    )
+    frames = _chord_frames(chord, travel, "rail_a, rail_b")
+    ends = _planar_to_3d(profile.evaluate(jnp.asarray([0.0, 1.0], t_fine.dtype)))
+    own = ends[1] - ends[0]
+    own_length = _safe.norm(own)
+    bad = own_length <= 1e-12 * jnp.maximum(1.0, jnp.max(jnp.abs(ends)))
+    own = _checks.check(own, bad, "profile", "distinct end points", "coincident ends")
+    reference = _chord_frames(own[None], travel[:1], "profile")[0]
+    maps = _safe.ratio(length, own_length)[:, None, None] * (frames @ reference.T)
+    origins = p - jnp.einsum("fab,b->fa", maps, ends[0])
+    return _moving_sections(profile, _planar_to_3d(profile.ctrl), origins, maps, t_fine, every)
+
+
+def _chord_frames(chord, travel, name: str):
+    """Orthonormal frames `(F, 3, 3)` with columns (chord direction, e3 × e1, travel ⟂ chord)."""
+    e1 = _safe.unit(chord)
+    across = travel - jnp.sum(travel * e1, axis=-1, keepdims=True) * e1
+    bad = _safe.norm(across) <= 1e-9 * _safe.norm(travel)
+    expected = "a direction of travel not along the chord between the rails"
+    e3 = _safe.unit(_checks.check(across, bad, name, expected, "parallel"))
+    return jnp.stack([e1, jnp.cross(e3, e1), e3], axis=-1)
+
+
+# --- boundary-based rotation ---------------------------------------------------------------------
+_CIRCLE_KNOTS = (0.0, 0.0, 0.0, 0.25, 0.25, 0.5, 0.5, 0.75, 0.75, 1.0, 1.0, 1.0)
+
+
+def boundary_rotation(left: BSplineCurve, right: BSplineCurve, plane_normal: ArrayLike) -> SurfaceFit:
+    """The rotational blending surface of two outline curves (thesis §5.2.1, eqs. 5-4, 5-5;
+    Cherlin, Samavati, Sousa & Jorge, *Sketch-based modeling with few strokes*, 2005).
+
+    For each u, a circle perpendicular to the outlines' plane A, centred on the mid-curve
+    `Q(u) = ½ (C_l(u) + C_r(u))` and through both outlines, `O(0) = C_l(u)`, `O(π) = C_r(u)`:
+    `S*(u, θ) = Q(u) + cos θ D(u) + sin θ E*(u)`, with `D = ½ (C_l − C_r)` and
+    `E* = |D| n_⟂`, `n_⟂` the unit plane normal made orthogonal to `D` (`= n_A` when both
+    outlines lie in A). Built here, rather than by sampling and interpolating a point grid as
+    the thesis does, exactly in θ: the v direction is the 9-point rational quadratic circle
+    (knots `[0, 0, 0, ¼, ¼, ½, ½, ¾, ¾, 1, 1, 1]`, The NURBS Book §7.5), and `Q`, `D` are exact
+    in the outlines' common basis (`compatible`); only `E*(u)` (a square root) is fitted in that
+    basis, by least squares at `4 n + 1` uniform u. So `S(u, 0) = S(u, 1) = C_l(u)` and
+    `S(u, ½) = C_r(u)` exactly for every u, every v-section is an exact ellipse through both
+    outlines, and it is a circle wherever the fitted `E` equals `E*` — everywhere to rounding
+    when `|D|` is itself a spline of that basis (mirror-symmetric outlines: a surface of
+    revolution about the mirror line). Corners of the outlines stay creases.
+
+    **Arguments:**
+    - `left`, `right`: polynomial (unweighted) `BSplineCurve`s (d = 2 at z = 0, then
+      `plane_normal` is usually (0, 0, 1)), parametrised alike (corresponding points at equal u);
+      made compatible first.
+    - `plane_normal (3,)`: the normal of the outlines' plane A, finite and nonzero (any length);
+      the circles bulge towards `+plane_normal` at `v = ¼`.
+
+    **Returns:** `SurfaceFit(surface, max_error)`: a rational `surface` `(n, 9, 3)` (u along the
+    outlines, v around, closed in v) and `max_error = max_u |E(u) − E*(u)|`, the largest distance
+    to `S*` over `8 n + 1` uniform u (at any θ). Differentiable in both outlines' control points
+    and in `plane_normal`.
+    """
+    names = ("left", "right")
+    curves = (left, right)
+    _check_curves(curves, names)
+    for curve, name in zip(curves, names):
+        if curve.weights is not None:
+            _checks.fail(name, "a polynomial curve (weights None)", "weights")
+    plan = _plan(curves, names)
+    return _boundary_rotation(_parts(curves, plan), plan, plane_normal)
+
+
+@compiled
+def _boundary_rotation(parts, plan: _AnyPlan, plane_normal) -> SurfaceFit:
+    left, right = (h[:, :3] for h in _nets(parts, plan, ("left", "right")))
+    dtype = left.dtype
+    normal = _nonzero(_vector(plane_normal, "plane_normal", dtype), "plane_normal", "a finite nonzero normal")
+    normal = _safe.unit(normal)
+    centre, half = 0.5 * (left + right), 0.5 * (left - right)
+    direction = plan.direction
+    n = direction.n_ctrl
+    fit_u = jnp.linspace(0.0, 1.0, 4 * n + 1, dtype=dtype)
+    a_fit = direction.matrix(fit_u)
+    radial = jnp.linalg.solve(a_fit.T @ a_fit, a_fit.T @ _radial(a_fit @ half, normal))
+    check_u = jnp.linspace(0.0, 1.0, 8 * n + 1, dtype=dtype)
+    a_check = direction.matrix(check_u)
+    error = jnp.max(_safe.norm(a_check @ radial - _radial(a_check @ half, normal)))
+    theta = jnp.arange(9, dtype=dtype) * (math.pi / 4)
+    c = jnp.asarray([1.0, math.sqrt(0.5)] * 4 + [1.0], dtype)
+    ring = (jnp.cos(theta) / c)[None, :, None] * half[:, None] + (jnp.sin(theta) / c)[None, :, None] * radial[
+        :, None
+    ]
+    net = centre[:, None] + ring
+    direction_v = SplineDirection(jnp.asarray(_CIRCLE_KNOTS, dtype), 2)
+    weights = jnp.broadcast_to(c[None], net.shape[:2])
+    return SurfaceFit(BSplineSurface.from_directions(net, direction, direction_v, weights), error)
+
+
+def _radial(half, normal):
+    """`E* = |D| n_⟂`: the circle's second semi-axis, `n_⟂` the unit normal made ⟂ `D`."""
+    along = _safe.unit(half)
+    across = _safe.unit(normal[None] - (along @ normal)[:, None] * along)
+    return _safe.norm(half)[:, None] * across
 
 
 # --- argument helpers ---------------------------------------------------------------------------

@@ -4,7 +4,6 @@ jit / vmap / grad and bad input."""
 
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -37,12 +36,6 @@ def _scipy_points(curve, t):
     w = np.asarray(curve.weights)
     h = BSpline(np.asarray(curve.knots), np.concatenate([ctrl * w[:, None], w[:, None]], 1), curve.degree)(t)
     return h[:, :-1] / h[:, -1:]
-
-
-def _with_ctrl(curve, ctrl):
-    """`curve` with other control points and its knots kept as they are (concrete inside the
-    caller's `jit`; `BSplineCurve.with_ctrl` rebuilds the knots, which `jit` then traces)."""
-    return eqx.tree_at(lambda c: c.ctrl, curve, jnp.asarray(ctrl))
 
 
 def _circle(radius, height, center=(0.0, 0.0)):
@@ -81,10 +74,10 @@ def test_compatible_under_jit_and_grad():
     a, b = _curve(rng, 5, 2), _curve(rng, 6, 3)
     ref = construct.compatible([a, b])
     # knots closed over (concrete): control points traced
-    jitted = jax.jit(lambda p: construct.compatible([_with_ctrl(a, p), b])[0].ctrl)(a.ctrl)
+    jitted = jax.jit(lambda p: construct.compatible([a.with_ctrl(p), b])[0].ctrl)(a.ctrl)
     np.testing.assert_allclose(jitted, ref[0].ctrl, atol=1e-13)
     check_grad(
-        lambda p: jnp.sum(construct.compatible([_with_ctrl(a, p), b])[0].evaluate(T) ** 2), a.ctrl, n_dirs=2
+        lambda p: jnp.sum(construct.compatible([a.with_ctrl(p), b])[0].evaluate(T) ** 2), a.ctrl, n_dirs=2
     )
     # curves as jit arguments (traced knots): fine when already compatible, refused otherwise
     same = jax.jit(lambda c0, c1: construct.compatible([c0, c1])[1].ctrl)(ref[0], ref[1])
@@ -332,7 +325,7 @@ def test_coons_jit_vmap_grad():
 
     def f(interior):  # move the top curve's interior control points only (corners stay matched)
         ctrl = jnp.asarray(top.ctrl).at[1:-1].set(interior)
-        return construct.coons(bottom, _with_ctrl(top, ctrl), left, right).evaluate(u, v)
+        return construct.coons(bottom, top.with_ctrl(ctrl), left, right).evaluate(u, v)
 
     x = jnp.asarray(top.ctrl)[1:-1]
     np.testing.assert_allclose(jax.jit(f)(x), f(x), atol=1e-13)
@@ -347,9 +340,9 @@ def test_coons_bad_input():
     moved = np.asarray(top.ctrl).copy()
     moved[-1] += 1e-3
     raises_both(
-        lambda p: construct.coons(bottom, _with_ctrl(top, p), left, right), moved, match="coons corners"
+        lambda p: construct.coons(bottom, top.with_ctrl(p), left, right), moved, match="coons corners"
     )
-    construct.coons(bottom, _with_ctrl(top, moved), left, right, tol=1.0)  # within a loose tolerance
+    construct.coons(bottom, top.with_ctrl(moved), left, right, tol=1.0)  # within a loose tolerance
     weighted = BSplineCurve(bottom.ctrl, bottom.knots, bottom.degree, weights=np.ones(bottom.n_ctrl))
     with pytest.raises(ValueError, match="c_bottom: expected a polynomial curve"):
         construct.coons(weighted, top, left, right)
@@ -424,7 +417,7 @@ def test_ruled_jit_vmap_grad_and_bad_input():
     u, v = rng.uniform(0, 1, (2, 15))
 
     def f(ctrl):
-        return construct.ruled(_with_ctrl(c0, ctrl), c1).evaluate(u, v)
+        return construct.ruled(c0.with_ctrl(ctrl), c1).evaluate(u, v)
 
     np.testing.assert_allclose(jax.jit(f)(c0.ctrl), f(c0.ctrl), atol=1e-13)
     batch = c0.ctrl[None] + 0.1 * jnp.asarray(rng.normal(size=(4, 5, 3)))

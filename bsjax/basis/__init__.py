@@ -20,6 +20,7 @@ from bsjax.basis._project import Projection as Projection
 from bsjax.basis._project import ProjectionSolver as ProjectionSolver
 from bsjax.basis._project import closest_points as closest_points
 from bsjax.basis._project import project as project
+from bsjax.basis._refine import change_of_basis as change_of_basis
 from bsjax.basis._refine import elevate_degree as elevate_degree
 from bsjax.basis._refine import insert_knots as insert_knots
 from bsjax.basis._refine import reduce_degree as reduce_degree
@@ -36,6 +37,7 @@ __all__ = [
     "SplineDirection",
     "basis_functions",
     "blending_matrix",
+    "change_of_basis",
     "clamped_knots",
     "closest_points",
     "elevate_degree",

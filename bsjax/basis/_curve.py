@@ -100,10 +100,14 @@ class BSplineCurve(eqx.Module):
         return self.ctrl.shape[1]
 
     def with_ctrl(self, ctrl: ArrayLike) -> BSplineCurve:
-        """The same basis (and weights) with other control points (shape checked)."""
+        """The same basis (and weights) with other control points: an `eqx.tree_at` replacement
+        of `ctrl` (shape checked, values checked finite), so the knots are carried over as they
+        are — concrete or traced inside the caller's `jit` — and not checked again."""
+        _checks.check_real(ctrl, "ctrl")
         if np.shape(ctrl) != self.ctrl.shape:
             _checks.fail("ctrl", f"shape {self.ctrl.shape}", np.shape(ctrl))
-        return BSplineCurve.from_direction(ctrl, self.direction, self.weights)
+        ctrl = _checks.finite(jnp.asarray(ctrl, self.ctrl.dtype), "ctrl")
+        return eqx.tree_at(lambda curve: curve.ctrl, self, ctrl)
 
     # --- evaluation --------------------------------------------------------------------------
     @compiled

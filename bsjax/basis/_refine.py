@@ -116,17 +116,34 @@ def _check_times(times):
         _checks.fail("times", "an int >= 1", times)
 
 
-def _change_of_basis(old: SplineDirection, new: SplineDirection) -> np.ndarray:
-    """`T (n_new, n_old)` with `B_old ≈ B_new T`, by least-squares collocation at more
-    parameters than basis functions (exact when the new space contains the old one)."""
-    t = np.unique(np.concatenate([np.linspace(0, 1, 4 * (new.n_ctrl + 1)), greville(new.knots, new.degree)]))
-    a_old, a_new = (np.asarray(a, dtype=np.float64) for a in _collocation(old, new, jnp.asarray(t)))
+def change_of_basis(old: SplineDirection, new: SplineDirection) -> np.ndarray:
+    """The matrix `T (n_new, n_old)` with `B_old = B_new T`: control points in the basis `old`
+    become `T P` in the basis `new` (rational splines: apply it to homogeneous points `[w P, w]`).
+
+    Found by least-squares collocation of both bases at more parameters than basis functions
+    (a uniform grid of `4 (n_new + 1)` points and the Greville abscissae of `new`), exact to
+    rounding when the space of `new` contains that of `old` — the change of basis behind knot
+    insertion and degree elevation (The NURBS Book §§5.2, 5.5, and §10.3 for making sections
+    compatible); a least-squares approximation otherwise (degree reduction).
+
+    **Arguments:** `old`, `new`: clamped `SplineDirection`s with concrete knots.
+    **Returns:** a float64 numpy array `(new.n_ctrl, old.n_ctrl)`.
+    """
+    for direction, name in ((old, "old"), (new, "new")):
+        if not isinstance(direction, SplineDirection):
+            raise TypeError(f"{name}: expected a SplineDirection, got {type(direction).__name__}")
+        if direction.periodic:
+            _checks.fail(name, "a clamped direction (the periodic basis is uniform)", "periodic")
+    grid = np.linspace(0.0, 1.0, 4 * (new.n_ctrl + 1))
+    t = np.unique(np.concatenate([grid, np.asarray(greville(new.knots, new.degree), np.float64)]))
+    a_old, a_new = (np.asarray(a, dtype=np.float64) for a in _collocation(old, new, t))
     return np.linalg.lstsq(a_new, a_old, rcond=None)[0]
 
 
 @compiled
 def _collocation(old: SplineDirection, new: SplineDirection, t):
-    """Both bases at the collocation parameters, in one compiled call (not op by op)."""
+    """Both bases at the collocation parameters, in one compiled call (not op by op; `matrix`
+    is the unchecked kernel, so this call holds no run-time checks)."""
     return old.matrix(t), new.matrix(t)
 
 
@@ -147,7 +164,7 @@ def _rebase(spline, direction, new_knots, new_degree):
     dtype = spline.ctrl.dtype
     new = SplineDirection(new_knots, new_degree, dtype=dtype)
     axis = 1 if direction == "v" else 0
-    ctrl, weights = _rebase_net(spline.ctrl, spline.weights, _change_of_basis(old, new), axis)
+    ctrl, weights = _rebase_net(spline.ctrl, spline.weights, change_of_basis(old, new), axis)
     if direction is None:
         return BSplineCurve.from_direction(ctrl, new, weights)
     directions = {"u": spline.direction_u, "v": spline.direction_v, direction: new}

@@ -147,10 +147,14 @@ class BSplineSurface(eqx.Module):
         return _blending(self.direction_u, self.direction_v, pu, pv, self.weights)
 
     def with_ctrl(self, ctrl: ArrayLike) -> BSplineSurface:
-        """The same basis with another control net (shape checked)."""
+        """The same basis (and weights) with another control net: an `eqx.tree_at` replacement
+        of `ctrl` (shape checked, values checked finite), so the knots are carried over as they
+        are — concrete or traced inside the caller's `jit` — and not checked again."""
+        _checks.check_real(ctrl, "ctrl")
         if np.shape(ctrl) != self.ctrl.shape:
             _checks.fail("ctrl", f"shape {self.ctrl.shape}", np.shape(ctrl))
-        return BSplineSurface.from_directions(ctrl, self.direction_u, self.direction_v, self.weights)
+        ctrl = _checks.finite(jnp.asarray(ctrl, self.ctrl.dtype), "ctrl")
+        return eqx.tree_at(lambda surface: surface.ctrl, self, ctrl)
 
     @compiled
     def iso_curve(self, direction: str, value: ArrayLike) -> BSplineCurve:
