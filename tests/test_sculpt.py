@@ -268,3 +268,100 @@ def test_bad_input():
         sculpt.Derivative(0.5, [1.0, 0.0], order=3)
     with pytest.raises(TypeError, match=r"constraints\[0\]: expected Position"):
         sculpt.min_norm(c, ["Position(0.5)"])
+
+
+# --- nonlinear constraints ---------------------------------------------------------------------
+def test_solve_linear_equals_min_norm():
+    c = _curve(np.random.default_rng(20))
+    cons = [sculpt.Position(0.4, [0.5, 1.0]), sculpt.Fixed(0.0), sculpt.Derivative(0.8, [1.0, 0.2])]
+    free = np.arange(c.n_ctrl) != 3
+    a, b = sculpt.solve(c, cons, free), sculpt.min_norm(c, cons, free)
+    np.testing.assert_allclose(a.displacement, b.displacement, atol=1e-12)
+    assert int(a.status) == 0
+
+
+def test_distance_against_slsqp_and_kkt():
+    """Fig. 6-3: a distance changed from d0 to 1.2 d0 with two blocked points; the minimum-norm
+    displacement equals scipy's SLSQP minimiser of ‖d‖² under the same constraints."""
+    from scipy.optimize import minimize
+
+    c = _curve(np.random.default_rng(21), n=7)
+    p0, p1 = np.asarray(c.evaluate(0.3)), np.asarray(c.evaluate(0.7))
+    d0 = np.linalg.norm(p1 - p0)
+    cons = [sculpt.Distance(0.3, 0.7, 1.2 * d0), sculpt.Fixed(0.0), sculpt.Fixed(1.0)]
+    edit = sculpt.solve(c, cons)
+    q = np.asarray(edit.shape.evaluate(np.array([0.3, 0.7])))
+    np.testing.assert_allclose(np.linalg.norm(q[1] - q[0]), 1.2 * d0, rtol=1e-12)
+    assert int(edit.status) == 0 and int(edit.rank) == 5
+
+    knots = np.asarray(c.knots)
+    r = _rows(knots, 3, np.array([0.3, 0.7, 0.0, 1.0]))
+    ctrl = np.asarray(c.ctrl)
+
+    def dist(x):
+        moved = ctrl + x.reshape(ctrl.shape)
+        return np.linalg.norm((r[1] - r[0]) @ moved) - 1.2 * d0
+
+    eqs = [
+        {"type": "eq", "fun": dist},
+        {"type": "eq", "fun": lambda x: (r[2:] @ x.reshape(ctrl.shape)).ravel()},
+    ]
+    ref = minimize(
+        lambda x: x @ x, np.zeros(ctrl.size), constraints=eqs, method="SLSQP", options={"ftol": 1e-14}
+    )
+    np.testing.assert_allclose(np.asarray(edit.displacement).ravel(), ref.x, atol=1e-6)
+
+
+def test_tangent_parallel_and_normal_angle_met():
+    c = _curve(np.random.default_rng(22))
+    cons = [
+        sculpt.TangentParallel(0.5, [1.0, 1.0]),
+        sculpt.NormalAngle(0.2, [0.0, 1.0], 0.3),
+        sculpt.Fixed(0.9),
+    ]
+    edit = sculpt.solve(c, cons)
+    t = np.asarray(edit.shape.evaluate(0.5, 1))
+    assert abs(t[0] - t[1]) < 1e-10 * np.linalg.norm(t)
+    t2 = np.asarray(edit.shape.evaluate(0.2, 1))
+    n = np.array([-t2[1], t2[0]]) / np.linalg.norm(t2)
+    np.testing.assert_allclose(n[1], np.cos(0.3), atol=1e-10)
+    assert int(edit.status) == 0
+
+
+def test_on_surface_contact():
+    rng = np.random.default_rng(23)
+    s = random_surface(rng, r=5, s=5)
+    c = _curve(rng, dim=3)
+    edit = sculpt.solve(c, [sculpt.OnSurface(0.5, s)], max_steps=16)
+    p = np.asarray(edit.shape.evaluate(0.5))
+    from bsjax.basis import closest_points
+
+    assert float(closest_points(s, p[None]).distances[0]) < 1e-9
+    assert int(edit.status) == 0
+
+
+def test_solve_gradient_implicit():
+    c = _curve(np.random.default_rng(24), n=7)
+    d0 = float(np.linalg.norm(np.asarray(c.evaluate(0.3)) - np.asarray(c.evaluate(0.7))))
+
+    def energy(d):
+        edit = sculpt.solve(c, [sculpt.Distance(0.3, 0.7, d), sculpt.Fixed(0.0), sculpt.Fixed(1.0)])
+        return jnp.sum(edit.displacement**2)
+
+    check_grad(energy, jnp.asarray(1.3 * d0), eps=1e-6, rtol=1e-4, n_dirs=1)
+
+
+def test_solve_bad_input():
+    c = _curve(np.random.default_rng(25))
+    raises_both(
+        lambda d: sculpt.solve(c, [sculpt.Distance(0.3, 0.7, d)]),
+        jnp.asarray(-1.0),
+        match=r"constraints\[0\]\.d: expected finite values >= 0",
+    )
+    raises_both(
+        lambda a: sculpt.solve(c, [sculpt.NormalAngle(0.3, [0.0, 1.0], a)]),
+        jnp.asarray(4.0),
+        match=r"constraints\[0\]\.angle: expected values in \[0.0, 3.14",
+    )
+    with pytest.raises(ValueError, match="max_steps: expected an int >= 1"):
+        sculpt.solve(c, [sculpt.Fixed(0.5)], max_steps=0)
