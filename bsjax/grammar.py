@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from bsjax import _checks, _safe
+from bsjax import _checks, _safe, sculpt
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineCurve
 
@@ -916,3 +916,235 @@ def point_parameters(
         kind=points.kind,
         valid=valid,
     )
+
+
+# --- operators as constraint sets (thesis §7.2, §7.4, §7.5) ----------------------------------------
+class OperatorResult(eqx.Module):
+    """Result of a shape operator.
+
+    **Fields:** `curve` (the edited curve); `before`, `after` — the symbol strings of the input
+    and of the curve actually produced (`symbols`, never the intended name); `status` — the
+    `sculpt.min_norm` status (0 every constraint met, 1 over-constrained / least squares);
+    `dof_needed` — the scalar equations of the constraint set, i.e. the degrees of freedom it
+    needs (a planar curve has 2 per free control point; thesis §7.5: the softness example needs
+    14, infeasible on 5 control points, fine on 9).
+    """
+
+    curve: BSplineCurve
+    before: str = eqx.field(static=True)
+    after: str = eqx.field(static=True)
+    status: int = eqx.field(static=True)
+    dof_needed: int = eqx.field(static=True)
+
+
+def _amount(amount) -> float:
+    return float(_checks.positive(np.asarray(amount, dtype=np.float64), "amount"))
+
+
+def _reading(curve, closed):
+    """The simplified characteristic points as host lists (t, kind symbol, κ) and `closed`."""
+    curve = _planar(curve)
+    closed = _closed(curve, closed)
+    pts = simplify(characteristic_points(curve, closed))
+    n = int(pts.count)
+    t = np.asarray(pts.params)[:n].tolist()
+    return curve, closed, t, pts.symbols()
+
+
+def _neighbour_extrema(t, kinds, index, closed):
+    """Parameters of the nearest extrema before and after characteristic point `index` (open
+    curves: the end parameter when there is none)."""
+    n = len(t)
+    before, after = [], []
+    for step, out in ((-1, before), (1, after)):
+        k = index + step
+        while (0 <= k < n or closed) and len(out) < 1 and abs(k - index) < n:
+            if kinds[k % n] != "0":
+                out.append(t[k % n])
+            k += step
+    return (before or [0.0])[0], (after or [1.0])[0]
+
+
+def _at(curve, closed, index, want):
+    shape_t = _reading(curve, closed)
+    curve, closed, t, kinds = shape_t
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+        raise TypeError(f"index: expected an int, got {type(index).__name__}")
+    if not 0 <= index < len(t):
+        _checks.fail("index", f"a characteristic point index in 0..{len(t) - 1} of {''.join(kinds)!r}", index)
+    if want is not None and kinds[index] not in want:
+        _checks.fail("index", f"a point of kind {' or '.join(want)}", f"{kinds[index]} at {index}")
+    return curve, closed, t, kinds
+
+
+def _run(curve, closed, constraints, before_kinds) -> OperatorResult:
+    edit = sculpt.min_norm(curve, constraints)
+    before = "".join(before_kinds)
+    if closed:
+        before = symbols(curve, closed)
+    dof = sum(int(np.size(np.asarray(c.u))) for c in constraints) * curve.dim
+    return OperatorResult(
+        curve=edit.shape,
+        before=before,
+        after=symbols(edit.shape, closed),
+        status=int(edit.status),
+        dof_needed=dof,
+    )
+
+
+def _ends(closed):
+    return [] if closed else [sculpt.Fixed(0.0), sculpt.Fixed(1.0)]
+
+
+def _tangents(curve, ts):
+    values = curve.evaluate(jnp.asarray(ts), 1)
+    return [sculpt.Derivative(u, values[i]) for i, u in enumerate(ts)]
+
+
+def _normal_push(curve, closed, index, amount, sign, want, keep_tangents=False) -> OperatorResult:
+    curve, closed, t, kinds = _at(curve, closed, index, want)
+    left, right = _neighbour_extrema(t, kinds, index, closed)
+    constraints = [
+        sculpt.AlongNormal(t[index], sign * _amount(amount)),
+        sculpt.Fixed(left),
+        sculpt.Fixed(right),
+    ]
+    if keep_tangents:
+        constraints += _tangents(curve, [left, right])
+    return _run(curve, closed, constraints + _ends(closed), kinds)
+
+
+def continuation(
+    curve: BSplineCurve, index: int, amount: float, closed: bool | None = None
+) -> OperatorResult:
+    """Leyton's continuation at characteristic point `index` (thesis eq. 7-2, §7.2): `Cm+`
+    (m+ → 0m-0) at an m+, `CM-` (M- → 0M+0) at an M-.
+
+    Constraint set (§7.2): `ΔP(u1) = ±amount · n(u1)` along the left unit normal (inwards for a
+    counter-clockwise curve: κ at u1 decreases for Cm+, increases for CM-), the neighbouring
+    extrema blocked `ΔP(u_L) = ΔP(u_R) = 0` (open curves: their ends too), solved by
+    `sculpt.min_norm`. `amount` ≥ 0 is the drag length; the symbol change needs it past a
+    threshold, and too large an amount self-intersects (thesis §7.2) — read `after`.
+    """
+    curve, closed, _t, kinds = _at(curve, closed, index, ("m+", "M-"))
+    sign = 1.0 if kinds[index] == "m+" else -1.0
+    return _normal_push(curve, closed, index, amount, sign, None)
+
+
+def bifurcation(curve: BSplineCurve, index: int, amount: float, closed: bool | None = None) -> OperatorResult:
+    """Leyton's bifurcation at characteristic point `index` (thesis eq. 7-2, §7.2): `BM+`
+    (M+ → M+m+M+), `BM-` (M- → M-m-M-) lower κ at the point (`ΔP(u1) = +amount · n`),
+    `Bm+` (m+ → m+M+m+), `Bm-` (m- → m-M-m-) raise it (`−amount · n`); the neighbouring
+    extrema blocked (the thesis's fixed `ΔP(u_O2) = ΔP(u_O3) = 0`)."""
+    curve, closed, _t, kinds = _at(curve, closed, index, None)
+    if kinds[index] == "0":
+        _checks.fail("index", "a curvature extremum (M+, m+, M-, m-)", f"an inflection at {index}")
+    sign = 1.0 if kinds[index][0] == "M" else -1.0
+    return _normal_push(curve, closed, index, amount, sign, None)
+
+
+def sharpen(curve: BSplineCurve, index: int, amount: float, closed: bool | None = None) -> OperatorResult:
+    """Sharpness C*M+ (thesis §7.4): raise κ at extremum `index` by dragging it outwards,
+    `ΔP(u) = −amount · n(u)`, with positions and tangents of the neighbouring extrema fixed (and
+    the ends of an open curve): no new characteristic points. The §7.5 example — 2 end
+    positions, positions and tangents of the two neighbours, the drag — is 14 scalar equations."""
+    return _normal_push(curve, closed, index, amount, -1.0, ("M+", "m+", "M-", "m-"), keep_tangents=True)
+
+
+def soften(curve: BSplineCurve, index: int, amount: float, closed: bool | None = None) -> OperatorResult:
+    """Softness (thesis §7.4): lower κ at extremum `index`, `ΔP(u) = +amount · n(u)`, with the
+    same fixed positions and tangents as `sharpen`."""
+    return _normal_push(curve, closed, index, amount, 1.0, ("M+", "m+", "M-", "m-"), keep_tangents=True)
+
+
+def straighten(
+    curve: BSplineCurve, index: int, amount: float = 1.0, closed: bool | None = None
+) -> OperatorResult:
+    """Straightness (thesis §7.4): pull characteristic point `index` towards the chord of its
+    neighbouring extrema by the fraction `amount` ∈ [0, 1] (1: onto the chord), the neighbours
+    blocked — the inverse continuation that removes a small-visibility codon "0m-0"."""
+    curve, closed, t, kinds = _at(curve, closed, index, None)
+    fraction = float(_checks.in_range(np.asarray(amount, dtype=np.float64), "amount", 0.0, 1.0))
+    left, right = _neighbour_extrema(t, kinds, index, closed)
+    p, a, b = np.asarray(curve.evaluate(jnp.asarray([t[index], left, right])))
+    chord = b - a
+    foot = a + chord * (np.dot(p - a, chord) / max(float(np.dot(chord, chord)), 1e-300))
+    constraints = [
+        sculpt.Displacement(t[index], fraction * (foot - p)),
+        sculpt.Fixed(left),
+        sculpt.Fixed(right),
+    ]
+    return _run(curve, closed, constraints + _ends(closed), kinds)
+
+
+def convexify(curve: BSplineCurve, amount: float) -> OperatorResult:
+    """Convexity (thesis §7.4) of an open curve: move its lowest-κ extremum by `amount` across
+    the end chord, `ΔP(u_m) = amount · ν` with ν the chord's right unit normal (the side a
+    left-turning, convex curve bulges to), the ends blocked, each inflection displaced along ν
+    by `amount · (1 − D / D_end)` (D its arc distance to u_m, D_end that of the end on its side;
+    the thesis's `λ_L = D_L` weights, normalised)."""
+    curve, _, t, kinds = _reading(curve, False)
+    step = _amount(amount)
+    values = np.asarray(curve.curvature(jnp.asarray(t))) if t else np.zeros(0)
+    extrema = [i for i, k in enumerate(kinds) if k != "0"]
+    if not extrema:
+        _checks.fail("curve", "an open curve with a curvature extremum", f"symbols {''.join(kinds)!r}")
+    middle = min(extrema, key=lambda i: values[i])
+    a, b = np.asarray(curve.evaluate(jnp.asarray([0.0, 1.0])))
+    chord = (b - a) / np.linalg.norm(b - a)
+    nu = np.array([chord[1], -chord[0]])
+    s = np.asarray(_arc_table(curve, jnp.asarray([0.0, t[middle], 1.0] + t)))
+    constraints = [sculpt.Displacement(t[middle], step * nu)]
+    for i, k in enumerate(kinds):
+        if k == "0":
+            end = s[0] if t[i] < t[middle] else s[2]
+            weight = 1 - abs(s[3 + i] - s[1]) / max(abs(end - s[1]), 1e-300)
+            constraints.append(sculpt.Displacement(t[i], step * weight * nu))
+    return _run(curve, False, constraints + _ends(False), kinds)
+
+
+@compiled
+def _arc_table(curve: BSplineCurve, t):
+    return _arc_length(curve, 256).at(curve, t)
+
+
+def tension(
+    curve: BSplineCurve, index: int, amount: float = 1.0, closed: bool | None = None
+) -> OperatorResult:
+    """Tension (thesis §7.4): C*m+ (or C*M-) driving κ at extremum `index` towards 0 —
+    to `(1 − amount) · κ` (`amount` ∈ [0, 1]; 1: a flat point) — by a normal drag with the
+    neighbouring extrema blocked; the drag length is found by Newton's method on κ (linear
+    edit, nonlinear κ: 12 steps)."""
+    curve, closed, t, kinds = _at(curve, closed, index, ("m+", "M-", "M+", "m-"))
+    fraction = float(_checks.in_range(np.asarray(amount, dtype=np.float64), "amount", 0.0, 1.0))
+    left, right = _neighbour_extrema(t, kinds, index, closed)
+    unit = [sculpt.AlongNormal(t[index], 1.0), sculpt.Fixed(left), sculpt.Fixed(right)] + _ends(closed)
+    shift = sculpt.min_norm(curve, unit).displacement
+    goal = (1 - fraction) * float(curve.curvature(t[index]))
+    step = float(_newton_drag(curve, shift, jnp.asarray(t[index]), jnp.asarray(goal)))
+    constraints = [sculpt.AlongNormal(t[index], step)] + unit[1:]
+    return _run(curve, closed, constraints, kinds)
+
+
+@compiled
+def _newton_drag(curve: BSplineCurve, shift, u, goal):
+    def kappa(step):
+        moved = eqx.tree_at(lambda c: c.ctrl, curve, curve.ctrl + step * shift)
+        return _kappa(moved, u[None])[0] - goal
+
+    def newton(_, step):
+        value, slope = jax.jvp(kappa, (step,), (jnp.ones_like(step),))
+        return step - _safe.ratio(value, slope)
+
+    return jax.lax.fori_loop(0, 12, newton, jnp.zeros_like(goal))
+
+
+def accelerate(curve: BSplineCurve, amount: float) -> OperatorResult:
+    """Acceleration (thesis §7.4, Fig. 7-21) of an open curve: the end tangent at u = 1 grows by
+    the factor `1 + amount` (`∂P/∂u(1) = β`), the tangent at u = 0 is frozen
+    (`Δ∂P/∂u(0) = 0`), both end points blocked: curvature moves towards the start."""
+    curve, _, _t, kinds = _reading(curve, False)
+    step = _amount(amount)
+    d0, d1 = np.asarray(curve.evaluate(jnp.asarray([0.0, 1.0]), 1))
+    constraints = [sculpt.Derivative(0.0, d0), sculpt.Derivative(1.0, (1 + step) * d1)]
+    return _run(curve, False, constraints + _ends(False), kinds)
