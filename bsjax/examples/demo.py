@@ -257,22 +257,32 @@ def run(out: Path, quick: bool = False) -> dict:
     sizes = QUICK if quick else FULL
     float64 = bool(jax.config.read("jax_enable_x64"))
     report: dict = {"jax_backend": jax.default_backend(), "float64": float64, "quick": quick, "sizes": sizes}
-    t0 = time.perf_counter()
-    print(f"[1/4] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
-    named = shapes_step(out, report)
-    print("[2/4] bend the spoon handle (plasticine lattice, plane clamp, sphere push) and merge the bowl …")
-    bent, placed, merged, dev = bend_and_merge_step(
-        out, report, named["spoon_handle"], named["spoon_bowl"], sizes
-    )
-    from bsjax import io
+    from bsjax.cli import _progress
 
-    io.save([bent, placed, merged], out / "spoon.3dm")
-    io.save(merged, out / "spoon.glb")
-    io.save(merged, out / "spoon.json")
-    print("[3/4] jelly thrown into the tilted bowl; jax.grad finds the tilt that keeps it in …")
-    hm, finals = jelly_step(out, report, bent, placed, merged, sizes)
-    print("[4/4] pictures …")
-    pictures_step(out, bent, placed, merged, dev, hm, finals)
+    t0 = time.perf_counter()
+    with _progress.bar("demo steps") as progress:  # a bar on a terminal (stderr) only
+        tick = progress or (lambda done, total: None)
+        print(f"[1/4] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
+        named = shapes_step(out, report)
+        tick(1, 4)
+        print(
+            "[2/4] bend the spoon handle (plasticine lattice, plane clamp, sphere push) and merge the bowl …"
+        )
+        bent, placed, merged, dev = bend_and_merge_step(
+            out, report, named["spoon_handle"], named["spoon_bowl"], sizes
+        )
+        from bsjax import io
+
+        io.save([bent, placed, merged], out / "spoon.3dm")
+        io.save(merged, out / "spoon.glb")
+        io.save(merged, out / "spoon.json")
+        tick(2, 4)
+        print("[3/4] jelly thrown into the tilted bowl; jax.grad finds the tilt that keeps it in …")
+        hm, finals = jelly_step(out, report, bent, placed, merged, sizes)
+        tick(3, 4)
+        print("[4/4] pictures …")
+        pictures_step(out, bent, placed, merged, dev, hm, finals)
+        tick(4, 4)
     report["total_seconds"] = time.perf_counter() - t0
     (out / "report.json").write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False))
     return report
