@@ -3,7 +3,6 @@ trims and orientation, extrusions, blocks, STEP/IGES through OCCT. Every file is
 with rhino3dm or OCCT, and every loaded surface is compared with the file's own evaluator
 (OpenNURBS `PointAt`, OCCT `Value`)."""
 
-
 import numpy as np
 import pytest
 import rhino3dm
@@ -215,3 +214,162 @@ def test_bad_options_are_named():
         io.load_all("x.3dm", trims="yes")
     with pytest.raises(FileNotFoundError, match="absent.step"):
         io.load_all("absent.step")
+
+
+# --- 3. STEP and IGES through OCCT ------------------------------------------------------------
+def _occt_solids():
+    """A box with a through hole (planes with a trimmed hole, a reversed cylinder), a sphere, a
+    cone and a torus: every analytic surface STEP holds."""
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut
+    from OCP.BRepPrimAPI import (
+        BRepPrimAPI_MakeBox,
+        BRepPrimAPI_MakeCone,
+        BRepPrimAPI_MakeCylinder,
+        BRepPrimAPI_MakeSphere,
+        BRepPrimAPI_MakeTorus,
+    )
+    from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt
+    from OCP.TopoDS import TopoDS_Compound
+
+    box = BRepPrimAPI_MakeBox(4.0, 3.0, 2.0).Shape()
+    hole = BRepPrimAPI_MakeCylinder(gp_Ax2(gp_Pnt(2, 1.5, -1), gp_Dir(0, 0, 1)), 0.7, 4.0).Shape()
+    compound, builder = TopoDS_Compound(), BRep_Builder()
+    builder.MakeCompound(compound)
+    for shape in (
+        BRepAlgoAPI_Cut(box, hole).Shape(),
+        BRepPrimAPI_MakeSphere(gp_Pnt(10, 0, 0), 1.5).Shape(),
+        BRepPrimAPI_MakeCone(gp_Ax2(gp_Pnt(0, 10, 0), gp_Dir(0, 0, 1)), 2.0, 0.5, 3.0).Shape(),
+        BRepPrimAPI_MakeTorus(gp_Ax2(gp_Pnt(0, -10, 0), gp_Dir(0, 1, 0)), 3.0, 0.8).Shape(),
+    ):
+        builder.Add(compound, shape)
+    return compound
+
+
+def _occt_write(shape, path):
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+    writer = STEPControl_Writer()
+    writer.Transfer(shape, STEPControl_AsIs)
+    writer.Write(str(path))
+    return path
+
+
+def _occt_faces(path):
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    reader = STEPControl_Reader()
+    reader.ReadFile(str(path))
+    reader.TransferRoots()
+    explorer, faces = TopExp_Explorer(reader.OneShape(), TopAbs_FACE), []
+    while explorer.More():
+        faces.append(TopoDS.Face(explorer.Current()))
+        explorer.Next()
+    return faces
+
+
+def _distance_to_face_surface(face, points):
+    """OCCT's own point inversion (`GeomAPI_ProjectPointOnSurf`) onto the face's surface."""
+    from OCP.BRep import BRep_Tool
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+
+    geom = BRep_Tool.Surface_s(face)
+    return max(GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, p)), geom).LowerDistance() for p in points)
+
+
+def test_step_analytic_faces_load_as_exact_nurbs_with_trims_and_orientation(tmp_path):
+    from OCP.TopAbs import TopAbs_REVERSED
+
+    path = _occt_write(_occt_solids(), tmp_path / "solids.step")
+    faces = _occt_faces(path)
+    loaded = io.load_all(path, trims=True)
+    assert loaded.units == "mm" and len(loaded) == len(faces) == 7 + 1 + 3 + 1
+    u, v = np.meshgrid(np.linspace(0, 1, 7), np.linspace(0, 1, 7), indexing="ij")
+    for face, obj in zip(faces, loaded):
+        points = np.asarray(obj.geometry.evaluate(u, v)).reshape(-1, 3)
+        assert _distance_to_face_surface(face, points) < 1e-9
+        assert obj.reversed == (face.Orientation() == TopAbs_REVERSED)
+    trimmed = [o for o in loaded if o.trim is not None]  # the box's top and bottom, the cone's caps
+    assert sorted(o.trim.outer for o in trimmed) == [(True,), (True,), (True, False), (True, False)]
+    holed = [o for o in trimmed if len(o.trim.outer) == 2]
+    for obj in holed:  # the hole of radius 0.7 about (2, 1.5) on the 4 × 3 faces
+        (u0, u1), (v0, v1) = obj.domain
+        x, y = np.meshgrid(np.linspace(0.05, 3.95, 40), np.linspace(0.05, 2.95, 30), indexing="ij")
+        s, t = (x - u0) / (u1 - u0), (y - v0) / (v1 - v0)
+        if u1 - u0 < 3.5:  # the face's u runs along y
+            s, t = (y - u0) / (u1 - u0), (x - v0) / (v1 - v0)
+        outside_hole = np.hypot(x - 2, y - 1.5) > 0.7
+        clear = np.abs(np.hypot(x - 2, y - 1.5) - 0.7) > 0.01  # polyline chords: 1e-3 deep
+        np.testing.assert_array_equal(np.asarray(obj.mask(s, t))[clear], outside_hole[clear])
+
+
+@pytest.mark.parametrize("ext", [".step", ".igs", ".3dm", ".json"])
+def test_step_model_round_trips(tmp_path, ext):
+    """STEP → bsjax → `ext` → bsjax: the same surfaces, orientation and trimmed regions."""
+    loaded = io.load_all(_occt_write(_occt_solids(), tmp_path / "solids.step"), trims=True)
+    back = io.load_all(io.save(loaded, tmp_path / f"back{ext}"), trims=True)
+    assert back.units == "mm" and len(back) == len(loaded)
+    u, v = np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 9), indexing="ij")
+    for a, b in zip(loaded, back):
+        ours, theirs = np.asarray(a.geometry.evaluate(u, v)), np.asarray(b.geometry.evaluate(u, v))
+        np.testing.assert_allclose(theirs, ours, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(b.domain, a.domain, rtol=0, atol=1e-9)
+        if ext != ".igs":  # OCCT's IGES reader does not keep a face's orientation
+            assert a.reversed == b.reversed
+        assert (a.trim is None) == (b.trim is None)
+        if a.trim is not None:
+            s, t = np.meshgrid(np.linspace(0.01, 0.99, 50), np.linspace(0.01, 0.99, 50), indexing="ij")
+            assert np.mean(np.asarray(a.mask(s, t)) != np.asarray(b.mask(s, t))) < 0.01
+
+
+def test_step_written_from_rhino_matches_opennurbs_and_occt(tmp_path):
+    """A closed non-uniform periodic Rhino surface through .3dm → STEP: OCCT's evaluator of the
+    written file (`BRepAdaptor_Surface.Value`) agrees with OpenNURBS's `PointAt` on the original."""
+    from OCP.BRepAdaptor import BRepAdaptor_Surface
+
+    srf = _unclamped_surface(np.random.default_rng(7), 3, 2, 9, 5, True, True)
+    loaded = io.load_all(_write(tmp_path, "u.3dm", srf))
+    step = io.save(loaded, tmp_path / "u.step")
+    (face,) = _occt_faces(step)
+    adaptor = BRepAdaptor_Surface(face)
+    (u0, u1), (v0, v1) = loaded.objects[0].domain
+    t = np.linspace(0, 1, 13)
+    occt = np.array(
+        [[_xyz_occt(adaptor.Value(u0 + (u1 - u0) * a, v0 + (v1 - v0) * b)) for b in t] for a in t]
+    )
+    theirs = _rhino_grid(srf)
+    np.testing.assert_allclose(occt, theirs, rtol=0, atol=1e-10 * np.abs(theirs).max())
+    again = io.load_all(step)
+    _assert_same_surface(again[0], srf)
+    np.testing.assert_allclose(again.objects[0].domain, loaded.objects[0].domain, rtol=0, atol=1e-12)
+
+
+def _xyz_occt(p):
+    return (p.X(), p.Y(), p.Z())
+
+
+def test_step_units_are_kept(tmp_path):
+    srf = _rhino_primitives()["cylinder"]
+    loaded = io.load_all(_write(tmp_path, "m.3dm", srf, units=rhino3dm.UnitSystem.Meters))
+    assert loaded.units == "m"
+    for ext in (".step", ".igs"):
+        again = io.load_all(io.save(loaded, tmp_path / f"m{ext}"))
+        assert again.units == "m"
+        _assert_same_surface(again[0], srf, 1e-10 if ext == ".step" else 1e-8)  # OCCT's IGES: 10 digits
+        mm = io.load_all(tmp_path / f"m{ext}", units="mm")
+        np.testing.assert_allclose(np.asarray(mm[0].ctrl), 1000 * np.asarray(again[0].ctrl), rtol=1e-14)
+
+
+def test_step_curves_load(tmp_path):
+    circle = rhino3dm.NurbsCurve.CreateFromCircle(rhino3dm.Circle(rhino3dm.Point3d(1, 2, 3), 2.0))
+    loaded = io.load_all(_write(tmp_path, "c.3dm", circle))
+    again = io.load_all(io.save(loaded, tmp_path / "c.step"))
+    assert isinstance(again[0], BSplineCurve)
+    t = np.linspace(0, 1, 21)
+    np.testing.assert_allclose(
+        np.asarray(again[0].evaluate(t)), np.asarray(loaded[0].evaluate(t)), atol=1e-12
+    )

@@ -81,8 +81,8 @@ class Trim(eqx.Module):
         segments, sizes = [], []
         for k, loop in enumerate(loops):
             loop = np.asarray(loop, dtype=np.float64)
-            _checks.check_ndim(loop, 2, f"loops[{k}]")
-            if loop.shape[1] != 2 or loop.shape[0] < 3:
+            _checks.check_ndim(loop, f"loops[{k}]", 2, last=2)
+            if loop.shape[0] < 3:
                 _checks.fail(f"loops[{k}]", "a closed polyline of shape (k >= 3, 2)", loop.shape)
             if np.array_equal(loop[0], loop[-1]):
                 loop = loop[:-1]
@@ -107,7 +107,8 @@ class Trim(eqx.Module):
         **Returns:** a boolean array of that shape.
         """
         u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
-        (u0, v0), (u1, v1) = self.segments[:, 0].T, self.segments[:, 1].T
+        lead = (1,) * u.ndim  # explicit broadcasting (rank promotion may be off)
+        u0, v0, u1, v1 = (self.segments[:, i, j].reshape(*lead, -1) for i in (0, 1) for j in (0, 1))
         pu, pv = u[..., None], v[..., None]
         straddles = (v0 > pv) != (v1 > pv)
         dv = jnp.where(straddles, v1 - v0, 1.0)

@@ -236,7 +236,7 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
             ts = ts[::-1] if trim.IsReversed else ts
             pieces.append(np.array([[*edge.PointAt(float(t))] for t in ts]))
         points = np.concatenate(pieces)
-        uv = np.asarray(closest_points(surface, points.astype(surface.ctrl.dtype)).uv, dtype=np.float64)
+        uv = np.asarray(closest_points(surface, points.astype(surface.ctrl.dtype)).params, dtype=np.float64)
         loops.append(uv)
         outer.append(str(loop.LoopType).endswith("Outer"))
     return Trim.from_loops(loops, outer)

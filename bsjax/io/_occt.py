@@ -1,0 +1,460 @@
+"""STEP and IGES through OCCT (OCP, the `cad` extra): B-spline and analytic faces with their
+trims and orientation, free curves, units.
+
+* Reading: every face of the file's shapes (shells and solids included). A B-spline face keeps its
+  surface exactly (a periodic or unclamped direction clamped by knot insertion, `_knots.clamp`);
+  an analytic one (plane, cylinder, cone, sphere, torus, revolution, extrusion, offset) is turned
+  into its exact NURBS over the face's parameter bounds by `GeomConvert`. Trim loops are the
+  faces' pcurves sampled (`EDGE_SAMPLES` per edge) and mapped into the NURBS's [0, 1]²: linearly
+  for a B-spline face, by closest-point projection (a local Gauss–Newton from the linear guess,
+  `bsjax.basis.closest_points`) where `GeomConvert` changed the parametrisation (circles become
+  rational arcs). A face whose orientation is `TopAbs_REVERSED` is flagged `reversed`. Free edges
+  load as `BSplineCurve`s; free vertices and anything else are reported.
+* Units: OCCT converts lengths into its session unit while reading; the session unit is set to the
+  file's own (`FileUnits`) for the transfer, so the numbers are the file's and `units` names them.
+* Writing: clamped B-spline surfaces over the stored domain (a periodic direction clamped first),
+  a `Trim` written as degree-1 pcurves (outer loop counter-clockwise, holes clockwise), a reversed
+  face reversed, curves as edges; the file's unit is bsjax's.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from bsjax import _checks
+from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
+from bsjax.io import _knots
+from bsjax.io._cad import CadList, CadObject, Trim, unit_scale
+
+EDGE_SAMPLES = 33
+_OCCT_UNITS = {"mm": "MM", "cm": "CM", "m": "M", "km": "KM", "in": "INCH", "ft": "FT", "mi": "MI", "um": "UM"}
+_STEP_NAMES = {  # unit names FileUnits reports → ours
+    "millimetre": "mm",
+    "millimeter": "mm",
+    "centimetre": "cm",
+    "centimeter": "cm",
+    "metre": "m",
+    "meter": "m",
+    "kilometre": "km",
+    "kilometer": "km",
+    "inch": "in",
+    "foot": "ft",
+    "mile": "mi",
+    "micrometre": "um",
+    "micrometer": "um",
+}
+
+
+# --- reading ------------------------------------------------------------------------------
+def _array1(arr) -> np.ndarray:
+    return np.array([arr.Value(i) for i in range(arr.Lower(), arr.Upper() + 1)], dtype=np.float64)
+
+
+def bspline_surface(bs):
+    """A `Geom_BSplineSurface` → `(BSplineSurface, ((u0, u1), (v0, v1)))`, clamped."""
+    bs = bs.Copy()
+    if bs.IsUPeriodic() or bs.IsVPeriodic():
+        bs.Segment(*bs.Bounds())  # one period, no longer periodic (the knot sequence is then a plain one)
+    r, s = bs.NbUPoles(), bs.NbVPoles()
+    hom = np.empty((r, s, 4))
+    for i in range(r):
+        for j in range(s):
+            p, w = bs.Pole(i + 1, j + 1), bs.Weight(i + 1, j + 1)
+            hom[i, j] = (p.X() * w, p.Y() * w, p.Z() * w, w)
+    degrees = (bs.UDegree(), bs.VDegree())
+    knots, domain = {}, {}
+    for axis, seq in enumerate((bs.UKnotSequence(), bs.VKnotSequence())):
+        full = _array1(seq)
+        hom, knots[axis], domain[axis] = _knots.clamp(hom, full, degrees[axis], axis)
+    w = hom[..., 3]
+    weights = None if bool(np.all(w == 1.0)) else w
+    surface = BSplineSurface(hom[..., :3] / w[..., None], knots[0], knots[1], *degrees, weights=weights)
+    return surface, (domain[0], domain[1])
+
+
+def bspline_curve(bc):
+    """A `Geom_BSplineCurve` → `(BSplineCurve, ((t0, t1),))`, clamped."""
+    bc = bc.Copy()
+    if bc.IsPeriodic():
+        bc.SetNotPeriodic()
+    n = bc.NbPoles()
+    hom = np.array([(*_xyz(bc.Pole(i + 1)), 1.0) for i in range(n)], dtype=np.float64)
+    w = np.array([bc.Weight(i + 1) for i in range(n)])
+    hom[:, :3] *= w[:, None]
+    hom[:, 3] = w
+    hom, knots, domain = _knots.clamp(hom, _array1(bc.KnotSequence()), bc.Degree())
+    w = hom[:, 3]
+    weights = None if bool(np.all(w == 1.0)) else w
+    return BSplineCurve(hom[:, :3] / w[:, None], knots, bc.Degree(), False, weights), (domain,)
+
+
+def _xyz(p):
+    return (p.X(), p.Y(), p.Z())
+
+
+def _face(face, trims: bool):
+    """One `TopoDS_Face` → `(CadObject fields, trimmed)`."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepTools import BRepTools
+    from OCP.Geom import Geom_BSplineSurface, Geom_RectangularTrimmedSurface
+    from OCP.GeomConvert import GeomConvert
+    from OCP.TopAbs import TopAbs_REVERSED
+
+    geom = BRep_Tool.Surface_s(face)
+    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    exact = isinstance(geom, Geom_BSplineSurface)
+    if not exact:
+        # a closed face's bounds may exceed the period by the file's rounding (6.28318530718)
+        # (and OCCT's periodic conversion fails on a start of -4e-13): snap a full period
+        if geom.IsUPeriodic() and u1 - u0 > geom.UPeriod() * (1 - 1e-9):
+            u0 = round(u0, 9) + 0.0
+            u1 = u0 + geom.UPeriod()
+        if geom.IsVPeriodic() and v1 - v0 > geom.VPeriod() * (1 - 1e-9):
+            v0 = round(v0, 9) + 0.0
+            v1 = v0 + geom.VPeriod()
+        geom = GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geom, u0, u1, v0, v1))
+    surface, domain = bspline_surface(geom)
+    if not exact:  # the converted NURBS spans the face's bounds: that is its domain in the file
+        domain = ((u0, u1), (v0, v1))
+    loops, outer = _face_loops(face)
+    lo, hi = np.array([domain[0][0], domain[1][0]]), np.array([domain[0][1], domain[1][1]])
+    loops01 = [(uv - lo) / (hi - lo) for uv in loops]
+    trimmed = len(loops) > 1 or any(bool(np.any(np.all(_interior(x), axis=1))) for x in loops01)
+    trim = None
+    if trims and trimmed:
+        if not exact:
+            loops01 = [
+                _project_loop(surface, BRep_Tool.Surface_s(face), uv, x) for uv, x in zip(loops, loops01)
+            ]
+        trim = Trim.from_loops(loops01, outer)
+    return surface, domain, face.Orientation() == TopAbs_REVERSED, trim, trimmed
+
+
+def _interior(x):
+    return (x > 1e-9) & (x < 1 - 1e-9)
+
+
+def _face_loops(face):
+    """Each wire of `face` as a polyline in the surface's own (u, v), and whether it is outer."""
+    from OCP.BRepAdaptor import BRepAdaptor_Curve2d
+    from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
+    from OCP.TopAbs import TopAbs_REVERSED, TopAbs_WIRE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    outer_wire = BRepTools.OuterWire_s(face)
+    loops, outer = [], []
+    explorer = TopExp_Explorer(face, TopAbs_WIRE)
+    while explorer.More():
+        wire = TopoDS.Wire(explorer.Current())
+        pieces, edges = [], BRepTools_WireExplorer(wire, face)
+        while edges.More():
+            edge = edges.Current()
+            curve = BRepAdaptor_Curve2d(edge, face)
+            ts = _edge_parameters(curve)
+            ts = ts[::-1] if edge.Orientation() == TopAbs_REVERSED else ts
+            pieces.append(np.array([(lambda p: (p.X(), p.Y()))(curve.Value(float(t))) for t in ts]))
+            edges.Next()
+        loops.append(np.concatenate(pieces))
+        outer.append(wire.IsSame(outer_wire))
+        explorer.Next()
+    return loops, outer
+
+
+def _edge_parameters(curve) -> np.ndarray:
+    """`EDGE_SAMPLES` parameters over the pcurve, plus its knots (a polyline's corners) inside."""
+    from OCP.GeomAbs import GeomAbs_BSplineCurve
+
+    t0, t1 = curve.FirstParameter(), curve.LastParameter()
+    ts = np.linspace(t0, t1, EDGE_SAMPLES)
+    if curve.GetType() == GeomAbs_BSplineCurve:
+        knots = _array1(curve.BSpline().Knots())
+        ts = np.union1d(ts, knots[(knots > t0) & (knots < t1)])
+    return ts
+
+
+def _project_loop(surface: BSplineSurface, geom, uv, guess):
+    """Loop points of the original surface's (u, v) → parameters on its NURBS conversion."""
+    points = np.array([_xyz(geom.Value(float(a), float(b))) for a, b in uv])
+    found = closest_points(surface, points, np.clip(guess, 0.0, 1.0))
+    return np.asarray(found.params, dtype=np.float64)
+
+
+def _read_shape(path: Path):
+    """The file's shape (transferred with OCCT's session unit set to the file's) and its unit."""
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+
+    _quiet()
+    step = path.suffix.lower() in (".step", ".stp")
+    if step:
+        from OCP.STEPControl import STEPControl_Reader
+
+        reader = STEPControl_Reader()
+    else:
+        from OCP.IGESControl import IGESControl_Reader
+
+        reader = IGESControl_Reader()
+    if reader.ReadFile(str(path)) != IFSelect_RetDone:
+        _checks.fail(str(path), f"a readable {'STEP' if step else 'IGES'} file", "a file OCCT cannot parse")
+    units = _file_units(reader, step)
+    previous = Interface_Static.CVal_s("xstep.cascade.unit")
+    Interface_Static.SetCVal_s("xstep.cascade.unit", _OCCT_UNITS.get(units or "mm", "MM"))
+    try:
+        reader.TransferRoots()
+        shape = reader.OneShape()
+    finally:
+        Interface_Static.SetCVal_s("xstep.cascade.unit", previous)
+    return shape, units
+
+
+def _file_units(reader, step: bool) -> str | None:
+    if step:
+        from OCP.collections import Sequence_TCollection_AsciiString as Strings
+
+        lengths = Strings()
+        reader.FileUnits(lengths, Strings(), Strings())
+        names = [name.ToCString().lower() for name in lengths]
+        return next((_STEP_NAMES[n] for n in names if n in _STEP_NAMES), None)
+    flag = reader.Model().GlobalSection().UnitFlag()  # IGES global section, field 14
+    return {1: "in", 2: "mm", 4: "ft", 5: "mi", 6: "m", 7: "km", 9: "um", 10: "cm"}.get(flag)
+
+
+def load_occt(path: Path, units: str | None, on_unsupported: str, trims: bool) -> CadList:
+    from OCP.BRep import BRep_Tool
+    from OCP.Geom import Geom_TrimmedCurve
+    from OCP.GeomConvert import GeomConvert
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_VERTEX
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from bsjax.io._rhino import report
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    shape, file_units = _read_shape(path)
+    scale = unit_scale(file_units, units, str(path))
+    objects, held, unsupported, untrimmed = [], Counter(), [], 0
+    explorer = TopExp_Explorer(shape, TopAbs_FACE)
+    while explorer.More():
+        surface, domain, reverse, trim, trimmed = _face(TopoDS.Face(explorer.Current()), trims)
+        untrimmed += trimmed and trim is None
+        held["face"] += 1
+        objects.append(CadObject(surface.with_ctrl(surface.ctrl * scale), "", "", domain, reverse, trim))
+        explorer.Next()
+    explorer = TopExp_Explorer(shape, TopAbs_EDGE, TopAbs_FACE)  # free edges: curves
+    while explorer.More():
+        edge = TopoDS.Edge(explorer.Current())
+        geom, first, last = BRep_Tool.Curve_s(edge, 0.0, 0.0), *BRep_Tool.Range_s(edge)
+        held["edge"] += 1
+        curve, domain = bspline_curve(GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geom, first, last)))
+        objects.append(CadObject(curve.with_ctrl(curve.ctrl * scale), "", "", domain))
+        explorer.Next()
+    explorer = TopExp_Explorer(shape, TopAbs_VERTEX, TopAbs_EDGE)
+    while explorer.More():
+        held["vertex"] += 1
+        unsupported.append(f"free vertex {held['vertex'] - 1}")
+        explorer.Next()
+    report(path, unsupported, on_unsupported)
+    if untrimmed:
+        import warnings
+
+        warnings.warn(
+            f"{path}: {untrimmed} trimmed faces loaded as their untrimmed surfaces (trims=True keeps trims)",
+            stacklevel=4,
+        )
+    return CadList([o.geometry for o in objects], units or file_units, objects, held)
+
+
+# --- writing ------------------------------------------------------------------------------
+def _clamped_net(geometry, axes: int):
+    """Homogeneous control net and clamped [0, 1] knots of a surface or curve (periodic
+    directions clamped exactly through Rhino's wrapped layout)."""
+    ctrl = np.asarray(geometry.ctrl, dtype=np.float64)
+    w = (
+        np.ones(ctrl.shape[:-1])
+        if geometry.weights is None
+        else np.asarray(geometry.weights, dtype=np.float64)
+    )
+    if ctrl.shape[-1] == 2:
+        ctrl = np.concatenate([ctrl, np.zeros((*ctrl.shape[:-1], 1))], axis=-1)
+    hom = np.concatenate([ctrl * w[..., None], w[..., None]], axis=-1)
+    names = ("u", "v") if axes == 2 else ("",)
+    out = []
+    for axis, d in enumerate(names):
+        degree = getattr(geometry, f"degree_{d}" if d else "degree")
+        periodic = getattr(geometry, f"periodic_{d}" if d else "periodic")
+        knots = (
+            np.asarray(getattr(geometry, f"knots_{d}" if d else "knots"), dtype=np.float64)
+            if not periodic
+            else None
+        )
+        if periodic:
+            n = hom.shape[axis]
+            hom = np.take(hom, np.arange(n + degree) % n, axis=axis)
+            hom, knots, _ = _knots.clamp(
+                hom, np.asarray(periodic_knots(n, degree), dtype=np.float64), degree, axis
+            )
+        out.append((knots, degree))
+    return hom, out
+
+
+def _knot_arrays(knots, domain):
+    from OCP.collections import Array1_double as TColStd_Array1OfReal
+    from OCP.collections import Array1_int as TColStd_Array1OfInteger
+
+    if domain is not None:
+        knots = domain[0] + (domain[1] - domain[0]) * knots
+    values, counts = np.unique(knots, return_counts=True)
+    a, m = TColStd_Array1OfReal(1, len(values)), TColStd_Array1OfInteger(1, len(values))
+    for i, (x, c) in enumerate(zip(values, counts)):
+        a.SetValue(i + 1, float(x))
+        m.SetValue(i + 1, int(c))
+    return a, m
+
+
+def to_geom_surface(surface: BSplineSurface, domain=None):
+    from OCP.collections import Array2_double as TColStd_Array2OfReal
+    from OCP.collections import Array2_gp_Pnt as TColgp_Array2OfPnt
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.gp import gp_Pnt
+
+    hom, ((ku, p), (kv, q)) = _clamped_net(surface, 2)
+    r, s = hom.shape[:2]
+    poles, weights = TColgp_Array2OfPnt(1, r, 1, s), TColStd_Array2OfReal(1, r, 1, s)
+    for i in range(r):
+        for j in range(s):
+            x, y, z, w = hom[i, j]
+            poles.SetValue(i + 1, j + 1, gp_Pnt(x / w, y / w, z / w))
+            weights.SetValue(i + 1, j + 1, float(w))
+    (uk, um), (vk, vm) = (
+        _knot_arrays(k, None if domain is None else domain[a]) for a, k in enumerate((ku, kv))
+    )
+    return Geom_BSplineSurface(poles, weights, uk, vk, um, vm, p, q, False, False)
+
+
+def to_geom_curve(curve: BSplineCurve, domain=None):
+    from OCP.collections import Array1_double as TColStd_Array1OfReal
+    from OCP.collections import Array1_gp_Pnt as TColgp_Array1OfPnt
+    from OCP.Geom import Geom_BSplineCurve
+    from OCP.gp import gp_Pnt
+
+    hom, ((k, p),) = _clamped_net(curve, 1)
+    poles, weights = TColgp_Array1OfPnt(1, len(hom)), TColStd_Array1OfReal(1, len(hom))
+    for i, (x, y, z, w) in enumerate(hom):
+        poles.SetValue(i + 1, gp_Pnt(x / w, y / w, z / w))
+        weights.SetValue(i + 1, float(w))
+    knots, mults = _knot_arrays(k, None if domain is None else domain[0])
+    return Geom_BSplineCurve(poles, weights, knots, mults, p)
+
+
+def _wire(loop01, surface_geom, domain, hole: bool):
+    """A closed degree-1 pcurve through `loop01` (in [0, 1]²) on `surface_geom`, as a wire."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeWire
+    from OCP.collections import Array1_double as TColStd_Array1OfReal
+    from OCP.collections import Array1_gp_Pnt2d as TColgp_Array1OfPnt2d
+    from OCP.collections import Array1_int as TColStd_Array1OfInteger
+    from OCP.Geom2d import Geom2d_BSplineCurve
+    from OCP.gp import gp_Pnt2d
+
+    lo = np.array([domain[0][0], domain[1][0]]) if domain else np.zeros(2)
+    hi = np.array([domain[0][1], domain[1][1]]) if domain else np.ones(2)
+    uv = lo + (hi - lo) * np.asarray(loop01)
+    x, y = uv[:, 0], uv[:, 1]
+    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    if (area > 0) == hole:  # outer loops counter-clockwise, holes clockwise
+        uv = uv[::-1]
+    n = len(uv)
+    poles = TColgp_Array1OfPnt2d(1, n)
+    for i, (a, b) in enumerate(uv):
+        poles.SetValue(i + 1, gp_Pnt2d(float(a), float(b)))
+    knots, mults = TColStd_Array1OfReal(1, n), TColStd_Array1OfInteger(1, n)
+    for i in range(n):
+        knots.SetValue(i + 1, float(i))
+        mults.SetValue(i + 1, 2 if i in (0, n - 1) else 1)
+    edge = BRepBuilderAPI_MakeEdge(Geom2d_BSplineCurve(poles, knots, mults, 1), surface_geom).Edge()
+    return BRepBuilderAPI_MakeWire(edge).Wire()
+
+
+def _face_shape(obj: CadObject):
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+    from OCP.BRepLib import BRepLib
+
+    geom = to_geom_surface(obj.geometry, obj.domain)  # pyright: ignore[reportArgumentType]
+    if obj.trim is None:
+        face = BRepBuilderAPI_MakeFace(geom, 1e-9).Face()
+    else:
+        loops = obj.trim.loops()
+        order = sorted(range(len(loops)), key=lambda k: not obj.trim.outer[k])  # pyright: ignore
+        maker = None
+        for k in order:
+            wire = _wire(loops[k], geom, obj.domain, hole=not obj.trim.outer[k])
+            if maker is None:
+                maker = BRepBuilderAPI_MakeFace(geom, wire, True)
+            else:
+                maker.Add(wire)
+        face = maker.Face()  # pyright: ignore[reportOptionalMemberAccess]
+        BRepLib.BuildCurves3d_s(face)
+    return face.Reversed() if obj.reversed else face
+
+
+def _quiet() -> None:
+    """OCCT's readers and writers print progress to stdout: drop its printers. Also register the
+    STEP and IGES settings (`write.step.unit`, …), which do not exist before their controllers
+    are initialised (setting them earlier silently does nothing)."""
+    from OCP.IGESControl import IGESControl_Controller
+    from OCP.Message import Message
+    from OCP.STEPControl import STEPControl_Controller
+
+    Message.DefaultMessenger_s().ChangePrinters().Clear()
+    STEPControl_Controller.Init_s()
+    IGESControl_Controller.Init_s()
+
+
+def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.TopoDS import TopoDS_Compound
+
+    _quiet()
+    compound, builder = TopoDS_Compound(), BRep_Builder()
+    builder.MakeCompound(compound)
+    for obj in objects:
+        if isinstance(obj.geometry, BSplineCurve):
+            builder.Add(compound, BRepBuilderAPI_MakeEdge(to_geom_curve(obj.geometry, obj.domain)).Edge())
+        else:
+            builder.Add(compound, _face_shape(obj))
+    unit = _OCCT_UNITS.get(units)
+    if unit is None:
+        _checks.fail("units", f"one of {', '.join(_OCCT_UNITS)} for STEP/IGES", repr(units))
+    keys = (
+        "xstep.cascade.unit",
+        "write.step.unit" if path.suffix.lower() in (".step", ".stp") else "write.iges.unit",
+    )
+    previous = [Interface_Static.CVal_s(k) for k in keys]
+    for k in keys:
+        Interface_Static.SetCVal_s(k, unit)
+    try:
+        if path.suffix.lower() in (".step", ".stp"):
+            from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+            writer = STEPControl_Writer()
+            writer.Transfer(compound, STEPControl_AsIs)
+            ok = writer.Write(str(path)) == IFSelect_RetDone
+        else:
+            from OCP.IGESControl import IGESControl_Writer
+
+            writer = IGESControl_Writer(unit, 1)  # mode 1: B-Rep (faces with trims)
+            writer.AddShape(compound)
+            writer.ComputeModel()
+            ok = writer.Write(str(path))
+    finally:
+        for k, v in zip(keys, previous):
+            Interface_Static.SetCVal_s(k, v)
+    if not ok:
+        raise OSError(f"{path}: OCCT could not write the file")
