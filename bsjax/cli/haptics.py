@@ -6,6 +6,8 @@ bsjax haptics --ellipsoid 0.3,0.2,0.2 --plot session.png
 bsjax haptics --serial /dev/ttyACM0 --baud 921600
 bsjax haptics --hid 1234:5678 [--hid-layout layout.json]
 bsjax haptics --replay session.npz --plot session.png
+bsjax haptics --view [--port 8765]              # live 3-D view in the browser (127.0.0.1)
+bsjax haptics --servo-process                   # the 1 kHz servo in its own process
 ```
 Prints the servo telemetry at the end (also on Ctrl-C; zero force is written first). The
 sculpting physics runs in float64 unless `--float32`.
@@ -14,6 +16,8 @@ sculpting physics runs in float64 unless `--float32`.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import signal
 import sys
@@ -71,11 +75,25 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", type=c.output_file(".npz"), metavar="FILE", help="save the session (.npz)")
     p.add_argument("--plot", type=c.output_file(".png"), metavar="PNG", help="plot the session")
     p.add_argument("--cpu", type=c.count(0), help="pin the servo thread to this CPU")
+    p.add_argument(
+        "--servo-process",
+        action="store_true",
+        help="run the servo in its own process (pinned, SCHED_FIFO where permitted)",
+    )
+    p.add_argument("--view", action="store_true", help="serve a live 3-D view on 127.0.0.1")
+    p.add_argument("--port", type=c.count(0), default=0, help="view port (0: any free port)")
     return p
 
 
-def _device(args):
+def _device(args, factory: bool = False):
+    """The device, or (`factory=True`, for the servo process) something that makes it there."""
     workspace = Workspace(scale=args.scale)
+    if factory and not args.hid:
+        if args.serial:
+            return functools.partial(SerialDevice, args.serial, baudrate=args.baud, workspace=workspace)
+        if args.replay:
+            return functools.partial(SimulatedDevice.replay, args.replay, realtime=True)
+        return SimulatedDevice
     if args.serial:
         return SerialDevice(args.serial, baudrate=args.baud, workspace=workspace)
     if args.hid:
@@ -126,15 +144,31 @@ def _wait_for(finished, duration: float, slice_s: float = 0.2) -> None:
         finished.wait(min(slice_s, left))
 
 
+def _view(args, loop, model):
+    """The live view's server (a context manager; a null one without `--view`)."""
+    if not args.view:
+        return contextlib.nullcontext()
+    from bsjax.view import ViewServer, live
+
+    scene, frame = live(loop, model)
+    return ViewServer(scene, frame, port=args.port)
+
+
 def _body(args) -> int:
+    if args.view and args.port > 65535:
+        raise c.UserError("--port", f"expected a port in [0, 65535], got {args.port}")
     print("bsjax haptics: building the model and compiling the physics…", flush=True)
     model = _model(args)
     interrupted = False
+    # --servo-process (not for HID, whose handle the servo process cannot share): the device is
+    # opened in the servo process; this process writes zero through its own one if that dies
+    factory = args.servo_process and not args.hid
     try:
-        device = _device(args)
+        device = _device(args, factory=factory)
     except (OSError, ValueError, DeviceError) as err:
         raise c.UserError("device", f"cannot open the device: {err}") from err
-    with device:
+    opened = contextlib.nullcontext() if factory else device
+    with opened:  # type: ignore[union-attr]  (a factory is opened in the servo process)
         loop = ServoLoop(
             device,
             model,
@@ -143,14 +177,19 @@ def _body(args) -> int:
             physics_hz=args.physics_hz,
             record=bool(args.record or args.plot),
             cpu=args.cpu,
+            mode="process" if args.servo_process else "thread",
         )
         # Ctrl-C must stop the loop even where SIGINT was inherited ignored (a parent such as a
         # test runner's worker): Python then keeps it ignored at start-up
         signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             loop.start()
-            print(f"bsjax haptics: running ({type(device).__name__}); Ctrl-C to stop", flush=True)
-            _wait_for(loop.finished, args.duration)
+            name = getattr(device, "__name__", None) or type(device).__name__
+            print(f"bsjax haptics: running ({name}, servo {loop.mode}); Ctrl-C to stop", flush=True)
+            with _view(args, loop, model) as server:
+                if server is not None:
+                    print(f"bsjax haptics: live view at {server.url}", flush=True)
+                _wait_for(loop.finished, args.duration)
         except KeyboardInterrupt:
             interrupted = True
         finally:
