@@ -365,3 +365,97 @@ def test_solve_bad_input():
     )
     with pytest.raises(ValueError, match="max_steps: expected an int >= 1"):
         sculpt.solve(c, [sculpt.Fixed(0.5)], max_steps=0)
+
+
+# --- target-curve sculpting --------------------------------------------------------------------
+def _flat_sheet(r=9, s=7):
+    from bsjax.basis import BSplineSurface, clamped_knots
+
+    x, y = np.meshgrid(np.linspace(0, 1, r), np.linspace(0, 1, s), indexing="ij")
+    ctrl = np.stack([x, y, 0.05 * np.sin(3 * x) * np.cos(2 * y)], -1)
+    return BSplineSurface(ctrl, clamped_knots(r, 3), clamped_knots(s, 3), 3, 3)
+
+
+def _target():
+    from bsjax.basis import clamped_knots
+
+    pts = np.array([[0.2, 0.3, 0.3], [0.4, 0.45, 0.35], [0.6, 0.5, 0.35], [0.8, 0.6, 0.3]])
+    return BSplineCurve(pts, clamped_knots(4, 3), 3)
+
+
+def test_target_sculpt_lambda_one_interpolates_keys_and_adaptive_count():
+    from bsjax.basis import closest_points, greville
+
+    surf, target = _flat_sheet(), _target()
+    res = sculpt.target_sculpt(surf, target, 1.0)
+    on = np.asarray(res.active)
+    uv = np.asarray(res.foot_params)[on]
+    np.testing.assert_allclose(res.surface.evaluate(uv[:, 0], uv[:, 1]), np.asarray(res.keys)[on], atol=1e-12)
+    assert int(res.status) == 0
+    # eq. 6-24: one key per iso-curve (Greville abscissa) crossed along the dominant direction
+    ends = closest_points(surf, np.asarray(target.evaluate(np.array([0.0, 1.0])))).params
+    lo, hi = np.sort(np.asarray(ends)[:, 0])  # u dominates for this target
+    g = greville(np.asarray(surf.knots_u), 3)
+    assert on.sum() == max(2, np.sum((g >= lo) & (g <= hi)))
+
+
+@pytest.mark.parametrize("lam", [0.8, 0.5])
+def test_single_key_foot_moves_by_lambda_d(lam):
+    surf, target = _flat_sheet(), _target()
+    res = sculpt.target_sculpt(surf, target, lam, n_keys=1)
+    uv = np.asarray(res.foot_params)
+    moved = np.asarray(res.surface.evaluate(uv[:, 0], uv[:, 1])) - np.asarray(res.feet)
+    np.testing.assert_allclose(moved, lam * (np.asarray(res.keys) - np.asarray(res.feet)), atol=1e-12)
+    np.testing.assert_allclose(res.forces, lam * (np.asarray(res.keys) - np.asarray(res.feet)), atol=1e-14)
+
+
+def test_bound_mask_against_matplotlib_and_blocked_points_fixed():
+    from matplotlib.path import Path
+
+    from bsjax.basis import greville
+
+    surf, target = _flat_sheet(), _target()
+    poly = np.array([[0.1, 0.15], [0.9, 0.2], [0.95, 0.8], [0.5, 0.9], [0.15, 0.7]])
+    mask = np.asarray(sculpt.bound_mask(surf, poly))
+    gu, gv = greville(np.asarray(surf.knots_u), 3), greville(np.asarray(surf.knots_v), 3)
+    uu, vv = np.meshgrid(gu, gv, indexing="ij")
+    expect = Path(poly).contains_points(np.stack([uu.ravel(), vv.ravel()], -1)).reshape(uu.shape)
+    np.testing.assert_array_equal(mask, expect)
+    res = sculpt.target_sculpt(surf, target, 1.0, bound=poly, relax=2)
+    np.testing.assert_array_equal(np.asarray(res.surface.ctrl)[~mask], np.asarray(surf.ctrl)[~mask])
+    assert np.abs(np.asarray(res.surface.ctrl) - np.asarray(surf.ctrl))[mask].max() > 1e-3
+
+
+def test_frame_rotation_against_scipy():
+    from scipy.spatial.transform import Rotation
+
+    for rotvec in ([0.3, -0.5, 0.4], [0.0, 0.0, 2.5], [1e-3, 0.0, 0.0]):
+        rot = Rotation.from_rotvec(rotvec)
+        f0 = Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix().T  # rows U, V, W
+        axis, angle = sculpt.frame_rotation(f0, rot.apply(f0))
+        np.testing.assert_allclose(np.asarray(axis) * float(angle), rotvec, atol=1e-9)
+    axis, angle = sculpt.frame_rotation(np.eye(3), np.eye(3))  # pure translation: safe branch
+    assert float(angle) == 0.0 and np.all(np.asarray(axis) == 0)
+
+
+def test_target_bad_input():
+    surf, target = _flat_sheet(), _target()
+    raises_both(
+        lambda lam: sculpt.target_sculpt(surf, target, lam, n_keys=2),
+        jnp.asarray(1.5),
+        match=r"lam: expected values in \[0.0, 1.0\]",
+    )
+    raises_both(
+        lambda p: sculpt.bound_mask(surf, p),
+        jnp.array([[0.1, 0.1], [2.0, 0.1], [0.5, 0.9]]),
+        match=r"bound_uv: expected values in \[0.0, 1.0\]",
+    )
+    raises_both(
+        lambda f: sculpt.frame_rotation(f, jnp.eye(3)),
+        jnp.full((3, 3), jnp.nan),
+        match="frame0: expected finite values",
+    )
+    with pytest.raises(ValueError, match="n_keys: expected an int >= 1"):
+        sculpt.target_sculpt(surf, target, n_keys=0)
+    with pytest.raises(ValueError, match=r"bound: expected a boolean mask of shape \(9, 7\)"):
+        sculpt.target_sculpt(surf, target, bound=np.ones((3, 3), bool))

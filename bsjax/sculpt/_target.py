@@ -124,7 +124,7 @@ def _key_params(surface, target, capacity: int, n_keys: int | None, dtype):
     count_v = crossed(1, _centres(surface.direction_v, dtype))
     count = jnp.clip(jnp.where(span[0] >= span[1], count_u, count_v), 2, capacity)
     k = jnp.arange(capacity)
-    t = jnp.where(k < count, k / jnp.maximum(count - 1, 1).astype(dtype), 0.0).astype(dtype)
+    t = jnp.where(k < count, k.astype(dtype) / jnp.maximum(count - 1, 1).astype(dtype), 0.0)
     return t, k < count
 
 
