@@ -71,7 +71,8 @@ def study(quick: bool = True, tilt_deg: float = 8.0, smoothing: float = 30.0) ->
     a VSOFM jelly lattice, and the rollout's step.
 
     **Arguments:** `quick` (the sizes of `QUICK`, else `FULL`), `tilt_deg` (the bowl's sideways
-    tilt), `smoothing` (weight of the smoothness term, per m² of second differences).
+    tilt), `smoothing` (weight of the smoothness term, per m² of second differences of the
+    heights).
     """
     from scipy.spatial import Delaunay
 
@@ -135,7 +136,7 @@ def _jelly(sizes):
 def height_map(offsets: Float[Array, "8 8"], s: BowlStudy) -> spoon.HeightMap:
     """The height map of the merged spoon whose bowl control points are raised by `offsets`
     (bowl frame, metres): differentiable in `offsets`."""
-    bowl = s.bowl_ctrl + offsets[..., None] * jnp.array([0.0, 0.0, 1.0])
+    bowl = s.bowl_ctrl.at[..., 2].add(offsets)
     ctrl = s.layout.apply([s.handle_ctrl, bowl @ s.rotation.T + s.origin[None, None]])
     local = (s.patch.points(ctrl) - s.origin[None, None]) @ s.rotation
     z_samples = local[..., 2].reshape(-1)
@@ -169,8 +170,10 @@ def spill_risk_at(offsets: Float[Array, "8 8"], s: BowlStudy, tilt) -> Float[Arr
 
 
 def objective(offsets: Float[Array, "8 8"], s: BowlStudy) -> Float[Array, ""]:
-    """Spill risk + `smoothing` × smoothness: the function the optimiser lowers."""
-    return spill_risk(offsets, s) + s.smoothing * smoothness(offsets)
+    """`100 × (spill risk + smoothing × smoothness)`: the function the optimiser lowers, in percent
+    points of risk (a scale at which BFGS's first step, along −∇ with the identity as Hessian,
+    moves the free heights by about a millimetre)."""
+    return 100.0 * (spill_risk(offsets, s) + s.smoothing * smoothness(offsets))
 
 
 def optimise_bowl(s: BowlStudy, max_steps: int, progress=None) -> optimise.OptimiseResult:
