@@ -315,3 +315,72 @@ def test_point_parameters_of_ellipse():
     assert not np.any(np.asarray(params.redundant_extrema(quarter * 0.99)))
     assert not np.any(np.asarray(params.small_visibility(1.0, 1.0)))
     assert np.all(np.asarray(params.sharp_corner(2.1 * quarter, 1.0))[:4])
+
+
+# --- operators ------------------------------------------------------------------------------------
+def approx_ellipse(n=16):
+    th = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return BSplineCurve(np.c_[2 * np.cos(th), np.sin(th)], None, 3, periodic=True)
+
+
+def _points_of(curve, closed=None):
+    points = grammar.simplify(grammar.characteristic_points(curve, closed))
+    return np.asarray(points.params)[: int(points.count)], points.symbols()
+
+
+def test_continuation_reports_the_string_it_produced():
+    curve = approx_ellipse()
+    t, kinds = _points_of(curve)
+    i = kinds.index("m+")
+    result = grammar.continuation(curve, i, 0.8)
+    assert result.before == "M+m+M+m+" and result.status == 0
+    assert result.after == grammar.symbols(result.curve)  # what it produced, not the intention
+    assert "m-" in result.after  # the squashing became an indentation (Cm+: m+ → 0m-0)
+    neighbours = jnp.asarray([t[i - 1], t[(i + 1) % len(t)]])
+    np.testing.assert_allclose(result.curve.evaluate(neighbours), curve.evaluate(neighbours), atol=1e-12)
+    moved = np.asarray(result.curve.evaluate(t[i]) - curve.evaluate(t[i]))
+    assert np.linalg.norm(moved) == pytest.approx(0.8, rel=1e-9)
+    assert result.dof_needed == 6  # the drag and two blocked points, two coordinates each
+    with pytest.raises(ValueError, match="index: expected a point of kind m\\+ or M-"):
+        grammar.continuation(curve, kinds.index("M+"), 0.5)
+    with pytest.raises(ValueError, match="amount"):
+        grammar.bifurcation(curve, i, -1.0)
+
+
+def test_sharpen_tension_straighten():
+    curve = approx_ellipse()
+    t, kinds = _points_of(curve)
+    top = kinds.index("M+")
+    sharp = grammar.sharpen(curve, top, 0.2)
+    assert sharp.status == 0 and sharp.dof_needed == 10
+    assert sharp.after == grammar.symbols(sharp.curve)
+    assert float(sharp.curve.curvature(t[top])) > float(curve.curvature(t[top]))
+    fixed = jnp.asarray([t[top - 1], t[(top + 1) % len(t)]])
+    for nu in (0, 1):
+        np.testing.assert_allclose(sharp.curve.evaluate(fixed, nu), curve.evaluate(fixed, nu), atol=1e-10)
+    low = kinds.index("m+")
+    flat = grammar.tension(curve, low, 1.0)
+    assert abs(float(flat.curve.curvature(t[low]))) < 1e-9  # κ driven to 0
+    assert flat.after == grammar.symbols(flat.curve)
+    line = grammar.straighten(curve, low, 1.0)
+    a, b, p = np.asarray(line.curve.evaluate(jnp.asarray([t[low - 1], t[(low + 1) % len(t)], t[low]])))
+    u, w = b - a, p - a
+    assert abs(u[0] * w[1] - u[1] * w[0]) < 1e-10  # on the chord of its neighbours
+
+
+def test_open_curve_operators():
+    curve = s_curve()
+    before = grammar.measures(curve, closed=False)
+    convex = grammar.convexify(curve, 0.5)
+    assert convex.after == grammar.symbols(convex.curve, closed=False)
+    assert float(grammar.measures(convex.curve, closed=False).convexity) > float(before.convexity)
+    ends = jnp.asarray([0.0, 1.0])
+    np.testing.assert_allclose(convex.curve.evaluate(ends), curve.evaluate(ends), atol=1e-12)
+    fast = grammar.accelerate(curve, 0.5)
+    np.testing.assert_allclose(fast.curve.evaluate(1.0, 1), 1.5 * curve.evaluate(1.0, 1), rtol=1e-10)
+    np.testing.assert_allclose(fast.curve.evaluate(0.0, 1), curve.evaluate(0.0, 1), rtol=1e-10)
+    _, kinds = _points_of(curve, False)
+    i = next(k for k, s in enumerate(kinds) if s != "0")
+    soft = grammar.soften(curve, i, 0.05)
+    assert soft.dof_needed == 14  # §7.5: 2 end positions, neighbours' positions and tangents, the drag
+    assert soft.after == grammar.symbols(soft.curve, closed=False)
