@@ -14,6 +14,8 @@ devices, the collectives and the process group are JAX's.
 - `initialize(coordinator=None, num_processes=None, process_id=None)` — `jax.distributed`
   from arguments, `BSJAX_*` environment variables or JAX's cluster auto-detection.
 - `mesh(devices=None)` — the 1-D `"batch"` mesh.
+- `report(progress, done, total)` — call a `progress(done, total)` callback from inside
+  compiled code (the progress of long rollouts, trainings and refits).
 
 Source: issue #14 (scale-out through JAX's own runtime); the sharding model is JAX's
 (*Distributed arrays and automatic parallelization*, *Multi-process environments* in the JAX
@@ -37,7 +39,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from bsjax import _boundary, _checks
 
-__all__ = ["gather", "initialize", "map", "mesh"]
+__all__ = ["gather", "initialize", "map", "mesh", "report"]
 
 AXIS = "batch"
 _CACHE_SIZE = 64
@@ -355,6 +357,37 @@ def map(  # the name users expect, as `jax.lax.map`
         if progress is not None and not traced:
             progress(stop, n)
     return _assemble(pieces, n, sharding if n % devices == 0 else replicated)
+
+
+# --- progress from inside compiled code ------------------------------------------------------
+def report(progress: Callable[[int, int], Any] | None, done, total: int, after: Any = None) -> None:
+    """Call `progress(done, total)` on the host once the computation reaches this point.
+
+    For the long computations of the library (`mss.simulate`, `vsofm.fit`, `merge.refit`): when
+    `done` or `after` is traced it is `jax.debug.callback(..., ordered=True)`, so the calls come
+    in program order, also under `vmap` (once, when `done` is not batched) and `grad`; when both
+    are concrete it is a plain call. `progress=None` does nothing and adds nothing to the
+    program: a function given no callback compiles to the same program as without the feature.
+
+    **Arguments:**
+    - `progress`: the callback, or None.
+    - `done`: an int, or a traced integer scalar (a loop counter); `total`: an int.
+    - `after`: a pytree the report waits for (e.g. the loop's state), so that the call happens
+      once that value is computed.
+    """
+    if progress is None:
+        return
+    leaves = jax.tree.leaves(after)
+    token = jnp.ravel(leaves[0])[:1] if leaves else None
+    if _checks.is_concrete((done, token)):
+        progress(int(done), int(total))
+        return
+    jax.debug.callback(functools.partial(_call_progress, progress, int(total)), done, token, ordered=True)
+
+
+def _call_progress(progress: Callable, total: int, done, token) -> None:
+    del token  # only orders the call after the value it was taken from
+    progress(int(done), total)
 
 
 # --- gather ----------------------------------------------------------------------------------

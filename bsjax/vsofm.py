@@ -36,6 +36,7 @@ with the lattice size (≈ 0.005–0.01 at 40³ on the teardrop and a unit spher
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -45,6 +46,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _linalg, _safe
 from bsjax._boundary import compiled, host_cache
+from bsjax.batch import report as report_progress
 
 
 class Settings(eqx.Module):
@@ -97,6 +99,7 @@ def fit(
     cycles: int = 300,
     key=None,
     settings: Settings = Settings(),
+    progress: Callable[[int, int], object] | None = None,
 ) -> Float[Array, "a b c 3"]:
     """Train a VSOFM lattice of `shape = (a, b, c)` on surface samples `points (P, 3)`.
 
@@ -107,6 +110,10 @@ def fit(
     - `cycles`: training cycles (thesis: 300).
     - `key`: `jax.random` key for the batch draws (default `PRNGKey(0)`).
     - `settings`: `Settings`.
+    - `progress`: an optional callback `progress(done, cycles)` called on the host after each
+      training cycle as the training runs (`bsjax.batch.report`, an ordered
+      `jax.debug.callback`); the nodes are the same. A callable is static (the same callback
+      reuses the compilation); None (the default) adds nothing to the program.
 
     **Returns:** node positions `shape + (3,)`; boundary nodes on the sampled surface (its local
     quadric fits), interior nodes inside. Check `report(points, nodes).inverted == 0`.
@@ -121,8 +128,10 @@ def fit(
     cycles = _checks.check_count(cycles, "cycles")
     if not isinstance(settings, Settings):
         raise TypeError(f"settings: expected a vsofm.Settings, got {type(settings).__name__}")
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit(pts, key, shape, cycles, settings)
+    return _fit(pts, key, shape, cycles, settings, progress)
 
 
 def _check_fit_input(points, shape):
@@ -148,7 +157,7 @@ def _distinct(points):
 
 
 @compiled
-def _fit(points, key, shape, cycles, settings):
+def _fit(points, key, shape, cycles, settings, progress=None):
     dtype = points.dtype
     nbr, copies = _neighbours(points, _NEAR)
     # draw probability of each sample ∝ the surface area it stands for (squared mean distance to
@@ -171,9 +180,10 @@ def _fit(points, key, shape, cycles, settings):
     sigma = r0 * (settings.radius_end / r0) ** frac
     alpha = settings.learning_rate_start * (settings.learning_rate_end / settings.learning_rate_start) ** frac
     keys = jax.random.split(key, cycles)
+    count = None if progress is None else jnp.arange(1, cycles + 1)
 
     def cycle(nodes, xs):
-        sig, lr, k = xs
+        sig, lr, k, done = xs
         x = points[jax.random.choice(k, points.shape[0], (batch,), p=weights)]
         wb = nodes.reshape(-1, 3)[bidx]
         d2 = jnp.sum(wb * wb, axis=-1)[None, :] - 2.0 * x @ wb.T
@@ -184,9 +194,11 @@ def _fit(points, key, shape, cycles, settings):
         ok = cnt > 1e-6 * jnp.max(cnt)
         target = acc[..., :3] / jnp.where(ok, cnt, 1.0)
         moved = jnp.where(ok & bgrid, nodes + lr * (target - nodes), nodes)
-        return _jacobi(moved, bgrid, settings.sweeps), None
+        nodes = _jacobi(moved, bgrid, settings.sweeps)
+        report_progress(progress, done, cycles, after=nodes)
+        return nodes, None
 
-    nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, keys))[0]
+    nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, keys, count))[0]
     surface = (points, *_patches(points, nbr))
     nodes = _snap(nodes, bidx, surface)
     for _ in range(settings.boundary_smoothing):

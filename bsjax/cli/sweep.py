@@ -123,14 +123,15 @@ def _distributed(args) -> None:
 
 
 def _body(args) -> int:
+    if args.surface and args.experiment == "merge":
+        raise c.UserError("--surface", "the merge experiment has its own patches (spoon or collide only)")
+    _distributed(args)  # first: importing the library creates arrays, which starts JAX's backend
+    import jax
+
     from bsjax.examples import experiments
 
     experiment = experiments.EXPERIMENTS[args.experiment]
     specs = _specs(experiment, args.param)
-    if args.surface and args.experiment == "merge":
-        raise c.UserError("--surface", "the merge experiment has its own patches (spoon or collide only)")
-    _distributed(args)
-    import jax
 
     leader = jax.process_index() == 0
     designs = experiments.grid(experiment.parameters, specs)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import weakref
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax
@@ -742,8 +742,8 @@ def plan_grid(
 
 # --- one call -----------------------------------------------------------------------------------
 @compiled
-def _merged_surface(layout: MergeLayout, ctrls, refine: bool) -> BSplineSurface:
-    ctrl = _nonlinear.refine(layout, ctrls) if refine else layout.apply(ctrls)
+def _merged_surface(layout: MergeLayout, ctrls, refine: bool, progress=None) -> BSplineSurface:
+    ctrl = _nonlinear.refine(layout, ctrls, progress=progress) if refine else layout.apply(ctrls)
     return layout.surface(ctrl)
 
 
@@ -760,13 +760,15 @@ def merge(
     overlap: str = "keep",
     overlap_method: str = "collide",
     refine: bool = False,
+    progress: Callable[[int, int], object] | None = None,
 ) -> BSplineSurface:
     """Merge 2 or more patches in a row into one `BSplineSurface` (thesis §4.3, §4.4).
 
     **Arguments:** as `plan` (`direction`, `continuity` 0 ≤ c < degree, `samples` per patch,
     `cross_knots`, `degrees` = None/"elevate"/"reduce", `orient`, `trim`, `overlap`
     = "keep"/"drop", `overlap_method`), plus `refine`: also run the nonlinear refit with
-    parameter correction (`refit`).
+    parameter correction (`refit`), and `progress`: with `refine`, an optional callback
+    `progress(done, rounds)` after each round of the refit (see `refit`).
 
     **Returns:** the merged surface: degree `(k, l)`, `r = Σ r_i − (N − 1)` control points along
     the merge direction (more or fewer after a degree change), the largest count across.
@@ -787,7 +789,7 @@ def merge(
         overlap=overlap,
         overlap_method=overlap_method,
     )
-    return _merged_surface(layout, [s.ctrl for s in surfaces], bool(refine))
+    return _merged_surface(layout, [s.ctrl for s in surfaces], bool(refine), progress)
 
 
 def merge_grid(
@@ -801,12 +803,14 @@ def merge_grid(
     overlap: str = "keep",
     overlap_method: str = "collide",
     refine: bool = False,
+    progress: Callable[[int, int], object] | None = None,
 ) -> BSplineSurface:
     """Merge a grid of patches (`rows[i][j]`, rows stacked along u) into one surface (§4.4.3).
 
     **Arguments:** as `plan_grid` (`continuity` one int or `(c_u, c_v)`, `samples`, `degrees`,
     `orient` = "auto"/"as_given"/explicit rows, `trim` = rows of `(u0, u1, v0, v1)`, `overlap`,
-    `overlap_method`), plus `refine` as for `merge`. Cached and compiled like `merge`.
+    `overlap_method`), plus `refine` and `progress` as for `merge`. Cached and compiled like
+    `merge`.
     """
     rows = [list(r) for r in rows]
     layout = plan_grid(
@@ -819,4 +823,4 @@ def merge_grid(
         overlap=overlap,
         overlap_method=overlap_method,
     )
-    return _merged_surface(layout, [[s.ctrl for s in row] for row in rows], bool(refine))
+    return _merged_surface(layout, [[s.ctrl for s in row] for row in rows], bool(refine), progress)

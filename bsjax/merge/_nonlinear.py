@@ -27,6 +27,8 @@ traced, so a new tolerance does not compile again. The linear layout's fit is th
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -34,7 +36,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
-from bsjax import _checks
+from bsjax import _checks, batch
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
 from bsjax.merge._project import ProjectionSolver, closest_points
@@ -159,6 +161,7 @@ def _refit(
     rtol: Float[Array, ""],
     rounds: int,
     projection: ProjectionSolver,
+    progress: Callable[[int, int], object] | None = None,
 ) -> RefitSolution:
     # rtol is traced (changing it does not recompile); rounds fixes the history's length
     history = jnp.full((rounds + 1,), jnp.nan, points.dtype).at[0].set(rms0)
@@ -173,6 +176,7 @@ def _refit(
         current = surface.with_ctrl(ctrl)
         proj = closest_points(current, points, uv, projection)
         ctrl, d = fit_scattered(current, proj.params, points)
+        batch.report(progress, i + 1, rounds, after=ctrl)
         return ctrl, proj.params, hist.at[i + 1].set(_rms(d)), i + 1, proj.result
 
     carry = (surface.ctrl, uv0, history, jnp.asarray(0), status0)
@@ -184,19 +188,27 @@ def _refit(
 
 
 @compiled
-def refit(layout, ctrls, solver: RefitSolver = RefitSolver()) -> RefitSolution:
+def refit(
+    layout, ctrls, solver: RefitSolver = RefitSolver(), progress: Callable[[int, int], object] | None = None
+) -> RefitSolution:
     """Merged control net with parameter correction, starting from the linear merge.
 
     **Arguments:**
     - `layout`: a `MergeLayout` from `plan`/`plan_grid`.
     - `ctrls`: the input control nets, as for `layout.apply` (finite).
     - `solver`: a `RefitSolver` (rounds ≥ 1, tolerance `rtol` ≥ 0, projection settings).
+    - `progress`: an optional callback `progress(done, solver.rounds)` called on the host after
+      each round as the refit runs (`bsjax.batch.report`, an ordered `jax.debug.callback`; a
+      refit that settles early stops reporting before `solver.rounds`); the result is the same.
+      A callable is static (the same callback reuses the compilation); None adds nothing.
 
     **Returns:** a `RefitSolution` (net, corrected parameters, RMS history, status). Compiled at
     the boundary (one XLA call per direct call).
     """
     if not isinstance(solver, RefitSolver):
         raise TypeError(f"solver: expected a RefitSolver, got {type(solver).__name__}")
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
     _checks.check_count(solver.rounds, "solver.rounds")
     points = layout.points(ctrls)
     pu, pv = layout.merged.params_u, layout.merged.params_v
@@ -206,18 +218,32 @@ def refit(layout, ctrls, solver: RefitSolver = RefitSolver()) -> RefitSolution:
     rms0 = _rms(jnp.linalg.norm(layout.merged.points(ctrl) - points, axis=-1))
     rtol = _checks.positive(jnp.asarray(solver.rtol, points.dtype), "solver.rtol", strict=False)
     return _refit(
-        layout.surface(ctrl), points.reshape(-1, 3), uv, rms0, rtol, solver.rounds, solver.projection
+        layout.surface(ctrl),
+        points.reshape(-1, 3),
+        uv,
+        rms0,
+        rtol,
+        solver.rounds,
+        solver.projection,
+        progress,
     )
 
 
 @compiled
-def refine(layout, ctrls, iterations: int = 8, steps: int = 3) -> Float[Array, "r s 3"]:
+def refine(
+    layout,
+    ctrls,
+    iterations: int = 8,
+    steps: int = 3,
+    progress: Callable[[int, int], object] | None = None,
+) -> Float[Array, "r s 3"]:
     """Control net of `refit(layout, ctrls, RefitSolver(rounds=iterations,
-    projection=ProjectionSolver(max_steps=steps)))` — the net alone (`merge(..., refine=True)`).
+    projection=ProjectionSolver(max_steps=steps)), progress)` — the net alone
+    (`merge(..., refine=True)`).
 
     **Returns:** `(r, s, 3)` control net on the layout's merged basis.
     """
     iterations = _checks.check_count(iterations, "iterations")
     steps = _checks.check_count(steps, "steps")
     solver = RefitSolver(rounds=iterations, projection=ProjectionSolver(max_steps=steps))
-    return refit(layout, ctrls, solver).ctrl
+    return refit(layout, ctrls, solver, progress).ctrl

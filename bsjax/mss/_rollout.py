@@ -8,13 +8,15 @@ loop, and runs the unchecked kernels of `_integrators` inside it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from bsjax import _checks, _safe
+from bsjax import _checks, _safe, batch
 from bsjax._boundary import compiled
 from bsjax.mss._integrators import (
     METHODS,
@@ -114,8 +116,10 @@ def _run(
     save_every,
     plasticity,
     check_stability,
+    progress=None,
 ):
     n_steps = _checks.check_count(n_steps, "n_steps")
+    _check_progress(progress)
     if checkpoint_every is not None:
         _checks.check_count(checkpoint_every, "checkpoint_every")
     if save_every is not None:
@@ -144,37 +148,70 @@ def _run(
     xs = (path_force, path_tools)
     carry = (state, lattice.rest_length)
     if save_every is None:
-        return _scan(body, carry, xs, n_steps, checkpoint_every), None
-    return _scan_saving(body, carry, xs, n_steps, save_every)
+        return _scan(body, carry, xs, n_steps, checkpoint_every, progress), None
+    return _scan_saving(body, carry, xs, n_steps, save_every, progress)
 
 
-def _scan(body, carry, xs, n_steps, checkpoint_every):
+#: A rollout given a `progress` callback reports after each of at most this many chunks of steps.
+REPORTS = 100
+
+
+def _check_progress(progress) -> None:
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
+
+
+def _scan(body, carry, xs, n_steps, checkpoint_every, progress=None):
     """`n_steps` of `body`; with `checkpoint_every = c`, an outer scan over chunks of `c` steps whose
-    inner scans are rematerialised in the backward pass (memory O(n/c + c) states)."""
-    if checkpoint_every is None or n_steps <= checkpoint_every:
+    inner scans are rematerialised in the backward pass (memory O(n/c + c) states). With
+    `progress`, `progress(done, n_steps)` after each chunk (`c` steps, or `⌈n_steps / REPORTS⌉`):
+    the same steps in the same order, so the same result."""
+    if progress is None and (checkpoint_every is None or n_steps <= checkpoint_every):
         return jax.lax.scan(body, carry, xs, length=n_steps)[0]
-    c = checkpoint_every
+    c = min(checkpoint_every or -(-n_steps // REPORTS), n_steps)
     n_outer, rem = divmod(n_steps, c)
     head = jax.tree.map(lambda a: a[: n_outer * c].reshape((n_outer, c) + a.shape[1:]), xs)
     tail = jax.tree.map(lambda a: a[n_outer * c :], xs)
 
-    @jax.checkpoint
-    def chunk(carry, xs_chunk):
-        return jax.lax.scan(body, carry, xs_chunk, length=c)[0], None
+    def steps(carry, xs_chunk):
+        return jax.lax.scan(body, carry, xs_chunk, length=c)[0]
 
-    carry = jax.lax.scan(chunk, carry, head, length=n_outer)[0]
-    return jax.lax.scan(body, carry, tail, length=rem)[0] if rem else carry
+    if checkpoint_every is not None:
+        steps = jax.checkpoint(steps)
+
+    def chunk(carry, item):
+        k, xs_chunk = item
+        carry = steps(carry, xs_chunk)
+        batch.report(progress, (k + 1) * c, n_steps, after=carry[0].position)
+        return carry, None
+
+    carry = jax.lax.scan(chunk, carry, (jnp.arange(n_outer), head), length=n_outer)[0]
+    if not rem:
+        return carry
+    carry = jax.lax.scan(body, carry, tail, length=rem)[0]
+    batch.report(progress, n_steps, n_steps, after=carry[0].position)
+    return carry
 
 
-def _scan_saving(body, carry, xs, n_steps, save_every):
+def _scan_saving(body, carry, xs, n_steps, save_every, progress=None):
+    """The states after every `save_every` steps; `progress(done, n_steps)` after each."""
     k = n_steps // save_every
     chunked = jax.tree.map(lambda a: a.reshape((k, save_every) + a.shape[1:]), xs)
+    if progress is None:  # the program of a rollout without the feature
 
-    def outer(carry, xs_chunk):
+        def outer(carry, xs_chunk):
+            carry = jax.lax.scan(body, carry, xs_chunk, length=save_every)[0]
+            return carry, carry[0]
+
+        return jax.lax.scan(outer, carry, chunked, length=k)
+
+    def reporting(carry, item):
+        i, xs_chunk = item
         carry = jax.lax.scan(body, carry, xs_chunk, length=save_every)[0]
+        batch.report(progress, (i + 1) * save_every, n_steps, after=carry[0].position)
         return carry, carry[0]
 
-    return jax.lax.scan(outer, carry, chunked, length=k)
+    return jax.lax.scan(reporting, carry, (jnp.arange(k), chunked), length=k)
 
 
 @compiled
@@ -193,6 +230,7 @@ def simulate(
     cg_iterations: int = 20,
     checkpoint_every: int | None = None,
     check_stability: bool = True,
+    progress: Callable[[int, int], object] | None = None,
 ) -> State:
     """Integrate the lattice for `n_steps` steps of `dt` seconds; returns the final `State`.
 
@@ -210,6 +248,11 @@ def simulate(
       `contact`: `Contact(stiffness, damping)` of the penalty.
     - `checkpoint_every`: an int ≥ 1: rematerialise chunks of this many steps in reverse mode
       (`jax.checkpoint`), so `jax.grad` through 10 000 steps keeps only `n/c + c` states.
+    - `progress`: an optional callback `progress(done, n_steps)` called on the host after each
+      chunk of steps (`checkpoint_every`, else `⌈n_steps / 100⌉`) as the rollout runs
+      (`bsjax.batch.report`: an ordered `jax.debug.callback`, also inside the caller's
+      `jit`/`vmap`/`grad`); the result is the same. A callable is static: the same callback
+      reuses the compilation, a new one compiles once more. None (the default) adds nothing.
 
     Bad values (NaN state, `dt` ≤ 0, NaN or unstable) raise `ValueError` when called directly,
     and an `eqx.error_if` runtime error with the same message inside the caller's `jit`.
@@ -230,6 +273,7 @@ def simulate(
         None,
         None,
         check_stability,
+        progress,
     )
     return final
 
@@ -250,9 +294,11 @@ def trajectory(
     method: str = "semi_implicit",
     cg_iterations: int = 20,
     check_stability: bool = True,
+    progress: Callable[[int, int], object] | None = None,
 ) -> tuple[State, State]:
     """Like `simulate`, and also the states after every `save_every` steps (an int ≥ 1 dividing
-    `n_steps`), stacked: `(final, saved)` with `saved.position (n_steps // save_every, N, 3)`."""
+    `n_steps`), stacked: `(final, saved)` with `saved.position (n_steps // save_every, N, 3)`;
+    `progress(done, n_steps)` after each saved state (see `simulate`)."""
     (final, _), saved = _run(
         lattice,
         state,
@@ -269,6 +315,7 @@ def trajectory(
         save_every,
         None,
         check_stability,
+        progress,
     )
     return final, saved  # pyright: ignore[reportReturnType]
 
