@@ -305,7 +305,7 @@ def test_point_parameters_of_ellipse():
     np.testing.assert_allclose(params.dk_right[:4], a / b**2 - b / a**2, rtol=1e-12)
     # range of the M+ at θ = 0: arc length to where κ = (κ_max + κ_min) / 2
     half = 0.5 * (a / b**2 + b / a**2)
-    theta = so.brentq(lambda th: ellipse_kappa(a, b, th) - half, 0, np.pi / 2)
+    theta = float(so.brentq(lambda th: ellipse_kappa(a, b, th) - half, 0, np.pi / 2))  # type: ignore[arg-type]
     # arc length of (a cos θ, b sin θ) from 0 to θ: a E(θ | 1 − b²/a²) read from the minor axis
     s = a * (sp.ellipeinc(np.pi / 2, 1 - b**2 / a**2) - sp.ellipeinc(np.pi / 2 - theta, 1 - b**2 / a**2))
     np.testing.assert_allclose(params.range_right[0], s, rtol=1e-8)
