@@ -10,7 +10,8 @@
 3. `jelly`, `drop`, `spill`: a jelly (B-spline sphere + VSOFM hexahedral lattice) dropped into
    the spoon's bowl tilted sideways by an angle; contact against a height map sampled once from
    the merged surface; the spilled fraction is a smooth function of the final node positions.
-4. `best_tilt`: gradient descent on the tilt with `jax.grad` through the whole drop.
+4. the tilt that keeps the jelly in: `bsjax.optimise.minimise` (BFGS) on the spill risk, with `jax.grad`
+   through the whole drop (`bsjax.examples.demo`); the bowl's own shape: `bsjax.examples.bowl`.
 
 All lengths in metres, times in seconds. The bowl frame has x along the spoon (the bowl at
 x ∈ [0, 0.06]), z up out of the bowl; a sideways tilt θ rotates gravity about x.
