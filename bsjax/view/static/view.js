@@ -18,7 +18,7 @@
   function basis() {
     const cy = Math.cos(cam.yaw), sy = Math.sin(cam.yaw), cp = Math.cos(cam.pitch), sp = Math.sin(cam.pitch);
     const fwd = [-cp * cy, -cp * sy, -sp];             // camera looks at the target along fwd
-    const right = [sy, -cy, 0];
+    const right = [-sy, cy, 0];                         // z is up on the screen
     const up = [right[1] * fwd[2] - right[2] * fwd[1], right[2] * fwd[0] - right[0] * fwd[2], right[0] * fwd[1] - right[1] * fwd[0]];
     const eye = [cam.target[0] - fwd[0] * cam.dist, cam.target[1] - fwd[1] * cam.dist, cam.target[2] - fwd[2] * cam.dist];
     return { fwd, right, up, eye };
@@ -73,8 +73,14 @@
     const list = [];
     const radius = scene.tool_radius || 0;
     for (const g of allSurfaces()) tris(g, b, tool, radius, list);
+    let tp = null;
+    if (tool) {
+      tp = project(b, tool, [0, 0, 0, 0]);
+      if (tp[2] > 0.01) list.push({ depth: tp[2], tool: true });  // hidden behind nearer triangles
+    }
     list.sort((p, q) => q.depth - p.depth);
     for (const t of list) {
+      if (t.tool) { sphere(tp, radius); if (force) arrow(b, tool, force, tp); continue; }
       const s = t.shade;
       const rgb = t.contact ? [235 * s, 110 * s, 70 * s] : [120 * s, 150 * s, 200 * s];
       ctx.fillStyle = `rgb(${rgb[0] | 0},${rgb[1] | 0},${rgb[2] | 0})`;
@@ -84,17 +90,13 @@
     }
     for (const c of scene.curves || []) polyline(b, c, "#e5c07b", 2);
     if (scene.replay) polyline(b, scene.replay.position, "rgba(198,120,221,0.6)", 1);
-    if (tool) {
-      const p = project(b, tool, [0, 0, 0, 0]);
-      if (p[2] > 0.01) {
-        const r = Math.max(3, p[3] * Math.max(radius, 0.02));
-        const g = ctx.createRadialGradient(p[0] - r / 3, p[1] - r / 3, r / 8, p[0], p[1], r);
-        g.addColorStop(0, "rgba(240,240,240,0.85)"); g.addColorStop(1, "rgba(120,130,140,0.55)");
-        ctx.fillStyle = g; ctx.beginPath(); ctx.arc(p[0], p[1], r, 0, 2 * Math.PI); ctx.fill();
-        if (force) arrow(b, tool, force, p);
-      }
-    }
     stats.drawn += 1;
+  }
+  function sphere(p, radius) {
+    const r = Math.max(3, p[3] * Math.max(radius, 0.02));
+    const g = ctx.createRadialGradient(p[0] - r / 3, p[1] - r / 3, r / 8, p[0], p[1], r);
+    g.addColorStop(0, "rgba(240,240,240,0.85)"); g.addColorStop(1, "rgba(120,130,140,0.55)");
+    ctx.fillStyle = g; ctx.beginPath(); ctx.arc(p[0], p[1], r, 0, 2 * Math.PI); ctx.fill();
   }
   function polyline(b, flat, color, width) {
     const tmp = [0, 0, 0, 0];
@@ -146,7 +148,7 @@
     } else if (frame) {
       const f = finite(frame.force) ? Math.hypot(...frame.force) : 0;
       lines.push(`servo   ${(frame.servo_hz || 0).toFixed(1)} Hz (${frame.mode || "?"}), ${frame.ticks} ticks`);
-      lines.push(`physics ${physicsRate.toFixed(1)} Hz, ${frame.physics_updates} updates`);
+      lines.push(`physics ${physicsRate > 0 ? physicsRate.toFixed(1) + " Hz, " : ""}${frame.physics_updates} updates`);
       lines.push(`force   |F| ${f.toFixed(3)} N of ${frame.max_force} N, watchdog gain ${(frame.gain ?? 0).toFixed(2)}`);
       lines.push(`view    ${stats.fps.toFixed(1)} frames/s`);
     }
@@ -240,6 +242,7 @@
     if (i + 1 >= T.length) { playing = false; play.textContent = "play"; return; }
     requestAnimationFrame(step);
   }
+  window.bsjaxCamera = { get: () => ({ ...cam }), set: (c) => { Object.assign(cam, c); schedule(); } };
   window.bsjaxReplay = { setIndex: (i) => setIndex(i), play: () => play.click() };
   draw(); connect();
 })();
