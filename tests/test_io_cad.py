@@ -373,3 +373,90 @@ def test_step_curves_load(tmp_path):
     np.testing.assert_allclose(
         np.asarray(again[0].evaluate(t)), np.asarray(loaded[0].evaluate(t)), atol=1e-12
     )
+
+
+# --- 4. trims, orientation, extrusions, blocks (.3dm) ------------------------------------------
+def _holed_extrusion():
+    """A 4 × 3 × 2 box extruded from a rectangle with a circular inner profile (radius 0.7 about
+    (2, 1.5)), capped: two planar caps trimmed with a hole."""
+    corners = [(0, 0), (4, 0), (4, 3), (0, 3), (0, 0)]
+    rect = rhino3dm.Polyline([rhino3dm.Point3d(x, y, 0) for x, y in corners]).ToNurbsCurve()
+    extrusion = rhino3dm.Extrusion.Create(rect, 2.0, True)
+    assert extrusion.AddInnerProfile(rhino3dm.Circle(rhino3dm.Point3d(2, 1.5, 0), 0.7).ToNurbsCurve())
+    return extrusion
+
+
+def _cap_mask_matches_geometry(obj, count: int = 41):
+    """The face's trim mask against the 3-D truth: inside the rectangle, outside the hole."""
+    s, t = np.meshgrid(np.linspace(0.02, 0.98, count), np.linspace(0.02, 0.98, count), indexing="ij")
+    points = np.asarray(obj.geometry.evaluate(s, t))
+    r = np.hypot(points[..., 0] - 2, points[..., 1] - 1.5)
+    clear = np.abs(r - 0.7) > 0.01  # polyline chords of the projected circle: ~2e-3 deep
+    np.testing.assert_array_equal(np.asarray(obj.mask(s, t))[clear], (r > 0.7)[clear])
+
+
+def test_extrusion_loads_with_caps_and_holes(tmp_path):
+    path = _write(tmp_path, "ext.3dm", _holed_extrusion())
+    with pytest.warns(UserWarning, match="2 trimmed faces loaded as their untrimmed surfaces"):
+        plain = io.load_all(path)
+    assert len(plain) == 4 + 1 + 2
+    faces = io.load_all(path, trims=True)
+    caps = [o for o in faces if o.trim is not None]
+    assert len(caps) == 2 and all(o.trim.outer == (True, False) for o in caps)
+    for cap in caps:
+        _cap_mask_matches_geometry(cap)
+    for ext in (".3dm", ".json", ".step"):  # bsjax's own files keep the trims
+        back = io.load_all(io.save(faces, tmp_path / f"back{ext}"), trims=True)
+        for cap in (o for o in back if o.trim is not None):
+            _cap_mask_matches_geometry(cap)
+        assert sum(o.trim is not None for o in back) == 2
+
+
+def test_reversed_faces_keep_their_flag(tmp_path):
+    brep = rhino3dm.Brep.CreateFromSurface(_rhino_primitives()["cylinder"])
+    brep.Flip()
+    path = _write(tmp_path, "rev.3dm", brep)
+    with pytest.warns(UserWarning, match="1 faces have reversed orientation"):
+        io.load_all(path)
+    faces = io.load_all(path, trims=True)
+    assert [o.reversed for o in faces] == [True]
+    for ext in (".3dm", ".json", ".step"):
+        assert [o.reversed for o in io.load_all(io.save(faces, tmp_path / f"r{ext}"), trims=True)] == [True]
+
+
+def test_block_instances_are_expanded_with_their_transforms(tmp_path):
+    sphere = _rhino_primitives()["sphere (collapsed poles)"]
+    model = rhino3dm.File3dm()
+    model.InstanceDefinitions.Add(
+        "ball", "", "", "", rhino3dm.Point3d(0, 0, 0), (sphere,), (rhino3dm.ObjectAttributes(),)
+    )
+    idef = model.InstanceDefinitions[0]
+    for dx in (5.0, -7.0):
+        model.Objects.AddInstanceObject(
+            rhino3dm.InstanceReference(idef.Id, rhino3dm.Transform.Translation(dx, 0, 0))
+        )
+    path = tmp_path / "blocks.3dm"
+    assert model.Write(str(path), 7)
+    loaded = io.load_all(path)
+    assert len(loaded) == 2 and loaded.held["InstanceReference"] == 2
+    for surface, dx in zip(loaded, (5.0, -7.0)):
+        moved = sphere.Duplicate()
+        moved.Translate(rhino3dm.Vector3d(dx, 0, 0))
+        _assert_same_surface(surface, moved)
+
+
+def test_contacts_masked_by_a_trim_exclude_the_hole(tmp_path):
+    """A ball sitting in the cap's hole touches the untrimmed plane but not the trimmed face.
+    (`collide.contacts` knows nothing of trims: the caller masks its grid with `CadObject.mask`.)"""
+    from bsjax import collide
+
+    faces = io.load_all(_write(tmp_path, "ext.3dm", _holed_extrusion()), trims=True)
+    cap = next(o for o in faces if o.trim is not None and np.asarray(o.geometry.ctrl)[..., 2].max() < 1e-9)
+    ball = collide.Sphere(np.array([2.0, 1.5, 0.0]), 0.3)  # inside the hole of radius 0.7
+    contact = collide.contacts(cap.geometry.blending(60, 60), cap.geometry.ctrl, ball)
+    assert bool(contact.hit)
+    u, v = np.meshgrid(np.asarray(contact.params_u), np.asarray(contact.params_v), indexing="ij")
+    assert not np.any(np.asarray(contact.mask) & np.asarray(cap.mask(u, v)))
+    near = collide.Sphere(np.array([0.5, 0.5, 0.0]), 0.3)  # a corner of the solid cap: kept
+    corner = collide.contacts(cap.geometry.blending(60, 60), cap.geometry.ctrl, near)
+    assert np.any(np.asarray(corner.mask) & np.asarray(cap.mask(u, v)))

@@ -201,13 +201,18 @@ def _read_shape(path: Path):
     if reader.ReadFile(str(path)) != IFSelect_RetDone:
         _checks.fail(str(path), f"a readable {'STEP' if step else 'IGES'} file", "a file OCCT cannot parse")
     units = _file_units(reader, step)
-    previous = Interface_Static.CVal_s("xstep.cascade.unit")
+    previous = (
+        Interface_Static.CVal_s("xstep.cascade.unit"),
+        Interface_Static.IVal_s("read.surfacecurve.mode"),
+    )
     Interface_Static.SetCVal_s("xstep.cascade.unit", _OCCT_UNITS.get(units or "mm", "MM"))
+    Interface_Static.SetIVal_s("read.surfacecurve.mode", 2)  # the file's pcurves, not re-projections
     try:
         reader.TransferRoots()
         shape = reader.OneShape()
     finally:
-        Interface_Static.SetCVal_s("xstep.cascade.unit", previous)
+        Interface_Static.SetCVal_s("xstep.cascade.unit", previous[0])
+        Interface_Static.SetIVal_s("read.surfacecurve.mode", previous[1])
     return shape, units
 
 

@@ -234,7 +234,7 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
             t0, t1 = edge.Domain.T0, edge.Domain.T1
             ts = np.linspace(t0, t1, EDGE_SAMPLES)
             ts = ts[::-1] if trim.IsReversed else ts
-            pieces.append(np.array([[*edge.PointAt(float(t))] for t in ts]))
+            pieces.append(np.array([_xyz(edge.PointAt(float(t))) for t in ts]))
         points = np.concatenate(pieces)
         uv = np.asarray(closest_points(surface, points.astype(surface.ctrl.dtype)).params, dtype=np.float64)
         loops.append(uv)
@@ -315,3 +315,7 @@ def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
             model.Objects.AddBrep(brep, attributes)
     if not model.Write(str(path), 7):
         raise OSError(f"{path}: rhino3dm could not write the file")
+
+
+def _xyz(p):
+    return (p.X, p.Y, p.Z)
