@@ -601,8 +601,9 @@ def sweep(
     - `"frenet"`: `T = C'/|C'|`, `N` along the part of `C''` normal to `T`, `B = T × N`; the
       path must have nonzero curvature at every sampled parameter.
     - `"fixed"`: the start frame kept (the profile translated along the path, not turned).
-    The start normal (rmf and fixed) is `normal` made orthogonal to `T(0)`; by default the
-    coordinate axis least aligned with `T(0)`, made orthogonal to it.
+    The start normal (rmf and fixed) is `normal` made orthogonal to `T(0)`; by default the z axis
+    made orthogonal to `T(0)` (the x axis when `T(0)` is along ±z): for a path in the xy plane
+    the profile's x axis points up (+z) and its y axis along `T × z`.
 
     **Arguments:**
     - `profile`: a `BSplineCurve` (d = 2: z = 0 in the local frame), clamped or periodic.
@@ -654,9 +655,13 @@ def _sweep(profile: BSplineCurve, path: BSplineCurve, frame: str, count: int, no
 
 
 def _start_normal(tangent, normal, dtype):
-    """The start normal ⟂ `tangent`: `normal` (checked) or the least aligned coordinate axis."""
+    """The start normal ⟂ `tangent`: `normal` (checked), or the z axis made orthogonal to the
+    tangent (the x axis when the tangent is within ~0.06° of ±z): smooth in the path except there,
+    and the up direction of a path drawn in the xy plane."""
     if normal is None:
-        return _perpendicular(tangent)
+        up = jnp.asarray([0.0, 0.0, 1.0], dtype) - tangent[2] * tangent
+        side = jnp.asarray([1.0, 0.0, 0.0], dtype) - tangent[0] * tangent
+        return _safe.unit(jnp.where(_safe.norm(up) > 1e-3, up, side))
     normal = _checks.finite(_vector(normal, "normal", dtype), "normal")
     along = normal - (normal @ tangent) * tangent
     bad = _safe.norm(along) <= 1e-9 * _safe.norm(normal)

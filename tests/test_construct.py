@@ -12,7 +12,7 @@ from scipy.interpolate import BSpline
 from scipy.spatial.transform import Rotation
 
 from bsjax import construct
-from bsjax.basis import BSplineCurve, greville
+from bsjax.basis import BSplineCurve, clamped_knots, greville
 from tests.helpers import check_grad, raises_both, random_knots
 
 T = np.concatenate([np.linspace(0.0, 1.0, 21), np.random.default_rng(7).uniform(0, 1, 20)])
@@ -437,3 +437,316 @@ def test_extrude_bad_input():
     raises_both(lambda w: construct.extrude(curve, w), np.array([1.0, np.nan, 0]), match="vector")
     with pytest.raises(ValueError, match="vector: expected an array with 1"):
         construct.extrude(curve, np.zeros((2, 3)))
+
+
+# --- interpolate_grid ------------------------------------------------------------------------------
+def _grid_points(rng, m=6, n=5):
+    """A non-separable, non-uniformly spaced grid (increasing in both directions)."""
+    steps = rng.uniform(0.2, 1.0, (m, n, 3))
+    return np.cumsum(steps, axis=0) + np.cumsum(rng.uniform(0.2, 1.0, (m, n, 3)), axis=1)
+
+
+def _reference_params(points):
+    """Averaged chord-length parameters along axis 0 of `(m, n, 3)` (The NURBS Book eq. 9.5)."""
+    chords = np.linalg.norm(np.diff(points, axis=0), axis=-1)  # (m-1, n)
+    cumulative = np.concatenate([np.zeros((1, points.shape[1])), np.cumsum(chords, axis=0)])
+    return (cumulative / cumulative[-1]).mean(axis=1)
+
+
+def _reference_knots(params, p):
+    interior = [params[j : j + p].mean() for j in range(1, len(params) - p)]
+    return np.concatenate([np.zeros(p + 1), interior, np.ones(p + 1)])
+
+
+@pytest.mark.parametrize("degree", [(3, 3), (2, 3)])
+def test_interpolate_grid_equals_scipy_interpolation_twice(degree):
+    from scipy.interpolate import make_interp_spline
+
+    points = _grid_points(np.random.default_rng(3))
+    surface = construct.interpolate_grid(points, degree)
+    pu, pv = _reference_params(points), _reference_params(np.swapaxes(points, 0, 1))
+    ku, kv = _reference_knots(pu, degree[0]), _reference_knots(pv, degree[1])
+    np.testing.assert_allclose(np.asarray(surface.knots_u), ku, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(surface.knots_v), kv, atol=1e-14)
+    along_u = make_interp_spline(pu, points, k=degree[0], t=ku, axis=0).c
+    expected = np.swapaxes(make_interp_spline(pv, along_u, k=degree[1], t=kv, axis=1).c, 0, 1)  # (axis first)
+    np.testing.assert_allclose(np.asarray(surface.ctrl), expected, atol=1e-10)
+    u, v = np.meshgrid(pu, pv, indexing="ij")
+    np.testing.assert_allclose(np.asarray(surface.evaluate(u, v)), points, atol=1e-10)
+
+
+def test_interpolate_grid_jit_vmap_grad():
+    rng = np.random.default_rng(4)
+    points = _grid_points(rng, 5, 4)
+    u, v = (jnp.asarray(x) for x in rng.uniform(0, 1, (2, 7)))
+
+    def f(p):
+        return jnp.sum(construct.interpolate_grid(p).evaluate(u, v) ** 2)
+
+    assert abs(float(jax.jit(f)(points)) - float(f(points))) <= 1e-9 * abs(float(f(points)))
+    check_grad(f, points, n_dirs=2)
+    batch = jnp.stack([points, 2.0 * points])
+    nets = jax.vmap(lambda p: construct.interpolate_grid(p).ctrl)(batch)
+    np.testing.assert_allclose(nets[1], 2.0 * nets[0], atol=1e-10)  # chord parameters scale-free
+
+
+def test_interpolate_grid_bad_input():
+    points = _grid_points(np.random.default_rng(5), 4, 4)
+    with pytest.raises(ValueError, match="points"):
+        construct.interpolate_grid(points[:3])  # 3 rows for degree 3
+    with pytest.raises(ValueError, match="points"):
+        construct.interpolate_grid(points[..., :2])
+    with pytest.raises(TypeError, match="degree"):
+        construct.interpolate_grid(points, 3)
+    holed = points.copy()
+    holed[1, 1, 0] = np.nan
+    raises_both(lambda p: construct.interpolate_grid(p).ctrl, holed, match="points")
+    coincident = points.copy()
+    coincident[2] = coincident[1]
+    raises_both(lambda p: construct.interpolate_grid(p).ctrl, coincident, match="coincident rows")
+
+
+# --- sweep -----------------------------------------------------------------------------------------
+def _helix_path(turns=1.5, a=2.0, b=0.5, samples=11):
+    """A cubic B-spline through samples of the helix `(a cos s, a sin s, b s)`."""
+    from scipy.interpolate import make_interp_spline
+
+    s = np.linspace(0, 2 * np.pi * turns, samples)
+    spline = make_interp_spline(
+        np.linspace(0, 1, samples), np.stack([a * np.cos(s), a * np.sin(s), b * s], 1), k=3
+    )
+    return BSplineCurve(spline.c, spline.t, 3)
+
+
+def _planar_circle(radius):
+    return BSplineCurve(CIRCLE_SQUARE * radius, CIRCLE_KNOTS, 2, weights=CIRCLE_WEIGHTS)
+
+
+def _s_path():
+    """A planar S-shaped path in z = 0, starting along +x, turning left then right (its inflection
+    off the sampled parameters)."""
+    ctrl = np.array([[0.0, 0, 0], [1, 0, 0], [2, 1, 0], [3.2, 2, 0], [4, 1, 0], [5, 0, 0], [6, 0, 0]])
+    return BSplineCurve(ctrl, clamped_knots(7, 3), 3)
+
+
+def _scipy_rmf_normals(path, t, start):
+    """The rotation-minimising normal by integrating `r' = −(r · T') T` with scipy (an
+    independent reference for the double reflection method)."""
+    from scipy.integrate import solve_ivp
+
+    knots, ctrl = np.asarray(path.knots), np.asarray(path.ctrl)
+    d1, d2 = BSpline(knots, ctrl, path.degree).derivative(1), BSpline(knots, ctrl, path.degree).derivative(2)
+
+    def rhs(x, r):
+        c1, c2 = d1(x), d2(x)
+        speed = np.linalg.norm(c1)
+        tangent = c1 / speed
+        dtangent = (c2 - (c2 @ tangent) * tangent) / speed
+        return -(r @ dtangent) * tangent
+
+    return solve_ivp(rhs, (0.0, 1.0), start, t_eval=t, rtol=1e-11, atol=1e-12).y.T
+
+
+def test_sweep_circle_along_helix_is_a_tube_with_rotation_minimising_frames():
+    path, radius = _helix_path(), 0.3
+    fit = construct.sweep(_planar_circle(radius), path)
+    assert 0 < float(fit.max_error) < 2e-3  # the stated fit tolerance for this path
+    rng = np.random.default_rng(6)
+    u, v = rng.uniform(0, 1, (2, 200))
+    points = np.asarray(fit.surface.evaluate(u, v))
+    centre = _scipy_points(path, v)
+    distance = np.linalg.norm(points - centre, axis=-1)
+    assert np.abs(distance - radius).max() <= float(fit.max_error) + 1e-12
+    # the sections (v = t_k): exact, in the normal plane, normals = scipy's integrated RMF
+    count = fit.surface.shape[1]
+    t_k = np.linspace(0, 1, count)
+    normals = (np.asarray(fit.surface.evaluate(np.zeros(count), t_k)) - _scipy_points(path, t_k)) / radius
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(normals, _scipy_rmf_normals(path, t_k, normals[0]), atol=1e-6)
+
+
+def test_sweep_planar_path_rmf_has_no_twist_frenet_flips_fixed_translates():
+    path, profile = _s_path(), _planar_circle(0.2)
+    count = 9
+    t_k = np.linspace(0, 1, count)
+    centre = _scipy_points(path, t_k)
+
+    def local_point(frame, u):  # S(u, t_k) − C(t_k): the profile point in the frame
+        surface = construct.sweep(profile, path, frame, n_sections=count).surface
+        return (np.asarray(surface.evaluate(np.full(count, u), t_k)) - centre) / 0.2
+
+    # default start normal: z (up) for a path in the xy plane; the RMF keeps it (no twist)
+    np.testing.assert_allclose(local_point("rmf", 0.0), np.tile([0.0, 0, 1], (count, 1)), atol=1e-12)
+    binormal = local_point("frenet", 0.25)  # B = T × N: +z where the path turns left, −z right
+    assert binormal[1, 2] == pytest.approx(1.0) and binormal[-2, 2] == pytest.approx(-1.0)
+    fixed = local_point("fixed", 0.25)
+    np.testing.assert_allclose(fixed, np.tile(fixed[0], (count, 1)), atol=1e-12)
+    # a given start normal (y): the RMF binormal stays z, the normal is z × T(t) (closed form)
+    surface = construct.sweep(profile, path, n_sections=count, normal=[0.0, 2.0, 0.0]).surface
+    normals = (np.asarray(surface.evaluate(np.zeros(count), t_k)) - centre) / 0.2
+    tangents = BSpline(np.asarray(path.knots), np.asarray(path.ctrl), 3).derivative(1)(t_k)
+    expected = np.cross([0.0, 0, 1], tangents / np.linalg.norm(tangents, axis=-1, keepdims=True))
+    np.testing.assert_allclose(normals, expected, atol=1e-12)
+
+
+def test_sweep_jit_vmap_grad():
+    path, profile = _s_path(), _planar_circle(0.2)
+    u, v = (jnp.asarray(x) for x in np.random.default_rng(8).uniform(0, 1, (2, 5)))
+
+    def f(profile_ctrl, path_ctrl):
+        fit = construct.sweep(profile.with_ctrl(profile_ctrl), path.with_ctrl(path_ctrl), n_sections=6)
+        return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
+
+    args = (profile.ctrl, path.ctrl)
+    assert float(jax.jit(f)(*args)) == pytest.approx(float(f(*args)), rel=1e-12)
+    check_grad(lambda p: f(p, path.ctrl), profile.ctrl, n_dirs=1)
+    check_grad(lambda p: f(profile.ctrl, p), path.ctrl, n_dirs=1)
+    batch = jax.vmap(lambda s: f(s * profile.ctrl, path.ctrl))(jnp.asarray([1.0, 2.0]))
+    assert batch.shape == (2,) and float(batch[0]) == pytest.approx(float(f(*args)), rel=1e-12)
+
+
+def test_sweep_bad_input():
+    path, profile = _s_path(), _planar_circle(0.2)
+    with pytest.raises(ValueError, match="frame"):
+        construct.sweep(profile, path, frame="twisted")
+    with pytest.raises(ValueError, match="n_sections"):
+        construct.sweep(profile, path, n_sections=1)
+    with pytest.raises(TypeError, match="path"):
+        construct.sweep(profile, path.ctrl)
+    point = np.ones((7, 3))
+    raises_both(lambda p: construct.sweep(profile, path.with_ctrl(p), n_sections=4).max_error, point,
+                match="path: expected a regular path")  # fmt: skip
+    line = np.linspace([0.0, 0, 0], [1.0, 1, 1], 7)
+    raises_both(lambda p: construct.sweep(profile, path.with_ctrl(p), "frenet", 4).max_error, line,
+                match="nonzero curvature")  # fmt: skip
+    raises_both(lambda n: construct.sweep(profile, path, n_sections=4, normal=n).max_error,
+                np.array([1.0, 0, 0]), match="normal")  # fmt: skip
+
+
+# --- boundary_rotation -----------------------------------------------------------------------------
+_OUTLINE = np.array([[0.0, 0, 0], [1, 0.5, 0], [1.5, 1.5, 0], [0.8, 2.5, 0], [0, 3, 0]])
+
+
+def test_boundary_rotation_of_mirrored_outlines_is_a_surface_of_revolution():
+    left = BSplineCurve(_OUTLINE, clamped_knots(5, 3), 3)
+    right = BSplineCurve(_OUTLINE * [-1, 1, 1], clamped_knots(5, 3), 3)
+    fit = construct.boundary_rotation(left, right, [0.0, 0.0, 3.0])
+    assert float(fit.max_error) < 1e-12
+    u, _, points = _grid(fit.surface, 11, 13)
+    radius = np.abs(_scipy_points(left, u.ravel())[:, 0]).reshape(u.shape)
+    np.testing.assert_allclose(np.hypot(points[..., 0], points[..., 2]), radius, atol=1e-12)
+    np.testing.assert_allclose(
+        points[..., 1], _scipy_points(left, u.ravel())[:, 1].reshape(u.shape), atol=1e-12
+    )
+    assert points[5, 3, 2] > 0  # the circles bulge towards +plane_normal at v = ¼
+
+
+def test_boundary_rotation_general_outlines_circles_through_both():
+    rng = np.random.default_rng(9)
+    left = BSplineCurve(np.c_[rng.normal(size=(6, 2)) + [2, 0], np.zeros(6)], random_knots(rng, 6, 3), 3)
+    right = BSplineCurve(np.c_[rng.normal(size=(5, 2)) - [2, 0], np.zeros(5)], random_knots(rng, 5, 2), 2)
+    fit = construct.boundary_rotation(left, right, [0.0, 0.0, 1.0])
+    t = np.linspace(0, 1, 17)
+    for v, curve in ((0.0, left), (0.5, right), (1.0, left)):
+        on_outline = np.asarray(fit.surface.evaluate(t, np.full_like(t, v)))
+        np.testing.assert_allclose(on_outline, _scipy_points(curve, t), atol=1e-12)
+    # every sample on the circle of centre Q(u), radius |D(u)|, in the plane of D and the normal
+    u, v = rng.uniform(0, 1, (2, 300))
+    cl, cr = _scipy_points(left, u), _scipy_points(right, u)
+    offset = np.asarray(fit.surface.evaluate(u, v)) - (cl + cr) / 2
+    half = np.linalg.norm(cl - cr, axis=-1) / 2
+    error = float(fit.max_error)
+    assert 0 < error < 0.05 * half.max()
+    assert np.abs(np.linalg.norm(offset, axis=-1) - half).max() <= error + 1e-12
+    in_plane = np.abs(np.einsum("ij,ij->i", offset, np.cross(cl - cr, [0.0, 0, 1]))) / np.linalg.norm(
+        cl - cr, axis=-1
+    )
+    assert in_plane.max() <= 1e-12
+
+
+def test_boundary_rotation_jit_vmap_grad_and_bad_input():
+    left = BSplineCurve(_OUTLINE + [0.2, 0, 0], clamped_knots(5, 3), 3)
+    right = BSplineCurve(_OUTLINE * [-1, 1, 1], clamped_knots(5, 3), 3)
+    u, v = (jnp.asarray(x) for x in np.random.default_rng(10).uniform(0, 1, (2, 6)))
+
+    def f(ctrl, normal):
+        fit = construct.boundary_rotation(left.with_ctrl(ctrl), right, normal)
+        return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
+
+    normal = jnp.asarray([0.1, 0.0, 1.0])
+    assert float(jax.jit(f)(left.ctrl, normal)) == pytest.approx(float(f(left.ctrl, normal)), rel=1e-12)
+    check_grad(lambda c: f(c, normal), left.ctrl + 0.1, n_dirs=1)  # (outlines apart: |D| > 0 inside)
+    check_grad(lambda n: f(left.ctrl, n), normal, n_dirs=1)
+    batch = jax.vmap(lambda n: f(left.ctrl, n))(jnp.stack([normal, 2.0 * normal]))
+    assert float(batch[0]) == pytest.approx(float(batch[1]), rel=1e-12)  # any normal length
+    raises_both(
+        lambda n: construct.boundary_rotation(left, right, n).max_error, np.zeros(3), match="plane_normal"
+    )
+    raises_both(lambda n: construct.boundary_rotation(left, right, n).max_error, np.array([np.nan, 0, 1.0]),
+                match="plane_normal")  # fmt: skip
+    with pytest.raises(ValueError, match="plane_normal"):
+        construct.boundary_rotation(left, right, [0.0, 1.0])
+    with pytest.raises(ValueError, match="right: expected a polynomial"):
+        construct.boundary_rotation(left, _circle(1.0, 0.0), [0.0, 0.0, 1.0])
+    with pytest.raises(TypeError, match="left"):
+        construct.boundary_rotation(_OUTLINE, right, [0.0, 0.0, 1.0])
+
+
+# --- rail_rotation ---------------------------------------------------------------------------------
+def _semicircle_profile():
+    """The half circle of radius 1 about (0, 0, 1) in the plane x = 0, from (0, 0, 0) to (0, 0, 2)."""
+    ctrl = np.array([[0.0, 0, 0], [0, -1, 0], [0, -1, 1], [0, -1, 2], [0, 0, 2]])
+    knots = [0, 0, 0, 0.5, 0.5, 1, 1, 1]
+    return BSplineCurve(ctrl, knots, 2, weights=np.array([1, 2**-0.5, 1, 2**-0.5, 1]))
+
+
+def test_rail_rotation_straight_parallel_rails_make_a_cylinder():
+    rail_a = BSplineCurve(np.array([[0.0, 0, 0], [3, 0, 0]]), [0, 0, 1, 1], 1)
+    rail_b = BSplineCurve(np.array([[0.0, 0, 2], [3, 0, 2]]), [0, 0, 1, 1], 1)
+    fit = construct.rail_rotation(rail_a, rail_b, _semicircle_profile(), n_sections=4)
+    assert float(fit.max_error) < 1e-12
+    _, v, points = _grid(fit.surface, 9, 11)
+    np.testing.assert_allclose(np.hypot(points[..., 1], points[..., 2] - 1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(points[..., 0], 3 * v, atol=1e-12)
+    assert points[..., 1].max() <= 1e-12  # the arc's side kept (y ≤ 0)
+
+
+def test_rail_rotation_coaxial_circles_revolve_the_profile_and_hold_the_rails():
+    rail_a, rail_b = _circle(1.0, 0.0), _circle(0.5, 2.0)
+    profile = BSplineCurve(
+        np.array([[1.0, 0, 0], [1.3, 0, 0.7], [0.6, 0, 1.4], [0.5, 0, 2]]), clamped_knots(4, 3), 3
+    )
+    fit = construct.rail_rotation(rail_a, rail_b, profile)
+    error = float(fit.max_error)
+    assert 0 < error < 5e-3
+    rng = np.random.default_rng(11)
+    u, v = rng.uniform(0, 1, (2, 200))
+    points = np.asarray(fit.surface.evaluate(u, v))
+    expected = _scipy_points(profile, u)
+    assert np.abs(np.hypot(points[:, 0], points[:, 1]) - expected[:, 0]).max() <= error + 1e-12
+    np.testing.assert_allclose(points[:, 2], expected[:, 2], atol=1e-12)  # heights exact
+    t_k = np.linspace(0, 1, fit.surface.shape[1])
+    for u_end, rail in ((0.0, rail_a), (1.0, rail_b)):
+        on_rail = np.asarray(fit.surface.evaluate(np.full_like(t_k, u_end), t_k))
+        np.testing.assert_allclose(on_rail, _scipy_points(rail, t_k), atol=1e-12)
+
+
+def test_rail_rotation_grad_and_bad_input():
+    rail_a = BSplineCurve(np.array([[0.0, 0, 0], [1, 0.5, 0], [3, 0, 0]]), [0, 0, 0, 1, 1, 1], 2)
+    rail_b = BSplineCurve(np.array([[0.0, 0, 2], [1, 0.2, 2], [3, 0, 2]]), [0, 0, 0, 1, 1, 1], 2)
+    profile = _semicircle_profile()
+    u, v = (jnp.asarray(x) for x in np.random.default_rng(12).uniform(0, 1, (2, 5)))
+
+    def f(ctrl):
+        fit = construct.rail_rotation(rail_a.with_ctrl(ctrl), rail_b, profile, n_sections=5)
+        return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
+
+    assert float(jax.jit(f)(rail_a.ctrl)) == pytest.approx(float(f(rail_a.ctrl)), rel=1e-12)
+    check_grad(f, rail_a.ctrl, n_dirs=1)
+    raises_both(lambda p: construct.rail_rotation(rail_a, rail_b.with_ctrl(p), profile, 5).max_error,
+                np.asarray(rail_a.ctrl), match="rail_b: expected rails apart")  # fmt: skip
+    closed = profile.with_ctrl(np.asarray(profile.ctrl) * [1, 1, 0])
+    with pytest.raises(ValueError, match="profile: expected distinct end points"):
+        construct.rail_rotation(rail_a, rail_b, closed, 5)
+    with pytest.raises(ValueError, match="n_sections"):
+        construct.rail_rotation(rail_a, rail_b, profile, 1)
