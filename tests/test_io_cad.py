@@ -460,3 +460,67 @@ def test_contacts_masked_by_a_trim_exclude_the_hole(tmp_path):
     near = collide.Sphere(np.array([0.5, 0.5, 0.0]), 0.3)  # a corner of the solid cap: kept
     corner = collide.contacts(cap.geometry.blending(60, 60), cap.geometry.ctrl, near)
     assert np.any(np.asarray(corner.mask) & np.asarray(cap.mask(u, v)))
+
+
+# --- 5. the command line ----------------------------------------------------------------------
+def test_cli_convert_keeps_geometry_trims_orientation_and_units(tmp_path, capsys):
+    from bsjax.cli import convert
+
+    model = rhino3dm.File3dm()
+    model.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Millimeters
+    model.Objects.AddExtrusion(_holed_extrusion())
+    source = tmp_path / "part.3dm"
+    assert model.Write(str(source), 7)
+    reference = io.load_all(source, trims=True)
+    for ext in (".step", ".igs", ".json", ".3dm"):
+        target = tmp_path / f"part{ext}"
+        assert convert.main([str(source), str(target)]) == 0
+        back = io.load_all(target, trims=True)
+        assert back.units == "mm" and len(back) == len(reference)
+        assert sum(o.trim is not None for o in back) == 2
+        if ext != ".igs":
+            assert [o.reversed for o in back] == [o.reversed for o in reference]
+        for a, b in zip(reference, back):
+            u = np.linspace(0, 1, 7)
+            np.testing.assert_allclose(
+                np.asarray(b.geometry.evaluate(u, u)), np.asarray(a.geometry.evaluate(u, u)), atol=1e-8
+            )
+    assert convert.main([str(source), str(tmp_path / "m.json"), "--units", "m"]) == 0
+    metres = io.load_all(tmp_path / "m.json")
+    assert metres.units == "m"
+    np.testing.assert_allclose(np.asarray(metres[0].ctrl), np.asarray(reference[0].geometry.ctrl) / 1000)
+    assert convert.main([str(source), str(tmp_path / "part.stl")]) == 0
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["{d}/held.3dm", "{d}/o.json"], "object 0 (Point)"),
+        (["{d}/held.3dm", "{d}/o.json", "--units", "furlong"], "--units"),
+        (["{d}/absent.step", "{d}/o.json"], "absent.step"),
+        (["{d}/garbage.step", "{d}/o.json"], "garbage.step"),
+    ],
+)
+def test_cli_convert_errors_are_one_line(tmp_path, capsys, argv, message):
+    from bsjax.cli import convert
+
+    model = rhino3dm.File3dm()
+    model.Objects.AddPoint(rhino3dm.Point3d(1, 2, 3))
+    model.Objects.AddSurface(_rhino_primitives()["cylinder"])
+    assert model.Write(str(tmp_path / "held.3dm"), 7)
+    (tmp_path / "garbage.step").write_text("ISO-10303-21;\nnot a step file\n")
+    assert convert.main([a.format(d=tmp_path) for a in argv]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+def test_cli_convert_skips_unsupported_when_asked(tmp_path):
+    from bsjax.cli import convert
+
+    model = rhino3dm.File3dm()
+    model.Objects.AddPoint(rhino3dm.Point3d(1, 2, 3))
+    model.Objects.AddSurface(_rhino_primitives()["cylinder"])
+    assert model.Write(str(tmp_path / "held.3dm"), 7)
+    with pytest.warns(UserWarning, match="not loaded: object 0"):
+        assert convert.main([str(tmp_path / "held.3dm"), str(tmp_path / "o.json"), "--skip-unsupported"]) == 0
+    assert len(io.load_all(tmp_path / "o.json")) == 1

@@ -1,10 +1,14 @@
-"""`bsjax convert IN OUT`: convert surfaces between .json, .3dm and mesh formats (`bsjax.io`).
+"""`bsjax convert IN OUT`: convert surfaces and curves between .json, .3dm, STEP, IGES and meshes (`bsjax.io`).
 
-    bsjax convert patches.3dm patches.json
+    bsjax convert patches.3dm patches.step
+    bsjax convert part.step part.3dm --units mm
     bsjax convert teardrop.json teardrop.glb --samples 120,60
 
-The B-spline formats (.json, .3dm) keep every surface exactly, in float64 unless `--float32`;
-the mesh formats (.obj, .stl, .ply, .glb) hold the tessellated `--samples` grid.
+The B-spline formats (.json, .3dm, .step/.stp, .iges/.igs) keep every surface and curve exactly,
+with its trims, orientation, name, layer and the file's unit system (float64 unless `--float32`);
+the mesh formats (.obj, .stl, .ply, .glb) hold the tessellated `--samples` grid of the surfaces.
+A file holding objects bsjax cannot load (meshes, points, SubD, …) is refused with a list of
+them unless `--skip-unsupported`.
 """
 
 from __future__ import annotations
@@ -13,23 +17,54 @@ import sys
 
 from bsjax.cli import _common as c
 
+INPUTS = (".json", ".3dm", ".step", ".stp", ".iges", ".igs")
+OUTPUTS = (*INPUTS, ".obj", ".stl", ".ply", ".glb")
+
 
 def _parser():
     p = c.Parser("bsjax convert", __doc__.splitlines()[0].strip("`"))
-    p.add_argument("source", type=c.input_file(*c.SURFACE_INPUTS), help="surface file (.json, .3dm)")
-    p.add_argument(
-        "target", type=c.output_file(*c.SURFACE_OUTPUTS), help="output (.json, .3dm, .obj, .stl, .ply, .glb)"
-    )
+    p.add_argument("source", type=c.input_file(*INPUTS), help="spline file (" + ", ".join(INPUTS) + ")")
+    p.add_argument("target", type=c.output_file(*OUTPUTS), help="output (" + ", ".join(OUTPUTS) + ")")
     p.add_argument("--samples", type=c.grid, default=(82, 82), metavar="M,N", help="mesh sample grid (82,82)")
+    p.add_argument(
+        "--units", default=None, metavar="UNIT", help="convert lengths into this unit (mm, cm, m, in, ft, …)"
+    )
+    p.add_argument(
+        "--skip-unsupported", action="store_true", help="load what bsjax can and warn about the rest"
+    )
     return p
 
 
 def _body(args) -> int:
-    from bsjax import io
+    import equinox as eqx
+    import numpy as np
 
-    surfaces = c.load_surfaces(args.source, args)
-    io.save(surfaces, args.target, *args.samples)
-    print(f"{args.source} → {args.target}: {len(surfaces)} surface(s)", file=sys.stderr)
+    from bsjax import io
+    from bsjax.basis import BSplineSurface
+
+    if args.units is not None and args.units not in io.UNITS:
+        raise c.UserError("--units", f"expected one of {', '.join(io.UNITS)}, got {args.units!r}")
+    on_unsupported = "skip" if args.skip_unsupported else "raise"
+    loaded = io.load_all(args.source, units=args.units, on_unsupported=on_unsupported, trims=True)
+    if not loaded:
+        raise c.UserError(args.source, f"no surface or curve to convert (the file holds {loaded.holding()})")
+    dt = c.dtype(args)
+    cast = [
+        eqx.tree_at(lambda o: o.geometry, o, o.geometry.with_ctrl(np.asarray(o.geometry.ctrl, dt)))
+        for o in loaded
+    ]
+    items = io.CadList(cast, loaded.units, cast, loaded.held)
+    if args.target.lower().endswith(io.MESH_FORMATS):
+        surfaces = [o for o in cast if isinstance(o.geometry, BSplineSurface)]
+        if not surfaces:
+            raise c.UserError(args.source, "no surface to tessellate (a mesh format holds surfaces only)")
+        items = io.CadList(surfaces, loaded.units, surfaces, loaded.held)
+    io.save(items, args.target, *args.samples)
+    trimmed = sum(o.trim is not None for o in items)
+    print(
+        f"{args.source} → {args.target}: {len(items)} object(s), {trimmed} trimmed, units {loaded.units or 'none'}",
+        file=sys.stderr,
+    )
     return 0
 
 
