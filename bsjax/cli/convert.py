@@ -1,4 +1,4 @@
-"""`bsjax convert IN OUT`: convert surfaces and curves between .json, .3dm, STEP, IGES and meshes (`bsjax.io`).
+"""`bsjax convert IN OUT`: convert splines between .json, .3dm, STEP, IGES and meshes (`bsjax.io`).
 
     bsjax convert patches.3dm patches.step
     bsjax convert part.step part.3dm --units mm
@@ -62,7 +62,8 @@ def _body(args) -> int:
     io.save(items, args.target, *args.samples)
     trimmed = sum(o.trim is not None for o in items)
     print(
-        f"{args.source} → {args.target}: {len(items)} object(s), {trimmed} trimmed, units {loaded.units or 'none'}",
+        f"{args.source} → {args.target}: {len(items)} object(s), {trimmed} trimmed, "
+        f"units {loaded.units or 'none'}",
         file=sys.stderr,
     )
     return 0
