@@ -97,6 +97,19 @@ def finite(x, name: str):
     return check(x, ~jnp.isfinite(x), name, "finite values", "NaN or inf")
 
 
+def coordinate_limit(dtype) -> float:
+    """The largest coordinate or length bsjax accepts in `dtype`: `√(max float) / 4` (float64
+    ≈ 3.4e153, float32 ≈ 4.6e18), so squared distances and sums of them stay finite."""
+    return float(np.sqrt(np.finfo(dtype).max) / 4)
+
+
+def coordinates(x, name: str):
+    """`x` with every entry finite and `|x| ≤ coordinate_limit(dtype)` (positions, lengths)."""
+    limit = coordinate_limit(x.dtype)
+    bad = ~(jnp.abs(x) <= limit)
+    return check(x, bad, name, f"finite values of magnitude <= {limit:.3g}", "NaN, inf or larger", _span)
+
+
 def positive(x, name: str, strict: bool = True):
     """`x` with every entry finite and > 0 (≥ 0 when `strict=False`)."""
     sign = "> 0" if strict else ">= 0"

@@ -53,6 +53,12 @@ ARRAY_CASES = [
     ("relax tol < 0", None, jnp.asarray(-1.0), "tol"),
     ("hex_lattice positions NaN", None, jnp.full((2, 2, 2, 3), np.nan), "positions"),
     ("vsofm.fit points inf", lambda p: vsofm.fit(p, (3, 3, 3), cycles=2), None, "points"),
+    # extreme but finite: refused where the quadratics of the depth would overflow
+    ("Sphere radius 1e300", lambda r: collide.Sphere(C3, r), jnp.asarray(1e300), "radius"),
+    ("Point position 1e300", lambda p: collide.Point(p), jnp.array([1e300, 0.0, 0.0]), "position"),
+    ("Ellipsoid aspect 1e13", lambda r: collide.Ellipsoid(C3, r), jnp.array([1e13, 1.0, 1.0]), "radii"),
+    ("hex_lattice flat grid", None, None, "positions"),
+    ("hex_lattice overflowing grid", None, None, "positions"),
 ]
 
 
@@ -71,7 +77,38 @@ def _lattice_case(label, lat, state):
         ),
         "relax tol < 0": lambda t: mss.relax(lat, state, 1e-5, tol=t, max_steps=2, check_every=1),
         "hex_lattice positions NaN": lambda x: mss.hex_lattice(x, material=mss.JELLY),
+        "hex_lattice flat grid": (
+            lambda x: mss.hex_lattice(x, material=mss.JELLY),
+            _grid().at[..., 2].set(0.0),
+        ),
+        "hex_lattice overflowing grid": (lambda x: mss.hex_lattice(x, material=mss.JELLY), _grid() * 1e300),
     }[label]
+
+
+def _grid():
+    return jnp.stack(jnp.meshgrid(*[jnp.linspace(0.0, 0.1, 3)] * 3, indexing="ij"), -1)
+
+
+def test_extreme_finite_tools_give_finite_contacts(plate):
+    """At the documented limits (coordinates up to `coordinate_limit`, an ellipsoid of aspect
+    1e12) every contact field, the force and the push are finite."""
+    from bsjax._checks import coordinate_limit
+
+    s, b = plate
+    big = 0.9 * coordinate_limit(np.float64)
+    tools = [
+        collide.Sphere(C3, big),
+        collide.Sphere(jnp.array([big, 0.5, 0.0]), big),
+        collide.Ellipsoid(C3, jnp.array([1e6, 1.0, 1e-6])),
+        collide.Sphere(C3, 1e-300),
+        collide.Plane(jnp.array([big, 0.0, 0.0]), jnp.array([1e-300, 0.0, 1.0])),
+    ]
+    for tool in tools:
+        c = collide.contacts(b, s.ctrl, tool)
+        leaves = [c.depth, c.points, c.normals, c.tool_normals, collide.contact_force(c, 1e3)]
+        assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(leaves)), tool
+        depth, normal = tool.push(s.ctrl.reshape(-1, 3))
+        assert bool(jnp.all(jnp.isfinite(depth))) and bool(jnp.all(jnp.isfinite(normal)))
 
 
 @pytest.mark.parametrize("label, fn, array, name", ARRAY_CASES, ids=[c[0] for c in ARRAY_CASES])

@@ -42,14 +42,14 @@ def _vector(x, name: str, size: int = 3):
     arr = _float(x, name)
     if arr.shape != (size,):
         _checks.fail(name, f"shape ({size},)", arr.shape)
-    return _checks.finite(arr, name)
+    return _checks.coordinates(arr, name)
 
 
 def _scalar(x, name: str):
     arr = _float(x, name)
     if arr.shape != ():
         _checks.fail(name, "a scalar", arr.shape)
-    return _checks.positive(arr, name)
+    return _checks.coordinates(_checks.positive(arr, name), name)
 
 
 def _points(x, dtype):
@@ -222,6 +222,9 @@ class Sphere(AbstractTool):
         return self.center, self.radius
 
 
+_MAX_ASPECT = 1e12  # the largest ratio of an ellipsoid's semi-axes (its quadratics stay finite)
+
+
 class Ellipsoid(AbstractTool):
     """A solid ellipsoid `|D⁻¹ Rᵀ (x − center)| < 1`, `D = diag(radii)`.
 
@@ -236,7 +239,15 @@ class Ellipsoid(AbstractTool):
 
     def __init__(self, center, radii, rotation=None):
         self.center = _vector(center, "center")
-        self.radii = _checks.positive(_vector(radii, "radii").astype(self.center.dtype), "radii")
+        radii = _checks.positive(_vector(radii, "radii").astype(self.center.dtype), "radii")
+        self.radii = _checks.check(
+            radii,
+            jnp.max(radii) > _MAX_ASPECT * jnp.min(radii),
+            "radii",
+            f"semi-axes within a ratio of {_MAX_ASPECT:.0e} of each other",
+            "a larger ratio",
+            lambda r: f"{r.max() / r.min():.3g}",
+        )
         if rotation is None:
             rotation = jnp.eye(3, dtype=self.center.dtype)
         rotation = _float(rotation, "rotation").astype(self.center.dtype)
@@ -272,10 +283,11 @@ class Ellipsoid(AbstractTool):
         y = [sum(d[j] * r[j, i] for j in range(3)) for i in range(3)]  # per component: fused on CPU
         z, inside = _ellipsoid_closest(y, self.radii)
         depth = jnp.where(inside, _safe.sqrt(sum((y[i] - z[i]) ** 2 for i in range(3))), 0)
-        g = [z[i] / self.radii[i] ** 2 for i in range(3)]
+        # the gradient z_i / r_i², scaled by r_min² so no term overflows for thin ellipsoids
+        small = jnp.min(self.radii)
+        g = [(z[i] / self.radii[i]) * (small / self.radii[i]) for i in range(3)]
         n = [sum(r[j, i] * g[i] for i in range(3)) for j in range(3)]
-        inv = jax.lax.rsqrt(jnp.maximum(sum(c * c for c in n), jnp.finfo(x.dtype).tiny))
-        return depth, jnp.stack([c * inv for c in n], -1)
+        return depth, _safe.unit(jnp.stack(n, -1))
 
     @compiled
     def penetration(self, x, n):

@@ -263,7 +263,7 @@ def hex_lattice(
     x = p.reshape(-1, 3)
     if material is not None:
         return from_material(
-            x, edges, material, hex_volume(p), fixed=fixed, node_damping=node_damping, grid_shape=shape
+            x, edges, material, _enclosed_volume(p), fixed=fixed, node_damping=node_damping, grid_shape=shape
         )
     if stiffness is None or damping is None or mass is None:
         _checks.fail("stiffness, damping, mass", "all three, or a material", "some missing")
@@ -271,6 +271,14 @@ def hex_lattice(
 
 
 @compiled
+def _enclosed_volume(p):
+    """The grid's volume, checked: a flat, inverted or overflowing grid names `positions`."""
+    volume = hex_volume(p)
+    bad = ~(jnp.isfinite(volume) & (volume > 0))
+    expected = "a grid enclosing a finite volume > 0 (not flat, not overflowing)"
+    return _checks.check(volume, bad, "positions", expected, "a zero, negative or non-finite volume")
+
+
 def from_material(
     rest_positions, edges, material: Material, volume, fixed=None, *, node_damping=0.0, grid_shape=None
 ) -> Lattice:
