@@ -362,4 +362,6 @@ def _shifted(progress, offset: int, total: int, done: int, _: int):
 
 
 def _dtype(setup) -> np.dtype:
-    return np.dtype(jax.tree.leaves(setup)[0].dtype)
+    """The setup's floating dtype (float32 with `--float32`, else float64)."""
+    floats = [x.dtype for x in jax.tree.leaves(setup) if jnp.issubdtype(x.dtype, jnp.floating)]
+    return np.dtype(floats[0])
