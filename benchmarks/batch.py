@@ -172,11 +172,12 @@ def main() -> int:
         rows = one_run(args)
         total = sum(r["designs"] / r["seconds"] for r in rows)
         runs.append((total, k, rows, load, os.getloadavg()))
-        print(f"run {k + 1}: load average {load[0]:.1f} → {runs[-1][4][0]:.1f}", flush=True)
+        print(f"\nrun {k + 1}: load average {load[0]:.1f} → {runs[-1][4][0]:.1f}", flush=True)
+        report(rows)  # each run as it ends: a long run on a loaded machine still leaves figures
     runs.sort(key=lambda r: r[0])
     _, k, rows, before, after = runs[len(runs) // 2]
     print(
-        f"\nmedian run {k + 1} of {args.runs} ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, "
+        f"\n=== median run {k + 1} of {args.runs} ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, "
         f"load average {before[0]:.1f} before, {after[0]:.1f} after; float64)"
     )
     report(rows)
