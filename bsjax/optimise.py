@@ -16,8 +16,9 @@ Both share the options:
   limits"): `x = lo + (hi − lo)(1 + sin z)/2` between two bounds, `x = lo − 1 + √(z² + 1)` above
   a lower bound, `x = hi + 1 − √(z² + 1)` below an upper one. The solver works on the unbounded
   `z`, so every iterate is inside the box (no projection) and the line search keeps its descent
-  guarantee; an optimum on a bound is a smooth stationary point in `z`. A start within 0.05 % of
-  the box width of a bound is moved there (the sine's derivative vanishes on the bound);
+  guarantee; an optimum on a bound is a smooth stationary point in `z`. The transforms' derivative
+  vanishes on a bound, so a start within 0.05 % of the box width of a bound is moved to that
+  distance inside (1e-12 for a one-sided bound): start inside the box;
 * **fixed entries** `free` (a boolean pytree like `design`, True where the entry may move, e.g.
   False on the bowl's rim): the objective sees `where(free, x, design)`, so fixed entries have a
   zero gradient and never move;
@@ -67,6 +68,7 @@ STATUS = ("converged", "max_steps", "failed")
 design is the last accepted one), 2 failed (a non-finite objective, or the solver broke down)."""
 
 _NUDGE = 1e-3  # starts closer than this (in units of half the box) to a bound are moved inside
+_NUDGE_ONE_SIDED = 1e-12  # … and closer than this (design units) to a one-sided bound
 
 
 class OptimiseResult(eqx.Module):
@@ -118,10 +120,10 @@ def _to_internal(x, lo, hi):
     lo0, hi0 = jnp.where(jnp.isfinite(lo), lo, 0.0), jnp.where(jnp.isfinite(hi), hi, 0.0)
     width = jnp.where(both & (hi0 > lo0), hi0 - lo0, 1.0)
     t = jnp.clip(2 * (x - lo0) / width - 1, -1 + _NUDGE, 1 - _NUDGE)
-    gap_lo = jnp.maximum(jnp.where(above, x - lo0, 1.0), _NUDGE)
-    gap_hi = jnp.maximum(jnp.where(below, hi0 - x, 1.0), _NUDGE)
-    z = jnp.where(below, jnp.sqrt((gap_hi + 1.0) ** 2 - 1.0), x)
-    z = jnp.where(above, jnp.sqrt((gap_lo + 1.0) ** 2 - 1.0), z)
+    gap_lo = jnp.maximum(jnp.where(above, x - lo0, 1.0), _NUDGE_ONE_SIDED)
+    gap_hi = jnp.maximum(jnp.where(below, hi0 - x, 1.0), _NUDGE_ONE_SIDED)
+    z = jnp.where(below, jnp.sqrt(gap_hi * (gap_hi + 2.0)), x)  # (gap + 1)² − 1, without cancellation
+    z = jnp.where(above, jnp.sqrt(gap_lo * (gap_lo + 2.0)), z)
     return jnp.where(both, jnp.arcsin(t), z)
 
 

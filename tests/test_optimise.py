@@ -204,3 +204,15 @@ def test_bowl_optimisation_lowers_spill_risk_and_matches_nelder_mead():
     _, nm_value, nm_evals = bowl.nelder_mead(s, int(found.evaluations))
     assert nm_evals <= int(found.evaluations)
     assert float(found.value) <= nm_value + 1e-9
+
+
+def test_lower_bound_only_and_change_of_variables_round_trip():
+    r = optimise.minimise(lambda x, a: jnp.sum((x + 1.0) ** 2), jnp.array([1.0, 3.0]), lower=0.0)
+    np.testing.assert_allclose(r.design, 0.0, atol=1e-6)
+    assert float(r.design.min()) >= 0.0 and monotone(r.accepted())
+    from bsjax.optimise import _to_design, _to_internal
+
+    x = jnp.array([0.3, -2.0, 5.0, 0.7])
+    lo = jnp.array([0.0, -jnp.inf, 1.0, -jnp.inf])
+    hi = jnp.array([1.0, -1.0, jnp.inf, jnp.inf])
+    np.testing.assert_allclose(_to_design(_to_internal(x, lo, hi), lo, hi), x, rtol=1e-12)
