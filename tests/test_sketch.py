@@ -144,6 +144,18 @@ def test_resample_keeps_ends_and_corners_and_thins_a_noisy_stroke():
     np.testing.assert_array_equal(out.times, times[out.index])
     corner = np.flatnonzero(np.asarray(sketch.corners(noisy, times)))
     assert set(corner.tolist()) <= set(out.index.tolist())
+    # eqs. 4-2 / 4-3 step by step (numpy): slow → index step round(2 S/S_avg + 0.5), fast → spacing 7 S/S_avg
+    f = sketch.features(noisy, times)
+    rel = np.asarray(f.speed) / float(f.mean_speed)
+    forced = set(corner.tolist()) | {len(noisy) - 1}
+    for i, j in zip(out.index[:-1], out.index[1:]):
+        if j in forced:
+            continue
+        if rel[i] < 1.0:
+            assert j - i == max(1, int(np.floor(2 * rel[i] + 1.0)))
+        else:
+            assert np.linalg.norm(noisy[j] - noisy[i]) >= 7 * rel[i]
+            assert np.linalg.norm(noisy[j - 1] - noisy[i]) < 7 * rel[i] or j - 1 == i
     # a larger unit (coarser pixels) keeps fewer samples
     assert len(sketch.resample(noisy, times, unit=3.0).index) < len(out.index)
 
