@@ -231,3 +231,20 @@ def test_view_cli_serves_a_file_for_its_duration(tmp_path, capsys):
     bio.save(random_surface(np.random.default_rng(3), 4, 4), path)
     assert view_cli.main([str(path), "--duration", "0.3"]) == 0
     assert "bsjax view: http://127.0.0.1:" in capsys.readouterr().out
+
+
+def test_haptics_cli_view_port_is_checked(capsys):
+    from bsjax.cli import haptics
+
+    assert haptics.main(["--proxy-only", "--view", "--port", "70000"]) == 2
+    err = capsys.readouterr().err
+    assert "--port: expected a port in [0, 65535], got 70000" in err and "Traceback" not in err
+
+
+def test_haptics_cli_serves_the_view_with_the_servo_in_its_own_process(capsys):
+    from bsjax.cli import haptics
+
+    assert haptics.main(["--proxy-only", "--servo-process", "--view", "--duration", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "servo process" in out and "live view at http://127.0.0.1:" in out
+    assert "zero force written" in out and ("SCHED_FIFO" in out or "normal priority" in out)
