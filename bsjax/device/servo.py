@@ -29,6 +29,20 @@ Safety chain (paper 002 §4.2's servo contract; issue #16):
   thread does runs inside its `try`; if it dies, zero force is written, `running` is False,
   `error` holds the exception and `stop()` raises `DeviceError` naming it.
 
+Process mode (`mode="process"`, issue #15): the servo runs in its own interpreter (a
+`multiprocessing` "spawn" child, `_process`), pinned to the last allowed CPU (or `cpu`) and
+`SCHED_FIFO` where permitted, while this process's threads — XLA's included — are kept off that
+CPU. Proxy, device sample and telemetry cross through seqlocked shared memory (`_shm`): the
+servo never waits on the physics and never renders a torn proxy (a torn or corrupt record keeps
+the previous proxy, which ages). The device is reached from both processes: the servo process
+gets a pickled copy of `device` (or makes one, when `device` is a factory: a class or a
+`functools.partial`) and writes zero on every exit path (stop flag, SIGINT/SIGTERM, its parent
+gone, an exception); this process keeps its own `device` object and writes zero through it as
+soon as the servo process ends, killed or not (a factory is called once more for that, after
+the servo process has released the device). The physics dying or being killed stops the
+proxy arriving, so the servo's watchdog ramps the force to zero as in thread mode. Where
+the servo ran is in `placement` (`mode`, `pid`, `cpu`, `realtime`).
+
 Physics thread (every `1/physics_hz` s): hands the newest sample to `model.update(sample)` (JAX:
 collision, mass-spring, refit) and swaps in the `Proxy` it returns with one reference assignment.
 
@@ -93,6 +107,9 @@ class ServoLoop:
     - `spin_us`: busy-wait margin (≥ 0 µs) before each deadline; `switch_interval`: GIL switch
       interval while running (None: leave the interpreter's); `freeze_gc`: `gc.freeze()` the
       objects alive at start so that a garbage collection cannot stall a tick (undone on stop).
+    - `mode`: `"thread"` (default: the servo is a thread of this process) or `"process"` (its
+      own process, see the module docstring; `device` must pickle or be a factory; the device
+      and the model's `accepts` gate live in the servo process, the physics in this one).
 
     Every number must be a finite real (Python or numpy scalar, not bool) and > 0 (`spin_us`
     ≥ 0, `rate_hz` ≤ 100 kHz); a bad argument raises `TypeError`/`ValueError` naming it.
