@@ -108,8 +108,10 @@ class ServoLoop:
       interval while running (None: leave the interpreter's); `freeze_gc`: `gc.freeze()` the
       objects alive at start so that a garbage collection cannot stall a tick (undone on stop).
     - `mode`: `"thread"` (default: the servo is a thread of this process) or `"process"` (its
-      own process, see the module docstring; `device` must pickle or be a factory; the device
-      and the model's `accepts` gate live in the servo process, the physics in this one).
+      own process, see the module docstring; `device` must pickle or be a factory). The servo
+      process applies the workspace gate of a model with `reach` and a centre (`SculptModel`);
+      any other `accepts` runs in the physics thread only: a refused pose is never fed to the
+      physics, but the servo may render it against the last proxy (bounded by the clamp).
 
     Every number must be a finite real (Python or numpy scalar, not bool) and > 0 (`spin_us`
     ≥ 0, `rate_hz` ≤ 100 kHz); a bad argument raises `TypeError`/`ValueError` naming it.
@@ -491,8 +493,12 @@ class ServoLoop:
         period = 1.0 / self.physics_hz
         next_t = time.perf_counter()
         parent = self._parent
+        gate = getattr(self.model, "accepts", None)
+        gate = gate if callable(gate) else _always
         while self._running:
             sample = self._sample if parent is None else parent.latest_sample()
+            if sample is not None and parent is not None and not gate(sample):
+                sample = None  # refused by the model: never fed to the physics (process mode)
             if sample is None:
                 time.sleep(0.001)
                 next_t = time.perf_counter()
