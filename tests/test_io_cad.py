@@ -524,3 +524,35 @@ def test_cli_convert_skips_unsupported_when_asked(tmp_path):
     with pytest.warns(UserWarning, match="not loaded: object 0"):
         assert convert.main([str(tmp_path / "held.3dm"), str(tmp_path / "o.json"), "--skip-unsupported"]) == 0
     assert len(io.load_all(tmp_path / "o.json")) == 1
+
+
+def test_trim_mask_against_a_closed_form_and_bad_values():
+    """A unit square with a round hole: the even–odd mask against the closed form, under jit and
+    vmap, and NaN parameters refused eagerly and under jit."""
+    import jax
+
+    from tests.helpers import raises_both
+
+    t = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    hole = np.c_[0.5 + 0.25 * np.cos(t), 0.4 + 0.25 * np.sin(t)]
+    trim = io.Trim.from_loops(
+        [np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), hole], [True, False]
+    )
+    rng = np.random.default_rng(2)
+    u, v = rng.uniform(-0.2, 1.2, (2, 500))
+    r = np.hypot(u - 0.5, v - 0.4)
+    truth = (u > 0) & (u < 1) & (v > 0) & (v < 1) & (r > 0.25)
+    clear = np.abs(r - 0.25) > 1e-4
+    np.testing.assert_array_equal(np.asarray(trim.mask(u, v))[clear], truth[clear])
+    np.testing.assert_array_equal(
+        np.asarray(jax.jit(lambda a, b: trim.mask(a, b))(u, v)), np.asarray(trim.mask(u, v))
+    )
+    np.testing.assert_array_equal(np.asarray(jax.vmap(trim.mask)(u, v)), np.asarray(trim.mask(u, v)))
+    raises_both(
+        lambda a, b: trim.mask(a, b),
+        np.array([0.5, np.nan]),
+        np.array([0.5, 0.5]),
+        match="u: expected finite",
+    )
+    with pytest.raises(ValueError, match=r"loops\[0\]: expected a closed polyline"):
+        io.Trim.from_loops([np.zeros((2, 2))], [True])

@@ -103,10 +103,11 @@ class Trim(eqx.Module):
         """`True` where `(u, v)` lies inside the trimmed face (even–odd rule; "Computational
         Geometry in C", O'Rourke, §7.4 crossing test).
 
-        **Arguments:** `u`, `v`: parameters of the same shape, in [0, 1].
+        **Arguments:** `u`, `v`: finite parameters of the same shape (outside [0, 1]: outside).
         **Returns:** a boolean array of that shape.
         """
         u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
+        u, v = _checks.finite(u, "u"), _checks.finite(v, "v")
         lead = (1,) * u.ndim  # explicit broadcasting (rank promotion may be off)
         u0, v0, u1, v1 = (self.segments[:, i, j].reshape(*lead, -1) for i in (0, 1) for j in (0, 1))
         pu, pv = u[..., None], v[..., None]
