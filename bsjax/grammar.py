@@ -246,10 +246,16 @@ class CharacteristicPoints(eqx.Module):
 
 
 def _planar(curve, name="curve") -> BSplineCurve:
+    """Structure: a 2-D `BSplineCurve` (its values are checked inside the kernels, `_finite`)."""
     if not isinstance(curve, BSplineCurve):
         _checks.fail(name, "a bsjax.basis.BSplineCurve", type(curve).__name__)
     if curve.dim != 2:
         _checks.fail(name, "a planar curve (control points of dimension 2)", f"dimension {curve.dim}")
+    return curve
+
+
+def _finite(curve, name="curve") -> BSplineCurve:
+    """The curve with its control points checked finite (an `eqx.error_if` when traced)."""
     return eqx.tree_at(lambda c: c.ctrl, curve, _checks.finite(curve.ctrl, f"{name}.ctrl"))
 
 
@@ -391,6 +397,7 @@ def characteristic_points(
 
 @compiled
 def _points(curve: BSplineCurve, closed: bool, n: int, capacity: int) -> CharacteristicPoints:
+    curve = _finite(curve)
     t, offset = _grid(n, closed, curve.ctrl.dtype)
     wrap = (lambda s: jnp.mod(s, 1.0)) if closed else (lambda s: s)
     kappa = _kappa(curve, wrap(t))
@@ -692,6 +699,7 @@ def measures(curve: BSplineCurve, closed: bool | None = None, samples: int | Non
 
 @compiled
 def _measures(curve: BSplineCurve, closed: bool, n: int) -> Measures:
+    curve = _finite(curve)
     wrap = _wrapper(closed)
     dtype = curve.ctrl.dtype
     grid = jnp.linspace(0.0, 1.0, n + 1, dtype=dtype)
@@ -860,7 +868,7 @@ def point_parameters(
     (curve))`; read closed or open as they were); `samples`: intervals of the arc-length table
     (5-point Gauss–Legendre each). **Returns:** `PointParameters`.
     """
-    curve = _planar(curve)
+    curve = _finite(_planar(curve))
     if not isinstance(points, CharacteristicPoints):
         _checks.fail("points", "CharacteristicPoints", type(points).__name__)
     n = _checks.check_count(samples, "samples", 8)
