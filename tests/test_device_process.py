@@ -399,3 +399,13 @@ def test_a_device_factory_is_made_in_the_servo_process():
     finally:
         stats = loop.stop()
     assert stats.ticks > 100 and np.all(np.isfinite(snap["position"]))
+
+
+def test_a_servo_process_that_fails_to_start_is_reported():
+    import functools
+
+    bad = functools.partial(SimulatedDevice, duration=-1.0)  # raises in the servo process
+    loop = ServoLoop(bad, Proxy.plane(**WALL), mode="process")
+    with pytest.raises(DeviceError, match="servo process failed to start.*duration"):
+        loop.start()
+    assert not loop.running

@@ -132,19 +132,26 @@ class ChildLink:
 
 
 def servo_process(config: dict, conn) -> None:
-    """Entry point of the servo process: run the servo loop until told to stop, then report."""
-    from bsjax.device.servo import ServoLoop
+    """Entry point of the servo process: run the servo loop until told to stop, then report.
 
-    link = ChildLink(config["names"], config["static"])
+    `config["loop"]` is the `ServoLoop` class (sent by reference: this module does not import
+    `servo`, which imports it)."""
+    stop = {"now": False}
 
-    def _stop(signum, frame):
-        link.stop_requested = True
+    def _stop(signum, frame):  # Ctrl-C to the process group, or a terminate: stop, write zero
+        stop["now"] = True
+        if link is not None:
+            link.stop_requested = True
 
+    link: ChildLink | None = None
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     result: dict = {"stats": None, "recording": None, "error": None}
     loop = None
-    try:
+    try:  # everything, set-up included: a failure is reported to the parent, never silent
+        link = ChildLink(config["names"], config["static"])
+        link.stop_requested = stop["now"]
+        ServoLoop = config["loop"]
         device = config["device"]
         device = device() if is_factory(device) else device
         model = config["static"] if config["static"] is not None else _Remote(config["gate"])
@@ -173,7 +180,8 @@ def servo_process(config: dict, conn) -> None:
                     close()
                 except Exception:
                     pass
-        link.close()
+        if link is not None:
+            link.close()
 
 
 class _Remote:

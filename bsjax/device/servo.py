@@ -651,6 +651,7 @@ class ServoLoop:
             freeze_gc=self.freeze_gc,
         )
         config = dict(
+            loop=type(self),
             device=self.device,
             static=self.model if self._static else None,
             gate=gate,
