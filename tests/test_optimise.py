@@ -216,3 +216,13 @@ def test_lower_bound_only_and_change_of_variables_round_trip():
     lo = jnp.array([0.0, -jnp.inf, 1.0, -jnp.inf])
     hi = jnp.array([1.0, -1.0, jnp.inf, jnp.inf])
     np.testing.assert_allclose(_to_design(_to_internal(x, lo, hi), lo, hi), x, rtol=1e-12)
+
+
+def test_non_finite_objective_reports_failure():
+    def nan_objective(x, args):
+        return jnp.sum(jnp.log(x))  # log of a negative entry: NaN at the start
+
+    r = optimise.minimise(nan_objective, jnp.array([-1.0, 2.0]), throw=False)
+    assert optimise.STATUS[int(r.status)] == "failed"
+    with pytest.raises(ValueError, match="objective: expected finite values"):
+        optimise.minimise(nan_objective, jnp.array([-1.0, 2.0]))
