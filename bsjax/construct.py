@@ -1,5 +1,7 @@
 """Surfaces from curves (thesis ch. 5, "surface interpreters"): ruled, extruded, revolved,
-Coons-filled and lofted `BSplineSurface`s, exact where the construction is polynomial or rational.
+Coons-filled and lofted `BSplineSurface`s, exact where the construction is polynomial or rational;
+swept, rail- and boundary-rotated ones (sections or one term fitted, returned with their error as
+`SurfaceFit`); and the global interpolation of a point grid.
 
 Every constructor first makes its curves *compatible* — one degree (raised by `elevate_degree`)
 and one knot vector (the merged knots, inserted by `insert_knots`), the geometry unchanged
@@ -15,7 +17,10 @@ kept; `bsjax._boundary.clear_caches()` forgets them and their compilations).
 Control points (and weights) may be traced: every constructor works under `jit`, `vmap` and
 `grad` in the control points. Curves whose *knots* are traced (curves passed as arguments of
 the caller's own `jit`) must already be compatible — same degree and control count, equal knots
-(checked at run time); call `compatible` outside `jit` first otherwise.
+(checked at run time); call `compatible` outside `jit` first otherwise. `sweep` and
+`rail_rotation` read their curves by evaluation only (any knots, traced or not: one compilation
+per degree, control count and section count); `interpolate_grid` compiles once per grid shape
+and degree pair.
 """
 
 from __future__ import annotations
@@ -557,10 +562,15 @@ def _moving_sections(profile: BSplineCurve, local, origins, maps, t_fine, every:
     weights = None if profile.weights is None else jnp.broadcast_to(profile.weights[:, None], net.shape[:2])
     surface = BSplineSurface.from_directions(net, profile.direction, direction_v, weights)
     u = jnp.linspace(0.0, 1.0, 4 * profile.n_ctrl, dtype=t.dtype)
-    shape = _local_points(profile, u)  # (m_u, 3)
-    exact = origins[None] + jnp.einsum("fab,ub->ufa", maps, shape)
-    uu, tt = jnp.meshgrid(u, t_fine, indexing="ij")
-    error = jnp.max(_safe.norm(surface.evaluate(uu, tt) - exact))
+    exact = origins[None] + jnp.einsum("fab,ub->ufa", maps, _local_points(profile, u))
+    # the fitted surface on the grid by its blending matrices (M = A_u P A_v^T, thesis eq. 3.6)
+    w = jnp.ones_like(net[:, 0, 0]) if profile.weights is None else profile.weights
+    homogeneous = jnp.concatenate(
+        [net * w[:, None, None], jnp.broadcast_to(w[:, None, None], net.shape[:2] + (1,))], -1
+    )
+    a_u, a_v = profile.direction.matrix(u), direction_v.matrix(t_fine)
+    fitted = jnp.einsum("ui,ikc,fk->ufc", a_u, homogeneous, a_v)
+    error = jnp.max(_safe.norm(fitted[..., :3] / fitted[..., 3:] - exact))
     return SurfaceFit(surface, error)
 
 
