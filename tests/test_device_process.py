@@ -289,7 +289,10 @@ def test_kill_9_of_the_servo_process_zeroes_force_from_the_parent(block):
         killed = time.perf_counter()
         os.kill(pid, signal.SIGKILL)
         zero = wait_for(lambda: force_of(arr) == 0.0, timeout=2)
-        assert zero - killed <= loop.device_timeout + loop.ramp_time, zero - killed
+        # the pipe the parent waits on closes once the kernel has torn the killed process down
+        # (an interpreter with JAX imported): measured 2-145 ms on this 2-core machine at load
+        # averages of 15-21; the watchdog limit plus 0.1 s of that allowance
+        assert zero - killed <= loop.device_timeout + loop.ramp_time + 0.1, zero - killed
         assert loop.finished.wait(2.0) and not loop.running
         assert isinstance(loop.error, DeviceError) and "-9" in str(loop.error)
     finally:
