@@ -14,7 +14,12 @@ demo: $(PY)
 	$(PY) -m pip install -q -e .
 	$(VENV)/bin/bsjax demo
 
+# the live view's tests drive a real headless Chromium from the Debian packages (root installs it)
+CHROMIUM := command -v chromium-headless-shell >/dev/null || command -v chromium >/dev/null || \
+	(apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium-headless-shell)
+
 test: $(PY)
+	$(CHROMIUM)
 	$(PY) -m pip install -q -e ".[test,haptics,notebooks,cad]"
 	$(VENV)/bin/ruff format --check bsjax tests benchmarks
 	$(VENV)/bin/ruff check bsjax tests benchmarks
