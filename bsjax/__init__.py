@@ -17,15 +17,53 @@ Sources cited in the docstrings:
 * Piegl & Tiller, *The NURBS Book* (2nd ed., 1997).
 """
 
-from bsjax._boundary import clear_caches as clear_caches
-from bsjax.basis import Blending as Blending
-from bsjax.basis import BSplineCurve as BSplineCurve
-from bsjax.basis import BSplineSurface as BSplineSurface
-from bsjax.basis import CurveBlending as CurveBlending
-from bsjax.basis import SplineDirection as SplineDirection
-from bsjax.basis import blending_matrix as blending_matrix
-from bsjax.basis import clamped_knots as clamped_knots
-from bsjax.basis import periodic_blending_matrix as periodic_blending_matrix
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bsjax._boundary import clear_caches as clear_caches
+    from bsjax.basis import Blending as Blending
+    from bsjax.basis import BSplineCurve as BSplineCurve
+    from bsjax.basis import BSplineSurface as BSplineSurface
+    from bsjax.basis import CurveBlending as CurveBlending
+    from bsjax.basis import SplineDirection as SplineDirection
+    from bsjax.basis import blending_matrix as blending_matrix
+    from bsjax.basis import clamped_knots as clamped_knots
+    from bsjax.basis import periodic_blending_matrix as periodic_blending_matrix
+
+# Loaded on first use (PEP 562), so `import bsjax` — e.g. in the haptic servo's own process —
+# does not import JAX until something that computes is asked for.
+_NAMES = {
+    "clear_caches": "bsjax._boundary",
+    **{
+        name: "bsjax.basis"
+        for name in (
+            "Blending",
+            "BSplineCurve",
+            "BSplineSurface",
+            "CurveBlending",
+            "SplineDirection",
+            "blending_matrix",
+            "clamped_knots",
+            "periodic_blending_matrix",
+        )
+    },
+}
+
+
+def __getattr__(name: str):
+    if name in _NAMES:
+        value = getattr(importlib.import_module(_NAMES[name]), name)
+    elif importlib.util.find_spec(f"bsjax.{name}") is not None and not name.startswith("_"):
+        value = importlib.import_module(f"bsjax.{name}")  # a submodule: bsjax.collide, …
+    else:
+        raise AttributeError(f"module 'bsjax' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
 
 __version__ = "0.1.0"
 
