@@ -204,7 +204,8 @@ def test_load_of_a_file_without_surfaces_says_what_it_held(tmp_path):
     with pytest.raises(
         ValueError, match=r"exactly one surface.*0 items \(the file holds 1 NurbsCurve, 1 Point\)"
     ):
-        io.load(path, "surface", on_unsupported="skip")
+        with pytest.warns(UserWarning, match=r"not loaded: object 0 \(Point\)"):
+            io.load(path, "surface", on_unsupported="skip")
 
 
 def test_bad_options_are_named():
