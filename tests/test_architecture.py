@@ -106,6 +106,10 @@ def _reach(graph, start):
         ("bsjax.mss", ("bsjax.merge", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.batch", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.construct", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.sketch", ("bsjax.construct", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.sculpt", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.grammar", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.optimise", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
     ],
 )
 def test_floors(lower, forbidden):
@@ -148,5 +152,10 @@ def test_public_modules_import():
         "bsjax.plot",
         "bsjax.batch",
         "bsjax.construct",
+        "bsjax.sketch",
+        "bsjax.sculpt",
+        "bsjax.grammar",
+        "bsjax.optimise",
+        "bsjax.view",
     ):
         assert importlib.util.find_spec(name) is not None, name

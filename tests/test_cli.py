@@ -38,6 +38,9 @@ def files(tmp_path):
     io.save(a.with_ctrl(np.asarray(a.ctrl) + np.array([1.0, 0.0, 0.0])), tmp_path / "b.json")
     (tmp_path / "bad.json").write_text('{"format": "something else"}')
     (tmp_path / "mesh.stl").write_text("solid x\nendsolid x\n")
+    (tmp_path / "notes.txt").write_text("not a surface")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    (tmp_path / "garbage.step").write_text("ISO-10303-21;\nnot a step file\n")
     return tmp_path
 
 
@@ -109,6 +112,24 @@ def _errors(d):
         (["convert", stl, str(d / "o.json")], "mesh.stl"),
         (["convert", bad, str(d / "o.json")], "bad.json"),
         (["convert", a, str(d / "o.glb"), "--samples", "1"], "--samples"),
+        (["convert", str(d / "absent.step"), str(d / "o.json")], "absent.step"),
+        (["convert", str(d / "garbage.step"), str(d / "o.json")], "garbage.step"),
+        (["convert", a, str(d / "o.json"), "--units", "furlong"], "--units"),
+        # sketch
+        (["sketch", missing, "--mode", "loft", "-o", str(d / "s.json")], "missing.json"),
+        (["sketch", bad, "--mode", "loft", "-o", str(d / "s.json")], "bad.json"),
+        (["sketch", bad, "--mode", "loft", "-o", str(d / "s.txt")], "s.txt"),
+        (["sketch", bad, "--mode", "loft", "-o", str(d / "s.json"), "--tol", "0"], "--tol"),
+        # grammar
+        (["grammar", "symbols", missing], "missing.json"),
+        (["grammar", "enumerate", "--max-extrema", "0"], "--max-extrema"),
+        (["grammar", "enumerate"], "--max-extrema"),
+        (["grammar", "symbols", p], "expected at least one curve"),
+        # view
+        (["view", missing], "missing.json"),
+        (["view", str(d / "notes.txt")], "expected a .json"),
+        (["view", str(d / "junk.npz")], "cannot read haptics recording"),
+        (["haptics", "--proxy-only", "--view", "--port", "70000"], "--port"),
         # demo
         (["demo", "--out", a], "a.json"),  # a file, not a folder
         (["demo", "--out", str(d / "no" / "such" / "out")], "--out"),
