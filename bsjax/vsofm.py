@@ -131,7 +131,14 @@ def fit(
     if progress is not None and not callable(progress):
         raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit(pts, key, shape, cycles, settings, progress)
+    scale = _power_of_two_scale(pts)  # the training is scale-free: 1e-300 or 1e300 samples work
+    return _fit(pts / scale, key, shape, cycles, settings, progress) * scale
+
+
+def _power_of_two_scale(points):
+    """The power of two nearest the samples' largest coordinate: dividing by it is exact, so
+    samples of ordinary size train bit for bit as before."""
+    return jnp.exp2(jnp.round(jnp.log2(jnp.max(jnp.abs(points)))))
 
 
 def _check_fit_input(points, shape):

@@ -274,3 +274,14 @@ def test_value_check_failures_are_not_logged_as_tracebacks(plate, caplog):
         with caplog.at_level(logging.ERROR), pytest.raises(ValueError, match="^ctrl: expected finite"):
             collide.contacts(b, s.ctrl.at[0, 0, 0].set(np.nan), tool)
     assert not [r for r in caplog.records if "callback" in r.getMessage()], caplog.text
+
+
+def test_vsofm_fit_is_scale_free_at_extreme_magnitudes():
+    """Samples of size 1e-300 or 1e300 train to the unit result scaled (no overflow in the
+    neighbour search, no underflow in the updates)."""
+    p = np.random.default_rng(0).normal(size=(200, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    unit = vsofm.fit(p, (3, 3, 3), cycles=5)
+    for scale in (1e300, 1e-300):
+        nodes = vsofm.fit(p * scale, (3, 3, 3), cycles=5)
+        np.testing.assert_allclose(np.asarray(nodes) / scale, unit, atol=1e-12)
