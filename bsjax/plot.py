@@ -2,11 +2,31 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+
+from bsjax import _checks
+
+
+def _grid(x, name: str, shape: tuple | None = None) -> np.ndarray:
+    """A finite real `(m, n, 3)` grid (or exactly `shape` when given), as float64 numpy."""
+    _checks.check_real(x, name)
+    a = np.asarray(x, dtype=np.float64)
+    if shape is not None and a.shape != shape:
+        _checks.fail(name, f"shape {shape}", a.shape)
+    if shape is None and (a.ndim != 3 or a.shape[-1] != 3 or min(a.shape[:2]) < 2):
+        _checks.fail(name, "a grid of shape (m, n, 3) with m, n >= 2", a.shape)
+    if not np.all(np.isfinite(a)):
+        _checks.fail(name, "finite values", "NaN or inf")
+    return a
 
 
 def figure(n_panels: int, size: float = 4.0):
     """A row of `n_panels` 3-D axes on the Agg backend (works headless)."""
+    n_panels = _checks.check_count(n_panels, "n_panels")
+    if isinstance(size, bool) or not isinstance(size, (int, float)) or not (0 < size < 1e3):
+        _checks.fail("size", "a panel size in inches in (0, 1000)", size)
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -18,13 +38,19 @@ def figure(n_panels: int, size: float = 4.0):
 
 
 def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str = "viridis"):
-    """Draw an `(m, n, 3)` sample grid (coloured by `values (m, n)` if given) and its control net."""
+    """Draw an `(m, n, 3)` sample grid (coloured by `values (m, n)` if given) and its control net.
+
+    Bad input (shapes, NaN/inf, an unknown colour map) raises a `ValueError` naming the argument.
+    """
     import matplotlib
 
-    p = np.asarray(points)
+    p = _grid(points, "points")
+    c = None if ctrl is None else _grid(ctrl, "ctrl")
     colors = None
     if values is not None:
-        v = np.asarray(values, dtype=np.float64)
+        v = _grid(values, "values", p.shape[:2])
+        if cmap not in matplotlib.colormaps:
+            _checks.fail("cmap", "a matplotlib colour map name (e.g. 'viridis')", repr(cmap))
         span = np.ptp(v) or 1.0
         colors = matplotlib.colormaps[cmap]((v - v.min()) / span)
     style = (
@@ -33,8 +59,7 @@ def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str 
     ax.plot_surface(
         p[..., 0], p[..., 1], p[..., 2], rstride=1, cstride=1, linewidth=0, antialiased=False, **style
     )
-    if ctrl is not None:
-        c = np.asarray(ctrl)
+    if c is not None:
         ax.plot_wireframe(c[..., 0], c[..., 1], c[..., 2], color="#c0392b", linewidth=0.6)
         ax.scatter(c[..., 0].ravel(), c[..., 1].ravel(), c[..., 2].ravel(), color="#c0392b", s=4)
     equal_axes(ax, p.reshape(-1, 3))
@@ -52,7 +77,16 @@ def equal_axes(ax, xyz):
 
 
 def save(fig, path) -> None:
-    """Write `fig` to `path` (PNG at 110 dpi, or the format of the extension) and close it."""
+    """Write `fig` to `path` (PNG at 110 dpi, or the format of the extension) and close it.
+
+    A missing folder or an extension matplotlib cannot write raises a `ValueError` naming `path`.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        _checks.fail("path", "a file in an existing folder", str(path))
+    formats = fig.canvas.get_supported_filetypes()
+    if path.suffix.lstrip(".").lower() not in formats:
+        _checks.fail("path", f"an image extension ({', '.join('.' + f for f in sorted(formats))})", str(path))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     import matplotlib.pyplot as plt

@@ -285,3 +285,29 @@ def test_vsofm_fit_is_scale_free_at_extreme_magnitudes():
     for scale in (1e300, 1e-300):
         nodes = vsofm.fit(p * scale, (3, 3, 3), cycles=5)
         np.testing.assert_allclose(np.asarray(nodes) / scale, unit, atol=1e-12)
+
+
+def test_plot_bad_input_names_the_argument(tmp_path):
+    from bsjax import plot
+
+    grid = np.zeros((4, 5, 3))
+    fig, (ax,) = plot.figure(1)
+    cases = [
+        (lambda: plot.figure(0), ValueError, "n_panels"),
+        (lambda: plot.figure(2.5), TypeError, "n_panels"),
+        (lambda: plot.figure(1, size=-1.0), ValueError, "size"),
+        (lambda: plot.draw_surface(ax, np.zeros((4, 3))), ValueError, "points"),
+        (lambda: plot.draw_surface(ax, np.full((4, 5, 3), np.nan)), ValueError, "points"),
+        (lambda: plot.draw_surface(ax, grid.astype(complex)), TypeError, "points"),
+        (lambda: plot.draw_surface(ax, grid, ctrl=np.zeros((3, 3, 2))), ValueError, "ctrl"),
+        (lambda: plot.draw_surface(ax, grid, values=np.zeros((5, 4))), ValueError, "values"),
+        (lambda: plot.draw_surface(ax, grid, values=np.zeros((4, 5)), cmap="nope"), ValueError, "cmap"),
+        (lambda: plot.save(fig, tmp_path / "no" / "such" / "f.png"), ValueError, "path"),
+        (lambda: plot.save(fig, tmp_path / "f.xyz"), ValueError, "path"),
+    ]
+    for fn, error, name in cases:
+        with pytest.raises(error, match=rf"^{name}[ :]"):
+            fn()
+    plot.draw_surface(ax, grid + np.arange(5)[None, :, None], values=np.ones((4, 5)))
+    plot.save(fig, tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 0
