@@ -130,6 +130,11 @@ def _errors(d):
         (["view", str(d / "notes.txt")], "expected a .json"),
         (["view", str(d / "junk.npz")], "cannot read haptics recording"),
         (["haptics", "--proxy-only", "--view", "--port", "70000"], "--port"),
+        # sweep
+        (["sweep", "collide", "--param", "radius=0:1", "--out", str(d / "o")], "--param"),
+        (["sweep", "collide", "--param", "depth=0:1:2", "--out", str(d / "o")], "--param"),
+        (["sweep", "merge", "--param", "samples=10.5:12:2", "--out", str(d / "o")], "--param"),
+        (["sweep", "collide", "--out", nodir], "--out"),
         # demo
         (["demo", "--out", a], "a.json"),  # a file, not a folder
         (["demo", "--out", str(d / "no" / "such" / "out")], "--out"),

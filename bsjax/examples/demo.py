@@ -131,7 +131,10 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     samples = np.asarray(ball.blending(40, 40).points(ball.ctrl)).reshape(-1, 3) + centre
     t0 = time.perf_counter()
     shape = (sizes["lattice"],) * 3
-    nodes = vsofm.fit(samples, shape, cycles=sizes["cycles"])
+    from bsjax.cli import _progress
+
+    with _progress.bar("VSOFM cycles") as progress:  # a bar on a terminal only
+        nodes = vsofm.fit(samples, shape, cycles=sizes["cycles"], progress=progress)
     vs_s = time.perf_counter() - t0
     quality = vsofm.report(samples, nodes)
     lattice = vsofm.lattice(nodes, material=mss.JELLY, node_damping=5e-6)
