@@ -57,6 +57,18 @@ ARRAY_CASES = [
     ("Sphere radius 1e300", lambda r: collide.Sphere(C3, r), jnp.asarray(1e300), "radius"),
     ("Point position 1e300", lambda p: collide.Point(p), jnp.array([1e300, 0.0, 0.0]), "position"),
     ("Ellipsoid aspect 1e13", lambda r: collide.Ellipsoid(C3, r), jnp.array([1e13, 1.0, 1.0]), "radii"),
+    (
+        "Sphere float32 radius 1e39",
+        lambda r: collide.Sphere(jnp.zeros(3, jnp.float32), r),
+        jnp.asarray(1e39),
+        "radius",
+    ),
+    (
+        "Ellipsoid float32 radii 1e39",
+        lambda r: collide.Ellipsoid(jnp.zeros(3, jnp.float32), r),
+        jnp.array([1e39, 1.0, 1.0]),
+        "radii",
+    ),
     ("hex_lattice flat grid", None, None, "positions"),
     ("hex_lattice overflowing grid", None, None, "positions"),
 ]

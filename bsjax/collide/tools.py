@@ -38,15 +38,19 @@ def _float(x, name: str):
     return arr
 
 
-def _vector(x, name: str, size: int = 3):
+def _vector(x, name: str, size: int = 3, dtype=None):
+    """A finite `(size,)` vector within the coordinate limit, checked after the cast to `dtype`
+    (so a float32 tool refuses 1e39, which the cast makes inf)."""
     arr = _float(x, name)
+    arr = arr if dtype is None else arr.astype(dtype)
     if arr.shape != (size,):
         _checks.fail(name, f"shape ({size},)", arr.shape)
     return _checks.coordinates(arr, name)
 
 
-def _scalar(x, name: str):
+def _scalar(x, name: str, dtype=None):
     arr = _float(x, name)
+    arr = arr if dtype is None else arr.astype(dtype)
     if arr.shape != ():
         _checks.fail(name, "a scalar", arr.shape)
     return _checks.coordinates(_checks.positive(arr, name), name)
@@ -195,7 +199,7 @@ class Sphere(AbstractTool):
 
     def __init__(self, center, radius):
         self.center = _vector(center, "center")
-        self.radius = _scalar(radius, "radius").astype(self.center.dtype)
+        self.radius = _scalar(radius, "radius", self.center.dtype)
 
     @compiled
     def value(self, x):
@@ -239,7 +243,7 @@ class Ellipsoid(AbstractTool):
 
     def __init__(self, center, radii, rotation=None):
         self.center = _vector(center, "center")
-        radii = _checks.positive(_vector(radii, "radii").astype(self.center.dtype), "radii")
+        radii = _checks.positive(_vector(radii, "radii", dtype=self.center.dtype), "radii")
         self.radii = _checks.check(
             radii,
             jnp.max(radii) > _MAX_ASPECT * jnp.min(radii),
@@ -414,7 +418,7 @@ class Plane(AbstractTool):
 
     def __init__(self, point, normal):
         self.point = _vector(point, "point")
-        normal = _vector(normal, "normal").astype(self.point.dtype)
+        normal = _vector(normal, "normal", dtype=self.point.dtype)
         normal = _checks.check(
             normal, jnp.all(normal == 0), "normal", "a non-zero vector", "a zero vector", lambda n: n.tolist()
         )
