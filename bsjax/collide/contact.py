@@ -167,7 +167,12 @@ def _sample_window(blending, ctrl, tool):
 
 @compiled
 def contacts(
-    blending: Blending, ctrl: Float[Array, "r s 3"], tool: AbstractTool, *, method: str = "window"
+    blending: Blending,
+    ctrl: Float[Array, "r s 3"],
+    tool: AbstractTool,
+    *,
+    method: str = "window",
+    sample_mask: Bool[Array, "m n"] | None = None,
 ) -> Contact:
     """Contact of the surface `(blending, ctrl)` with a rigid `tool`.
 
@@ -177,6 +182,10 @@ def contacts(
     - `tool`: `Point`, `Sphere`, `Ellipsoid`, `Plane`, `Implicit` or `TriangleMesh`.
     - `method` (static): `"window"` (broad phase + parametric window, thesis ch. 3) or
       `"dense"` (every sample; the reference). Both give the same result.
+    - `sample_mask (m, n)`: optional booleans on the blending's sample grid (e.g. a trimmed
+      face's `bsjax.io.CadObject.sample_mask(blending)`); a sample where it is `False` is never
+      in contact (`mask` False, `depth` 0), whatever the tool. Traced: a new mask of the same
+      shape does not recompile. `None` (default): every sample. `window` stays the broad phase's.
 
     **Returns:** a `Contact`. A sample is in contact when it lies inside the solid tool
     (`value < 0`); its depth is the tool's penetration depth along the sample's normal
@@ -190,13 +199,37 @@ def contacts(
     if method not in ("window", "dense"):
         _checks.fail("method", "'window' or 'dense'", repr(method))
     ctrl = _checked_net(blending, ctrl, "ctrl")
+    sample_mask = None if sample_mask is None else _checked_mask(blending, sample_mask)
     tool = tool.cast(ctrl.dtype)
     query = _point_contact if isinstance(tool, Point) else _solid_contact
     query = functools.partial(query, use_window=method == "window")
     if method == "dense":
-        return query(blending, ctrl, tool)
-    apart = tool.hull_apart(jax.lax.stop_gradient(ctrl).reshape(-1, 3))  # a decision: no gradient
-    return _unless_apart(apart, query, blending, ctrl, tool)
+        contact = query(blending, ctrl, tool)
+    else:
+        apart = tool.hull_apart(jax.lax.stop_gradient(ctrl).reshape(-1, 3))  # a decision: no gradient
+        contact = _unless_apart(apart, query, blending, ctrl, tool)
+    return contact if sample_mask is None else _masked(contact, sample_mask)
+
+
+def _checked_mask(blending, sample_mask):
+    """`sample_mask` as a boolean array of the blending's grid shape `(m, n)` (structure only)."""
+    dtype = sample_mask.dtype if hasattr(sample_mask, "dtype") else np.asarray(sample_mask).dtype
+    if dtype != np.bool_:
+        raise TypeError(f"sample_mask: expected booleans of shape (m, n), got dtype {dtype}")
+    if np.shape(sample_mask) != tuple(blending.grid_shape):
+        _checks.fail(
+            "sample_mask",
+            f"shape {tuple(blending.grid_shape)} (the blending's sample grid)",
+            f"shape {np.shape(sample_mask)}",
+        )
+    return jnp.asarray(sample_mask)
+
+
+def _masked(contact: Contact, sample_mask) -> Contact:
+    """`contact` with the samples outside `sample_mask` out of contact (mask False, depth 0)."""
+    mask = contact.mask & sample_mask
+    depth = jnp.where(sample_mask, contact.depth, 0)
+    return eqx.tree_at(lambda c: (c.hit, c.mask, c.depth), contact, (jnp.any(mask), mask, depth))
 
 
 def points_normals(blending, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:

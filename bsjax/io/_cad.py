@@ -27,7 +27,7 @@ from jaxtyping import Array, Bool, Float
 
 from bsjax import _checks
 from bsjax._boundary import compiled
-from bsjax.basis import BSplineCurve, BSplineSurface
+from bsjax.basis import Blending, BSplineCurve, BSplineSurface
 
 # unit name → metres; the names `load_all(units=...)` accepts and `CadList.units` holds
 UNITS = {
@@ -149,6 +149,25 @@ class CadObject(eqx.Module):
         if self.trim is None:
             return jnp.ones(jnp.broadcast_shapes(jnp.shape(u), jnp.shape(v)), dtype=bool)
         return self.trim.mask(u, v)
+
+    def sample_mask(self, blending: Blending) -> Bool[Array, "m n"]:
+        """The trim's mask on the sample grid of `blending` (a `Blending` of this surface, any
+        grid or window): `True` where sample `(params_u[i], params_v[j])` lies on the trimmed
+        face, all `True` for an untrimmed object. Pass it as `collide.contacts(...,
+        sample_mask=...)` or `io.tessellate(..., mask=...)`.
+
+        **Arguments:** `blending`: a `bsjax.basis.Blending` whose control net has this
+        surface's shape. **Returns:** booleans `(m, n)`.
+        """
+        if not isinstance(blending, Blending):
+            raise TypeError(f"blending: expected a bsjax.basis.Blending, got {type(blending).__name__}")
+        if tuple(blending.ctrl_shape) != tuple(self.surface.ctrl.shape[:2]):
+            _checks.fail(
+                "blending",
+                f"a blending of this surface (control net {tuple(self.surface.ctrl.shape[:2])})",
+                f"control net {tuple(blending.ctrl_shape)}",
+            )
+        return self.mask(blending.params_u[:, None], blending.params_v[None, :])
 
 
 class CadList(list):

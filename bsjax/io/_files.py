@@ -160,24 +160,51 @@ def _json_type(value) -> str:
 
 
 # --- meshes -------------------------------------------------------------------------------
-def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82):
+def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82, mask=None):
     """Triangle mesh of the `m × n` sample grid as a `trimesh.Trimesh`: `collide.tessellate`'s
     triangulation (two triangles per cell, split along the shorter diagonal).
+
+    **Arguments:** `surface`; `m`, `n` (ints ≥ 2): the uniform sample grid; `mask (m, n)`:
+    optional booleans on that grid (a trimmed face's `CadObject.sample_mask(surface.blending(m,
+    n))`) — a triangle with any vertex where it is `False` is dropped, and so are the vertices
+    no triangle uses. `None`: every triangle.
 
     Seams of periodic directions and collapsed pole rows are welded, so a closed surface gives
     a closed mesh.
     """
     import trimesh
 
+    if not isinstance(surface, BSplineSurface):
+        _checks.fail("surface", "a BSplineSurface", type(surface).__name__)
+    m, n = _checks.check_count(m, "m", 2), _checks.check_count(n, "n", 2)
     vertices, faces = collide.tessellate(surface.blending(m, n).points(surface.ctrl))  # the one triangulation
-    points = np.asarray(vertices, dtype=np.float64)
-    mesh = trimesh.Trimesh(points, np.asarray(faces), process=False)
+    points, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    if mask is not None:
+        faces = faces[np.all(_grid_mask(mask, m, n).reshape(-1)[faces], axis=1)]
+    mesh = trimesh.Trimesh(points, faces, process=False)
+    if mask is not None:
+        mesh.remove_unreferenced_vertices()
     scale = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
     mesh.merge_vertices(digits_vertex=int(np.clip(-np.log10(scale * 1e-9), 0, 15)))
     mesh.update_faces(mesh.nondegenerate_faces())
     if mesh.is_watertight:
         mesh.fix_normals()
     return mesh
+
+
+def _trimmed_mesh(obj: CadObject, m: int, n: int):
+    """`tessellate` of a face keeping only its triangles inside its trim."""
+    surface = obj.surface
+    return tessellate(surface, m, n, None if obj.trim is None else obj.sample_mask(surface.blending(m, n)))
+
+
+def _grid_mask(mask, m: int, n: int) -> np.ndarray:
+    mask = np.asarray(mask)
+    if mask.dtype != np.bool_:
+        raise TypeError(f"mask: expected booleans of shape ({m}, {n}), got dtype {mask.dtype}")
+    if mask.shape != (m, n):
+        _checks.fail("mask", f"shape ({m}, {n}) (the sample grid)", f"shape {mask.shape}")
+    return mask
 
 
 # --- dispatch -----------------------------------------------------------------------------
@@ -232,7 +259,7 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
 
         if any(isinstance(o.geometry, BSplineCurve) for o in objects):
             _checks.fail("surfaces", f"only surfaces for a mesh format ({ext})", "a BSplineCurve")
-        meshes = [tessellate(o.geometry, m, n) for o in objects]  # pyright: ignore[reportArgumentType]
+        meshes = [_trimmed_mesh(o, m, n) for o in objects]
         (meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)).export(str(path))
     else:
         _checks.fail(
