@@ -8,6 +8,7 @@ bsjax haptics --hid 1234:5678 [--hid-layout layout.json]
 bsjax haptics --replay session.npz --plot session.png
 bsjax haptics --view [--port 8765]              # live 3-D view in the browser (127.0.0.1)
 bsjax haptics --servo-process                   # the 1 kHz servo in its own process
+bsjax haptics --sculpt drag                     # the point under the stylus follows it (bsjax.sculpt)
 ```
 Prints the servo telemetry at the end (also on Ctrl-C; zero force is written first). The
 sculpting physics runs in float64 unless `--float32`.
@@ -72,6 +73,13 @@ def _parser() -> argparse.ArgumentParser:
         help="ellipsoid tool semi-axes",
     )
     p.add_argument("--proxy-only", action="store_true", help="a fixed plane proxy, no physics (no JAX work)")
+    p.add_argument(
+        "--sculpt",
+        choices=("lattice", "drag"),
+        default="lattice",
+        help="lattice: push/pull a mass-spring lattice (default); drag: with the button held, the "
+        "surface point under the stylus follows it (minimum-norm edit, border rows blocked)",
+    )
     p.add_argument("--record", type=c.output_file(".npz"), metavar="FILE", help="save the session (.npz)")
     p.add_argument("--plot", type=c.output_file(".png"), metavar="PNG", help="plot the session")
     p.add_argument("--cpu", type=c.count(0), help="pin the servo thread to this CPU")
@@ -123,6 +131,10 @@ def _model(args):
             tool_radius=args.tool_radius,
             stamp=0.0,
         )
+    if args.sculpt == "drag":
+        from bsjax.device.constraint_sculpt import ConstraintSculptModel
+
+        return ConstraintSculptModel(tool_radius=args.tool_radius, max_force=args.max_force)
     from bsjax.device.physics import SculptModel
 
     return SculptModel(physics_hz=args.physics_hz, tool_radius=args.tool_radius, tool_axes=args.ellipsoid)
@@ -157,6 +169,12 @@ def _view(args, loop, model):
 def _body(args) -> int:
     if args.view and args.port > 65535:
         raise c.UserError("--port", f"expected a port in [0, 65535], got {args.port}")
+    if args.sculpt == "drag" and args.proxy_only:
+        raise c.UserError("--sculpt", "drag needs the sculpting model; not with --proxy-only")
+    if args.sculpt == "drag" and args.ellipsoid:
+        raise c.UserError(
+            "--ellipsoid", "the drag model's tool is a sphere (--tool-radius); not with --sculpt drag"
+        )
     print("bsjax haptics: building the model and compiling the physics…", flush=True)
     model = _model(args)
     interrupted = False
@@ -211,6 +229,8 @@ def _body(args) -> int:
         print(
             f"sculpted surface: {model.ticks} physics ticks, largest control-point displacement {moved:.4f}"
         )
+        if hasattr(model, "grabs"):  # --sculpt drag
+            print(f"drag interactions: {model.grabs}, rolled-back ticks: {model.rollbacks}")
     return 130 if interrupted else 0
 
 
