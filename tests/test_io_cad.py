@@ -349,6 +349,52 @@ def test_step_written_from_rhino_matches_opennurbs_and_occt(tmp_path):
     np.testing.assert_allclose(again.objects[0].domain, loaded.objects[0].domain, rtol=0, atol=1e-12)
 
 
+def test_step_names_and_layers_round_trip(tmp_path):
+    """Names (UTF-8 too) and layers written by `save` as STEP products and layer assignments
+    (OCCT's XCAF) come back from `load_all`, for surfaces and curves; an unnamed object stays
+    unnamed (not OCCT's default product name); the geometry is unchanged."""
+    rng = np.random.default_rng(3)
+    surface = BSplineSurface(rng.normal(size=(4, 5, 3)), _knots_01(4, 2), _knots_01(5, 3), 2, 3)
+    curve = BSplineCurve(rng.normal(size=(5, 3)), _knots_01(5, 3), 3)
+    objects = [
+        io.CadObject(surface, "port plate é", "Hull::port"),
+        io.CadObject(curve, "keel line", "Deck"),
+        io.CadObject(surface),
+        io.CadObject(surface, "", "Deck"),
+        io.CadObject(surface, "lid", ""),
+    ]
+    path = io.save(objects, tmp_path / "named.step", units="mm")
+    text = path.read_text(encoding="utf-8")
+    assert "PRODUCT('port plate é'" in text and "PRESENTATION_LAYER_ASSIGNMENT('Hull::port'" in text
+    back = io.load_all(path)
+    assert [(o.name, o.layer) for o in back.objects] == [(o.name, o.layer) for o in objects]
+    assert [type(o.geometry) for o in back.objects] == [type(o.geometry) for o in objects]
+    u, v = np.meshgrid(GRID, GRID, indexing="ij")
+    np.testing.assert_allclose(back[0].evaluate(u, v), surface.evaluate(u, v), rtol=0, atol=1e-12)
+    # the file itself holds them as any STEP reader sees them: products and layer assignments
+    assert text.count("PRESENTATION_LAYER_ASSIGNMENT(") == 2
+    assert all(f"PRODUCT('{name}'" in text for name in ("keel line", "lid"))
+    # and a .3dm's names and layers reach STEP and come back
+    model = rhino3dm.File3dm()
+    layer = model.Layers.AddLayer("Hull", (255, 0, 0, 255))
+    attributes = rhino3dm.ObjectAttributes()
+    attributes.Name, attributes.LayerIndex = "starboard", layer
+    model.Objects.AddSurface(_rhino_primitives()["cylinder"], attributes)
+    assert model.Write(str(tmp_path / "named.3dm"), 7)
+    again = io.load_all(io.save(io.load_all(tmp_path / "named.3dm"), tmp_path / "from3dm.step"))
+    assert (again.objects[0].name, again.objects[0].layer) == ("starboard", "Hull")
+
+
+def test_step_from_another_writer_has_no_invented_names(tmp_path):
+    """A STEP file written without names (OCCT's plain writer names products after itself)."""
+    loaded = io.load_all(_occt_write(_occt_solids(), tmp_path / "plain.step"), trims=True)
+    assert {(o.name, o.layer) for o in loaded.objects} == {("", "")}
+
+
+def _knots_01(n: int, p: int) -> np.ndarray:
+    return np.concatenate([np.zeros(p), np.linspace(0, 1, n - p + 1), np.ones(p)])
+
+
 def _xyz_occt(p):
     return (p.X(), p.Y(), p.Z())
 
@@ -447,8 +493,9 @@ def test_block_instances_are_expanded_with_their_transforms(tmp_path):
 
 
 def test_contacts_masked_by_a_trim_exclude_the_hole(tmp_path):
-    """A ball sitting in the cap's hole touches the untrimmed plane but not the trimmed face.
-    (`collide.contacts` knows nothing of trims: the caller masks its grid with `CadObject.mask`.)"""
+    """A ball sitting in the cap's hole touches the untrimmed plane but not the trimmed face
+    (`collide.contacts(..., sample_mask=CadObject.sample_mask(blending))`, or the caller's own
+    masking with `CadObject.mask`: the same)."""
     from bsjax import collide
 
     faces = io.load_all(_write(tmp_path, "ext.3dm", _holed_extrusion()), trims=True)
@@ -458,9 +505,15 @@ def test_contacts_masked_by_a_trim_exclude_the_hole(tmp_path):
     assert bool(contact.hit)
     u, v = np.meshgrid(np.asarray(contact.params_u), np.asarray(contact.params_v), indexing="ij")
     assert not np.any(np.asarray(contact.mask) & np.asarray(cap.mask(u, v)))
+    blending = cap.geometry.blending(60, 60)
+    sample_mask = cap.sample_mask(blending)
+    np.testing.assert_array_equal(np.asarray(sample_mask), np.asarray(cap.mask(u, v)))
+    assert not bool(collide.contacts(blending, cap.geometry.ctrl, ball, sample_mask=sample_mask).hit)
     near = collide.Sphere(np.array([0.5, 0.5, 0.0]), 0.3)  # a corner of the solid cap: kept
-    corner = collide.contacts(cap.geometry.blending(60, 60), cap.geometry.ctrl, near)
+    corner = collide.contacts(blending, cap.geometry.ctrl, near)
     assert np.any(np.asarray(corner.mask) & np.asarray(cap.mask(u, v)))
+    trimmed = collide.contacts(blending, cap.geometry.ctrl, near, sample_mask=sample_mask)
+    np.testing.assert_array_equal(np.asarray(trimmed.mask), np.asarray(corner.mask) & np.asarray(sample_mask))
 
 
 # --- 5. the command line ----------------------------------------------------------------------

@@ -150,6 +150,7 @@ class CadObject(eqx.Module):
             return jnp.ones(jnp.broadcast_shapes(jnp.shape(u), jnp.shape(v)), dtype=bool)
         return self.trim.mask(u, v)
 
+    @compiled
     def sample_mask(self, blending: Blending) -> Bool[Array, "m n"]:
         """The trim's mask on the sample grid of `blending` (a `Blending` of this surface, any
         grid or window): `True` where sample `(params_u[i], params_v[j])` lies on the trimmed
@@ -167,7 +168,10 @@ class CadObject(eqx.Module):
                 f"a blending of this surface (control net {tuple(self.surface.ctrl.shape[:2])})",
                 f"control net {tuple(blending.ctrl_shape)}",
             )
-        return self.mask(blending.params_u[:, None], blending.params_v[None, :])
+        u, v = blending.params_u[:, None], blending.params_v[None, :]
+        if self.trim is None:
+            return jnp.ones((u.shape[0], v.shape[1]), dtype=bool)
+        return self.trim.mask(u, v)
 
 
 class CadList(list):

@@ -15,6 +15,9 @@ trims and orientation, free curves, units.
 * Writing: clamped B-spline surfaces over the stored domain (a periodic direction clamped first),
   a `Trim` written as degree-1 pcurves (outer loop counter-clockwise, holes clockwise), a reversed
   face reversed, curves as edges; the file's unit is bsjax's.
+* Names and layers (STEP): written and read through OCCT's XCAF document (`STEPCAFControl`,
+  `XCAFDoc_DocumentTool`, `TDataStd_Name`, `XCAFDoc_LayerTool`): each object is a product named
+  after the object, on its layer (`PRESENTATION_LAYER_ASSIGNMENT`). IGES carries neither.
 """
 
 from __future__ import annotations
@@ -183,22 +186,32 @@ def _project_loop(surface: BSplineSurface, geom, uv, guess):
     return np.asarray(found.params, dtype=np.float64)
 
 
-def _read_shape(path: Path):
-    """The file's shape (transferred with OCCT's session unit set to the file's) and its unit."""
+def _read_parts(path: Path):
+    """The file's shapes as `[(shape, describe)]` (transferred with OCCT's session unit set to
+    the file's) and its unit; `describe(face_or_edge) -> (name, layer)`.
+
+    STEP goes through XCAF (`STEPCAFControl_Reader`): each free shape of the document (a
+    product) is a part named by its `TDataStd_Name`, with its layers from the `XCAFDoc_LayerTool`
+    (a face's own sub-shape label, when the file names or layers that face, wins). An assembly's
+    components are parts of their own, located. IGES: one part, no names.
+    """
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
 
     _quiet()
     step = path.suffix.lower() in (".step", ".stp")
     if step:
-        from OCP.STEPControl import STEPControl_Reader
+        from OCP.STEPCAFControl import STEPCAFControl_Reader
 
-        reader = STEPControl_Reader()
+        xcaf = STEPCAFControl_Reader()
+        xcaf.SetNameMode(True)
+        xcaf.SetLayerMode(True)
+        reader = xcaf.ChangeReader()
     else:
         from OCP.IGESControl import IGESControl_Reader
 
-        reader = IGESControl_Reader()
-    if reader.ReadFile(str(path)) != IFSelect_RetDone:
+        reader = xcaf = IGESControl_Reader()
+    if xcaf.ReadFile(str(path)) != IFSelect_RetDone:
         _checks.fail(str(path), f"a readable {'STEP' if step else 'IGES'} file", "a file OCCT cannot parse")
     units = _file_units(reader, step)
     previous = (
@@ -208,12 +221,113 @@ def _read_shape(path: Path):
     Interface_Static.SetCVal_s("xstep.cascade.unit", _OCCT_UNITS.get(units or "mm", "MM"))
     Interface_Static.SetIVal_s("read.surfacecurve.mode", 2)  # the file's pcurves, not re-projections
     try:
-        reader.TransferRoots()
-        shape = reader.OneShape()
+        if step:
+            doc = _xcaf_document()
+            if not xcaf.Transfer(doc):
+                _checks.fail(str(path), "a STEP file OCCT can transfer", "a transfer failure")
+            parts = _xcaf_parts(doc)
+        else:
+            reader.TransferRoots()
+            parts = [(reader.OneShape(), lambda _: ("", ""))]
     finally:
         Interface_Static.SetCVal_s("xstep.cascade.unit", previous[0])
         Interface_Static.SetIVal_s("read.surfacecurve.mode", previous[1])
-    return shape, units
+    return parts, units
+
+
+def _xcaf_document():
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.XCAFApp import XCAFApp_Application
+
+    doc = TDocStd_Document(TCollection_ExtendedString("MDTV-XCAF"))
+    XCAFApp_Application.GetApplication_s().InitDocument(doc)
+    return doc
+
+
+def _xcaf_parts(doc):
+    """`[(shape, describe)]` of the document's free shapes (assemblies: their components)."""
+    from OCP.collections import Sequence_TDF_Label
+    from OCP.TDF import TDF_Label
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool, XCAFDoc_ShapeTool
+
+    shapes = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    layers = XCAFDoc_DocumentTool.LayerTool_s(doc.Main())
+    free = Sequence_TDF_Label()
+    shapes.GetFreeShapes(free)
+    parts = []
+    for label in free:
+        if not XCAFDoc_ShapeTool.IsAssembly_s(label):
+            parts.append((XCAFDoc_ShapeTool.GetShape_s(label), _describer(layers, label, label)))
+            continue
+        components = Sequence_TDF_Label()
+        XCAFDoc_ShapeTool.GetComponents_s(label, components, True)  # flattened, located
+        for component in components:
+            referred = TDF_Label()
+            if not XCAFDoc_ShapeTool.GetReferredShape_s(component, referred):
+                referred = component
+            parts.append(
+                (
+                    XCAFDoc_ShapeTool.GetShape_s(component),
+                    _describer(layers, component, referred),
+                )
+            )
+    return parts
+
+
+def _describer(layers, label, referred):
+    """`describe(sub) -> (name, layer)` for the faces and edges of the part at `label`: the
+    sub-shape's own label first (a file that names or layers single faces), then the component's,
+    then the product's. Everything is read now: labels die with their document."""
+    from OCP.collections import Sequence_TDF_Label
+    from OCP.XCAFDoc import XCAFDoc_ShapeTool
+
+    instance = _label_name(label) if not label.IsEqual(referred) else ""
+    own = (  # a component's own name only when not OCCT's fallback to the occurrence's numeric id
+        (instance if not instance.isdigit() else "") or _label_name(referred),
+        _label_layer(layers, label) or _label_layer(layers, referred),
+    )
+    subs: dict[int, list] = {}  # hash → [(shape, (name, layer))]; OCP's shapes compare by identity
+    if label.IsEqual(referred):  # a located component's sub-shapes sit elsewhere: its own name only
+        labels = Sequence_TDF_Label()
+        XCAFDoc_ShapeTool.GetSubShapes_s(referred, labels)
+        for sub in labels:
+            shape = XCAFDoc_ShapeTool.GetShape_s(sub)
+            value = (_label_name(sub) or own[0], _label_layer(layers, sub) or own[1])
+            subs.setdefault(hash(shape), []).append((shape, value))
+
+    def describe(sub):
+        return next((value for shape, value in subs.get(hash(sub), ()) if shape.IsSame(sub)), own)
+
+    return describe
+
+
+# OCCT's writers name an unnamed product after themselves: not a name the user gave
+_OCCT_DEFAULT_NAME = "Open CASCADE STEP translator"
+
+
+def _label_name(label) -> str:
+    from OCP.TDataStd import TDataStd_Name
+
+    if not label.IsAttribute(TDataStd_Name.GetID_s()):  # OCP's FindAttribute crashes on a miss
+        return ""
+    name = TDataStd_Name()
+    label.FindAttribute(TDataStd_Name.GetID_s(), name)
+    text = name.Get().ToExtString()
+    return "" if text.startswith(_OCCT_DEFAULT_NAME) else text
+
+
+def _label_layer(layers, label) -> str:
+    """The first layer of `label` ("" when none)."""
+    from OCP.collections import Sequence_TDF_Label
+    from OCP.TCollection import TCollection_ExtendedString
+
+    found = Sequence_TDF_Label()
+    if not layers.GetLayers(label, found) or found.Length() == 0:
+        return ""
+    name = TCollection_ExtendedString()
+    layers.GetLayer(found.Value(1), name)
+    return name.ToExtString()
 
 
 def _file_units(reader, step: bool) -> str | None:
@@ -240,29 +354,33 @@ def load_occt(path: Path, units: str | None, on_unsupported: str, trims: bool) -
 
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    shape, file_units = _read_shape(path)
+    parts, file_units = _read_parts(path)
     scale = unit_scale(file_units, units, str(path))
     objects, held, unsupported, untrimmed = [], Counter(), [], 0
-    explorer = TopExp_Explorer(shape, TopAbs_FACE)
-    while explorer.More():
-        surface, domain, reverse, trim, trimmed = _face(TopoDS.Face(explorer.Current()), trims)
-        untrimmed += trimmed and trim is None
-        held["face"] += 1
-        objects.append(CadObject(surface.with_ctrl(surface.ctrl * scale), "", "", domain, reverse, trim))
-        explorer.Next()
-    explorer = TopExp_Explorer(shape, TopAbs_EDGE, TopAbs_FACE)  # free edges: curves
-    while explorer.More():
-        edge = TopoDS.Edge(explorer.Current())
-        geom, first, last = BRep_Tool.Curve_s(edge, 0.0, 0.0), *BRep_Tool.Range_s(edge)
-        held["edge"] += 1
-        curve, domain = bspline_curve(GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geom, first, last)))
-        objects.append(CadObject(curve.with_ctrl(curve.ctrl * scale), "", "", domain))
-        explorer.Next()
-    explorer = TopExp_Explorer(shape, TopAbs_VERTEX, TopAbs_EDGE)
-    while explorer.More():
-        held["vertex"] += 1
-        unsupported.append(f"free vertex {held['vertex'] - 1}")
-        explorer.Next()
+    for shape, describe in parts:
+        explorer = TopExp_Explorer(shape, TopAbs_FACE)
+        while explorer.More():
+            face = TopoDS.Face(explorer.Current())
+            surface, domain, reverse, trim, trimmed = _face(face, trims)
+            untrimmed += trimmed and trim is None
+            held["face"] += 1
+            surface = surface.with_ctrl(surface.ctrl * scale)
+            objects.append(CadObject(surface, *describe(face), domain, reverse, trim))
+            explorer.Next()
+        explorer = TopExp_Explorer(shape, TopAbs_EDGE, TopAbs_FACE)  # free edges: curves
+        while explorer.More():
+            edge = TopoDS.Edge(explorer.Current())
+            geom, first, last = BRep_Tool.Curve_s(edge, 0.0, 0.0), *BRep_Tool.Range_s(edge)
+            held["edge"] += 1
+            bc = GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geom, first, last))
+            curve, domain = bspline_curve(bc)
+            objects.append(CadObject(curve.with_ctrl(curve.ctrl * scale), *describe(edge), domain))
+            explorer.Next()
+        explorer = TopExp_Explorer(shape, TopAbs_VERTEX, TopAbs_EDGE)
+        while explorer.More():
+            held["vertex"] += 1
+            unsupported.append(f"free vertex {held['vertex'] - 1}")
+            explorer.Next()
     report(path, unsupported, on_unsupported)
     if untrimmed:
         import warnings
@@ -420,42 +538,36 @@ def _quiet() -> None:
 
 
 def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
-    from OCP.BRep import BRep_Builder
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge
+    """Write `objects` as STEP (through XCAF: each object a product carrying its name and layer,
+    `TDataStd_Name` and `XCAFDoc_LayerTool`) or IGES (one compound; no names)."""
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
-    from OCP.TopoDS import TopoDS_Compound
 
     _quiet()
-    compound, builder = TopoDS_Compound(), BRep_Builder()
-    builder.MakeCompound(compound)
-    for obj in objects:
-        if isinstance(obj.geometry, BSplineCurve):
-            builder.Add(compound, BRepBuilderAPI_MakeEdge(to_geom_curve(obj.geometry, obj.domain)).Edge())
-        else:
-            builder.Add(compound, _face_shape(obj))
     unit = _OCCT_UNITS.get(units)
     if unit is None:
         _checks.fail("units", f"one of {', '.join(_OCCT_UNITS)} for STEP/IGES", repr(units))
-    keys = (
-        "xstep.cascade.unit",
-        "write.step.unit" if path.suffix.lower() in (".step", ".stp") else "write.iges.unit",
-    )
+    step = path.suffix.lower() in (".step", ".stp")
+    shapes = [_object_shape(obj) for obj in objects]
+    keys = ("xstep.cascade.unit", "write.step.unit" if step else "write.iges.unit")
     previous = [Interface_Static.CVal_s(k) for k in keys]
     for k in keys:
         Interface_Static.SetCVal_s(k, unit)
     try:
-        if path.suffix.lower() in (".step", ".stp"):
-            from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+        if step:
+            from OCP.STEPCAFControl import STEPCAFControl_Writer
+            from OCP.STEPControl import STEPControl_AsIs
 
-            writer = STEPControl_Writer()
-            writer.Transfer(compound, STEPControl_AsIs)
-            ok = writer.Write(str(path)) == IFSelect_RetDone
+            writer = STEPCAFControl_Writer()
+            writer.SetNameMode(True)
+            writer.SetLayerMode(True)
+            ok = writer.Transfer(_named_document(objects, shapes), STEPControl_AsIs)
+            ok = ok and writer.Write(str(path)) == IFSelect_RetDone
         else:
             from OCP.IGESControl import IGESControl_Writer
 
             writer = IGESControl_Writer(unit, 1)  # mode 1: B-Rep (faces with trims)
-            writer.AddShape(compound)
+            writer.AddShape(_compound(shapes))
             writer.ComputeModel()
             ok = writer.Write(str(path))
     finally:
@@ -463,3 +575,45 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
             Interface_Static.SetCVal_s(k, v)
     if not ok:
         raise OSError(f"{path}: OCCT could not write the file")
+
+
+def _object_shape(obj: CadObject):
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge
+
+    if isinstance(obj.geometry, BSplineCurve):
+        return BRepBuilderAPI_MakeEdge(to_geom_curve(obj.geometry, obj.domain)).Edge()
+    return _face_shape(obj)
+
+
+def _compound(shapes):
+    from OCP.BRep import BRep_Builder
+    from OCP.TopoDS import TopoDS_Compound
+
+    compound, builder = TopoDS_Compound(), BRep_Builder()
+    builder.MakeCompound(compound)
+    for shape in shapes:
+        builder.Add(compound, shape)
+    return compound
+
+
+def _named_document(objects: list[CadObject], shapes):
+    """An XCAF document with one free shape per object, named and layered as the object."""
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool, XCAFDoc_ShapeTool
+
+    doc = _xcaf_document()
+    shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    layer_tool = XCAFDoc_DocumentTool.LayerTool_s(doc.Main())
+    naming = XCAFDoc_ShapeTool.AutoNaming_s()
+    XCAFDoc_ShapeTool.SetAutoNaming_s(False)  # else an unnamed object is named 'FACE' or 'EDGE'
+    try:
+        labels = [shape_tool.AddShape(shape, False) for shape in shapes]
+    finally:
+        XCAFDoc_ShapeTool.SetAutoNaming_s(naming)
+    for obj, label in zip(objects, labels):
+        if obj.name:
+            TDataStd_Name.Set_s(label, TCollection_ExtendedString(obj.name, True))  # True: UTF-8
+        if obj.layer:
+            layer_tool.SetLayer(label, TCollection_ExtendedString(obj.layer, True))
+    return doc
