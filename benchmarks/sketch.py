@@ -1,6 +1,6 @@
 """Stroke fitting and surface constructors as called: bsjax vs scipy, geomdl and OCCT.
 
-    .venv/bin/python benchmarks/sketch.py            # float64, about a minute on 2 quiet cores
+    .venv/bin/python benchmarks/sketch.py            # float64, about two minutes on 2 quiet cores
     .venv/bin/python benchmarks/sketch.py --quick    # fewer repetitions
 
 Fit: a 1 000-sample noisy stroke → a cubic of 20 control points. bsjax `sketch.fit_curve` (ends
@@ -8,7 +8,8 @@ interpolated, chord parameters, averaged knots) as a user calls it and inside th
 `jax.jit`; scipy `make_lsq_spline` on the same parameters and knots (plain least squares, its
 ends not pinned); geomdl `fitting.approximate_curve` (the same algorithm, NURBS Book A9.7, in
 pure Python); OCCT `GeomAPI_PointsToBSpline` (cubic, C2, on bsjax's parameters, its tolerance
-set to bsjax's max error: OCCT picks its own control count). The stroke features (`features`, `corners`) and `unproject` as called and jitted.
+set to bsjax's max error: OCCT picks its own control count). The stroke features (`features`,
+`corners`) and `unproject` as called and jitted.
 Constructors: each `bsjax.construct` function as called on small fitted curves, against OCCT
 where it has the construction (`GeomFill_BSplineCurves` Coons style for `coons`,
 `Geom_SurfaceOfRevolution` + `GeomConvert` for `revolve`, `GeomFill_Pipe` in the corrected
