@@ -391,6 +391,49 @@ def test_step_from_another_writer_has_no_invented_names(tmp_path):
     assert {(o.name, o.layer) for o in loaded.objects} == {("", "")}
 
 
+def test_step_assembly_components_keep_their_part_names(tmp_path):
+    """A STEP assembly (OCCT's XCAF): each located component's faces carry its part's name and
+    layer (not OCCT's invented component names), and sit where the component's placement puts
+    them."""
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
+    from OCP.gp import gp_Trsf, gp_Vec
+    from OCP.STEPCAFControl import STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.TopoDS import TopoDS_Compound
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+
+    from bsjax.io import _occt
+
+    _occt._quiet()
+    doc = _occt._xcaf_document()
+    shapes = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    layers = XCAFDoc_DocumentTool.LayerTool_s(doc.Main())
+    box = shapes.AddShape(BRepPrimAPI_MakeBox(1.0, 2.0, 3.0).Shape(), False)
+    TDataStd_Name.Set_s(box, TCollection_ExtendedString("brick"))
+    layers.SetLayer(box, TCollection_ExtendedString("Walls"))
+    compound, builder = TopoDS_Compound(), BRep_Builder()
+    builder.MakeCompound(compound)
+    assembly = shapes.AddShape(compound, True)
+    TDataStd_Name.Set_s(assembly, TCollection_ExtendedString("wall"))
+    for dx in (0.0, 10.0):
+        move = gp_Trsf()
+        move.SetTranslation(gp_Vec(dx, 0.0, 0.0))
+        shapes.AddComponent(assembly, box, TopLoc_Location(move))
+    shapes.UpdateAssemblies()
+    writer = STEPCAFControl_Writer()
+    assert writer.Transfer(doc, STEPControl_AsIs)
+    path = tmp_path / "wall.step"
+    writer.Write(str(path))
+    loaded = io.load_all(path)
+    assert len(loaded) == 12 and {(o.name, o.layer) for o in loaded.objects} == {("brick", "Walls")}
+    lowest_x = [float(np.asarray(o.geometry.ctrl)[..., 0].min()) for o in loaded.objects]
+    np.testing.assert_allclose(sorted(lowest_x), [0] * 5 + [1] + [10] * 5 + [11], atol=1e-12)
+
+
 def _knots_01(n: int, p: int) -> np.ndarray:
     return np.concatenate([np.zeros(p), np.linspace(0, 1, n - p + 1), np.ones(p)])
 

@@ -266,26 +266,23 @@ def _xcaf_parts(doc):
             referred = TDF_Label()
             if not XCAFDoc_ShapeTool.GetReferredShape_s(component, referred):
                 referred = component
-            parts.append(
-                (
-                    XCAFDoc_ShapeTool.GetShape_s(component),
-                    _describer(layers, component, referred),
-                )
-            )
+            describe = _describer(layers, component, referred, _describer(layers, label, label)(None))
+            parts.append((XCAFDoc_ShapeTool.GetShape_s(component), describe))
     return parts
 
 
-def _describer(layers, label, referred):
+def _describer(layers, label, referred, parent=("", "")):
     """`describe(sub) -> (name, layer)` for the faces and edges of the part at `label`: the
     sub-shape's own label first (a file that names or layers single faces), then the component's,
-    then the product's. Everything is read now: labels die with their document."""
+    then the product's, then the assembly's (`parent`: `(name, layer)`). Everything is read
+    now: labels die with their document."""
     from OCP.collections import Sequence_TDF_Label
     from OCP.XCAFDoc import XCAFDoc_ShapeTool
 
     instance = _label_name(label) if not label.IsEqual(referred) else ""
     own = (  # a component's own name only when not OCCT's fallback to the occurrence's numeric id
-        (instance if not instance.isdigit() else "") or _label_name(referred),
-        _label_layer(layers, label) or _label_layer(layers, referred),
+        (instance if not instance.isdigit() else "") or _label_name(referred) or parent[0],
+        _label_layer(layers, label) or _label_layer(layers, referred) or parent[1],
     )
     subs: dict[int, list] = {}  # hash → [(shape, (name, layer))]; OCP's shapes compare by identity
     if label.IsEqual(referred):  # a located component's sub-shapes sit elsewhere: its own name only
@@ -302,8 +299,9 @@ def _describer(layers, label, referred):
     return describe
 
 
-# OCCT's writers name an unnamed product after themselves: not a name the user gave
-_OCCT_DEFAULT_NAME = "Open CASCADE STEP translator"
+# OCCT's writers name an unnamed product after themselves and an unnamed component after its
+# label ("=>[0:1:1:1]"): not names the user gave
+_OCCT_DEFAULT_NAMES = ("Open CASCADE STEP translator", "=>[")
 
 
 def _label_name(label) -> str:
@@ -314,7 +312,7 @@ def _label_name(label) -> str:
     name = TDataStd_Name()
     label.FindAttribute(TDataStd_Name.GetID_s(), name)
     text = name.Get().ToExtString()
-    return "" if text.startswith(_OCCT_DEFAULT_NAME) else text
+    return "" if text.startswith(_OCCT_DEFAULT_NAMES) else text
 
 
 def _label_layer(layers, label) -> str:
