@@ -12,6 +12,10 @@ tessellated meshes (trimesh).
 * Rhino's closed surfaces with non-uniform periodic knots load as exact clamped B-splines (knot
   insertion at the domain ends, `bsjax.io._knots`); a uniform periodic direction loads periodic.
   The file's parameter domain is kept and written back.
+* Trims reach collision and meshes: `CadObject.sample_mask(blending)` is a face's trim on a
+  sample grid, for `collide.contacts(..., sample_mask=)` and `tessellate(..., mask=)` (a mesh
+  format written by `save` drops the triangles outside a face's trim).
+* STEP keeps names and layers (OCCT's XCAF document: products and layer assignments).
 * From the shell: `bsjax convert IN OUT` (`bsjax.cli.convert`).
 
 rhino3dm, OCP and trimesh are imported by the functions that use them, so `import bsjax.io`
