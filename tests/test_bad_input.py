@@ -323,3 +323,16 @@ def test_plot_bad_input_names_the_argument(tmp_path):
     plot.draw_surface(ax, grid + np.arange(5)[None, :, None], values=np.ones((4, 5)))
     plot.save(fig, tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_parameters_refuse_booleans_and_complex():
+    """A boolean is not a parameter (it would silently read as 0 or 1), complex is not real."""
+    import bsjax
+
+    t = np.linspace(0.0, 1.0, 6)
+    curve = bsjax.BSplineCurve(np.stack([t, t**2], -1), bsjax.clamped_knots(6, 3), 3)
+    surface = shapes.plate(5, 5)
+    for fn in (lambda x: curve.evaluate(x), lambda x: curve.curvature(x), lambda x: surface.evaluate(x, 0.5)):
+        for bad in (True, np.array([True, False]), np.array([0.5 + 1j])):
+            with pytest.raises(TypeError, match="expected real numbers"):
+                fn(bad)

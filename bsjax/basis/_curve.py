@@ -155,10 +155,8 @@ class BSplineCurve(eqx.Module):
         return _blending(self.direction, params, self.weights)
 
     def _params(self, x, name):
-        x = jnp.asarray(x)
-        if jnp.iscomplexobj(x):  # (np.iscomplexobj cannot look at a tracer)
-            raise TypeError(f"{name}: expected real numbers, got complex dtype {x.dtype}")
-        return self.direction.check_params(x.astype(self.ctrl.dtype), name)
+        _checks.check_real(x, name)  # complex and booleans refused (tracers too: their dtype)
+        return self.direction.check_params(jnp.asarray(x).astype(self.ctrl.dtype), name)
 
 
 def _check_nu(nu) -> None:
