@@ -130,6 +130,8 @@ def _errors(d):
         (["view", str(d / "notes.txt")], "expected a .json"),
         (["view", str(d / "junk.npz")], "cannot read haptics recording"),
         (["haptics", "--proxy-only", "--view", "--port", "70000"], "--port"),
+        (["haptics", "--sculpt", "knead"], "--sculpt"),
+        (["haptics", "--sculpt", "drag", "--proxy-only"], "--sculpt"),
         # sweep
         (["sweep", "collide", "--param", "radius=0:1", "--out", str(d / "o")], "--param"),
         (["sweep", "collide", "--param", "depth=0:1:2", "--out", str(d / "o")], "--param"),

@@ -29,6 +29,7 @@ from bsjax.device.telemetry import ServoStats, plot_recording
 
 __all__ = [
     "BUTTON_PRESS",
+    "ConstraintSculptModel",
     "Decoded",
     "DeviceError",
     "DeviceSample",
@@ -48,6 +49,7 @@ __all__ = [
     "ServoStats",
     "SimulatedDevice",
     "Workspace",
+    "border_free",
     "decode_frames",
     "encode_force",
     "encode_frame",
@@ -64,4 +66,8 @@ def __getattr__(name: str):
         from bsjax.device import physics
 
         return getattr(physics, name)
+    if name in ("ConstraintSculptModel", "border_free"):
+        from bsjax.device import constraint_sculpt
+
+        return getattr(constraint_sculpt, name)
     raise AttributeError(f"module 'bsjax.device' has no attribute {name!r}")
