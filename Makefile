@@ -24,7 +24,8 @@ test: $(PY)
 	$(VENV)/bin/ruff format --check bsjax tests benchmarks
 	$(VENV)/bin/ruff check bsjax tests benchmarks
 	$(VENV)/bin/pyright
-	$(PY) -m pytest -q -n 2
+	# a larger main-thread stack: one full run lost a worker to a segfault inside XLA's compiler
+	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2
 
 bench: $(PY)
 	$(PY) -m pip install -q -e ".[bench,haptics]"
