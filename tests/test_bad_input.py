@@ -336,3 +336,18 @@ def test_parameters_refuse_booleans_and_complex():
         for bad in (True, np.array([True, False]), np.array([0.5 + 1j])):
             with pytest.raises(TypeError, match="expected real numbers"):
                 fn(bad)
+
+
+def test_empty_constraint_list_is_named():
+    """An empty list reaches the compiled solve as a (0,)-shaped array: the message still says
+    what came."""
+    import bsjax
+    from bsjax import sculpt
+
+    t = np.linspace(0.0, 1.0, 7)
+    curve = bsjax.BSplineCurve(np.stack([t, t**2], -1), bsjax.clamped_knots(7, 3), 3)
+    for fn in (sculpt.min_norm, sculpt.solve):
+        with pytest.raises(
+            ValueError, match="^constraints: expected a non-empty list of constraints, got an empty list"
+        ):
+            fn(curve, [])

@@ -205,11 +205,21 @@ def _prefactor(shape, constraints, free, metric, scheme) -> Factor:
     return Factor(shape=shape, constraints=constraints, solve_matrix=c_mat, rows=f, aux=tuple(aux), rank=rank)
 
 
+def _describe(constraints) -> str:
+    """What came instead of a constraint list (an empty list reaches a compiled function as a
+    traced array of shape (0,))."""
+    if getattr(constraints, "shape", None) == (0,) or (
+        isinstance(constraints, (list, tuple)) and not constraints
+    ):
+        return "an empty list"
+    return type(constraints).__name__
+
+
 def _checked_constraints(constraints) -> tuple[AbstractConstraint, ...]:
     if isinstance(constraints, AbstractConstraint):
         constraints = (constraints,)
     if not isinstance(constraints, (list, tuple)) or not constraints:
-        _checks.fail("constraints", "a non-empty list of constraints", type(constraints).__name__)
+        _checks.fail("constraints", "a non-empty list of constraints", _describe(constraints))
     for i, c in enumerate(constraints):
         if not isinstance(c, AbstractConstraint):
             raise TypeError(

@@ -32,7 +32,7 @@ from bsjax.sculpt._constraints import (
     flat_ctrl,
     point_rows,
 )
-from bsjax.sculpt._min_norm import Edit, _column_scale, _pinv, _rank
+from bsjax.sculpt._min_norm import Edit, _column_scale, _describe, _pinv, _rank
 
 
 class AbstractNonlinear(eqx.Module):
@@ -226,7 +226,7 @@ def solve(
     if isinstance(constraints, (AbstractConstraint, AbstractNonlinear)):
         constraints = (constraints,)
     if not isinstance(constraints, (list, tuple)) or not constraints:
-        _checks.fail("constraints", "a non-empty list of constraints", type(constraints).__name__)
+        _checks.fail("constraints", "a non-empty list of constraints", _describe(constraints))
     plans = []
     for i, c in enumerate(constraints):
         name = f"constraints[{i}]"
