@@ -108,12 +108,7 @@ class SeqBlock:
 
     def close(self) -> None:
         del self._seq, self._data
-        self.shm.close()
-        if self.owner:
-            try:
-                self.shm.unlink()
-            except FileNotFoundError:
-                pass
+        _release(self.shm, self.owner)
 
 
 class RingBlock:
@@ -136,12 +131,17 @@ class RingBlock:
 
     def close(self) -> None:
         del self.array
-        self.shm.close()
-        if self.owner:
-            try:
-                self.shm.unlink()
-            except FileNotFoundError:
-                pass
+        _release(self.shm, self.owner)
+
+
+def _release(shm: shared_memory.SharedMemory, owner: bool) -> None:
+    """Close a block; its creator also unlinks it (already gone is fine)."""
+    shm.close()
+    if owner:
+        try:
+            shm.unlink()
+        except FileNotFoundError:
+            pass
 
 
 def encode_proxy(p: Proxy) -> list[float]:
