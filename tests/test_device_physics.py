@@ -149,7 +149,7 @@ def test_two_second_simulated_session_meets_the_rate(model):
 
     model.update = spy
     try:
-        loop = ServoLoop(SimulatedDevice(), model, rate_hz=1000, max_force=3.0, physics_hz=100)
+        loop = ServoLoop(SimulatedDevice(), model, rate_hz=1000, max_force=3.0, physics_hz=100, mode="thread")
         loop.start()
         time.sleep(2.0)
         stats = loop.stop()
@@ -241,7 +241,7 @@ def test_servo_with_glitching_device_keeps_the_model_sane(model):
     estimate (1e300 / 1 ms decays over seconds): after the glitch the force is the one before."""
     model.reset()
     dev = Glitching(lambda t: ((0.8 if t > 0.1 else 0.95, 0.0, 0.0), 0), workspace=Workspace())
-    loop = ServoLoop(dev, model, physics_hz=100, record=True)
+    loop = ServoLoop(dev, model, physics_hz=100, record=True, mode="thread")
     dropped = model.dropped_poses
     loop.start()
     time.sleep(0.6)

@@ -404,6 +404,25 @@ def test_a_device_factory_is_made_in_the_servo_process():
     assert stats.ticks > 100 and np.all(np.isfinite(snap["position"]))
 
 
+def test_the_default_mode_is_a_servo_process_with_a_plain_simulated_device():
+    """`ServoLoop(SimulatedDevice(), model)`: the default device (its push/pull script is a
+    picklable object) crosses to the servo process, which renders the same poses."""
+    device = SimulatedDevice()
+    loop = ServoLoop(device, Proxy.plane(**WALL))
+    assert loop.mode == "process"
+    loop.start()
+    try:
+        assert loop.placement["mode"] == "process" and loop.placement["pid"] != os.getpid()
+        time.sleep(0.2)
+        snap = loop.snapshot()
+    finally:
+        stats = loop.stop()
+    assert stats.ticks > 100
+    # the script's pose at some t is on the script's path: radius in [touch - 0.2, touch + 0.35]
+    r = math.hypot(snap["position"][0], snap["position"][1])
+    assert 0.62 + 0.25 - 0.2 - 1e-9 <= r <= 0.62 + 0.25 + 0.35 + 1e-9
+
+
 def test_a_servo_process_that_fails_to_start_is_reported():
     import functools
 

@@ -99,7 +99,9 @@ STAMPS = {
 @pytest.mark.parametrize("stamp", list(STAMPS))
 def test_physics_death_zeroes_force_whatever_the_proxy_stamp(stamp, mode):
     model = StampingModel(STAMPS[stamp], mode)
-    loop = ServoLoop(still(), model, physics_hz=200, proxy_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop = ServoLoop(
+        still(), model, physics_hz=200, proxy_timeout=TIMEOUT, ramp_time=RAMP, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.25)
     model.die.set()
@@ -141,7 +143,9 @@ class WrongClockDevice:
 @pytest.mark.parametrize("received", [time.time, lambda: math.inf, lambda: math.nan])
 def test_silent_device_zeroes_force_whatever_its_clock(received):
     dev = WrongClockDevice(received)
-    loop = ServoLoop(dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop = ServoLoop(
+        dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.25)
     dev.inner.pause()  # stops answering: the same sample again, each read a fresh copy
@@ -162,7 +166,7 @@ def test_silent_serial_device_zeroes_force_with_default_limits():
     emu = Emulator(position=(0.08, 0.0, 0.0))  # device metres = model units here
     try:
         with SerialDevice(emu.path) as dev:
-            loop = ServoLoop(dev, Proxy.plane(**WALL), record=True)
+            loop = ServoLoop(dev, Proxy.plane(**WALL), record=True, mode="thread")
             loop.start()
             time.sleep(0.3)
             emu._stream = False
@@ -198,7 +202,7 @@ class FailingDevice(SimulatedDevice):
 
 def test_dead_servo_thread_is_visible_and_writes_zero():
     dev = FailingDevice(200)
-    loop = ServoLoop(dev, Proxy.plane(**WALL))
+    loop = ServoLoop(dev, Proxy.plane(**WALL), mode="thread")
     loop.start()
     assert loop.finished.wait(3.0)
     assert not loop.running and isinstance(loop.error, FailingDevice.Unplugged)
@@ -217,7 +221,9 @@ def test_device_exceptions_are_counted_and_the_watchdog_acts():
 
     dev = Flaky(lambda t: ((0.8, 0.0, 0.0), 0), workspace=Workspace())
     dev.failing = False
-    loop = ServoLoop(dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop = ServoLoop(
+        dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.2)
     fault = time.perf_counter()
@@ -237,7 +243,9 @@ def nan_window(t):
 
 def test_nan_pose_is_dropped_at_the_device_and_force_stays_finite():
     dev = SimulatedDevice(nan_window, workspace=Workspace())
-    loop = ServoLoop(dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop = ServoLoop(
+        dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.45)
     loop.stop()
@@ -262,7 +270,9 @@ class RawDevice(SimulatedDevice):
 
 def test_nan_sample_from_any_device_is_not_rendered():
     dev = RawDevice(lambda t: ((0.8, 0.0, 0.0), 0), workspace=Workspace())
-    loop = ServoLoop(dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop = ServoLoop(
+        dev, Proxy.plane(**WALL), device_timeout=TIMEOUT, ramp_time=RAMP, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.45)
     stats = loop.stop()
@@ -277,7 +287,7 @@ def test_overflowing_wall_saturates_at_max_force_along_its_normal():
     assert stiff.normal == pytest.approx(tuple(n))
     assert all(math.isfinite(c) for c in stiff.force(-5.0 * n))  # k·depth = 5e308 overflows: saturated
     dev = SimulatedDevice(lambda t: (tuple(-5.0 * n), 0), workspace=Workspace())
-    loop = ServoLoop(dev, stiff, max_force=2.5, record=True)
+    loop = ServoLoop(dev, stiff, max_force=2.5, record=True, mode="thread")
     loop.start()
     time.sleep(0.3)
     stats = loop.stop()
@@ -294,7 +304,7 @@ def test_nan_force_is_zero_and_counted():
             return math.nan, 1.0, 0.0
 
     bad = NanWall("plane", WALL["point"], WALL["normal"], 0.0, False, 0.25, 30.0, 0.0, 0.0)
-    loop = ServoLoop(still(), bad, record=True)
+    loop = ServoLoop(still(), bad, record=True, mode="thread")
     loop.start()
     time.sleep(0.1)
     stats = loop.stop()
@@ -337,7 +347,7 @@ BAD_ARGUMENTS = [
 @pytest.mark.parametrize(("name", "value", "error"), BAD_ARGUMENTS)
 def test_servo_arguments_are_checked_at_construction(name, value, error):
     with pytest.raises(error, match=f"^{name}: expected"):
-        ServoLoop(still(), Proxy.plane(**WALL), **{name: value})
+        ServoLoop(still(), Proxy.plane(**WALL), **{name: value}, mode="thread")
 
 
 def test_servo_refuses_a_device_without_read_and_write():
@@ -355,6 +365,7 @@ def test_numpy_scalars_are_accepted():
         spin_us=np.float32(0.0),
         cpu=np.int64(sorted(__import__("os").sched_getaffinity(0))[0]),
         realtime=np.bool_(False),
+        mode="thread",
     )
     assert loop.max_force == 3.0 and type(loop.max_force) is float and loop.cpu is not None
     loop.start()
@@ -567,7 +578,9 @@ def test_plane_normals_of_extreme_magnitude_normalise():
 
 def test_a_restarted_loop_does_not_trust_the_previous_runs_proxy():
     model = StampingModel(time.perf_counter)
-    loop = ServoLoop(still(), model, physics_hz=200, proxy_timeout=TIMEOUT, ramp_time=RAMP, record=True)
+    loop = ServoLoop(
+        still(), model, physics_hz=200, proxy_timeout=TIMEOUT, ramp_time=RAMP, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.15)
     loop.stop()

@@ -156,7 +156,7 @@ def test_servo_loop_over_serial_clamps_and_ends_with_zero(emulator):
     emulator.position = (0.55, 0.0, 0.0)  # deep inside a wall at x = 0.62 facing +x
     wall = Proxy.plane((0.62, 0.0, 0.0), (1.0, 0.0, 0.0), stiffness=30.0, tool_radius=0.25, stamp=0.0)
     with SerialDevice(emulator.path) as dev:
-        loop = ServoLoop(dev, wall, max_force=2.0)
+        loop = ServoLoop(dev, wall, max_force=2.0, mode="thread")
         loop.start()
         assert _wait(lambda: len(emulator.forces) > 300)
         stats = loop.stop()

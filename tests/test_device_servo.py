@@ -50,7 +50,9 @@ class StallingModel:
 
 def test_watchdog_ramps_force_to_zero_when_physics_stalls():
     model = StallingModel()
-    loop = ServoLoop(still(), model, physics_hz=200, proxy_timeout=0.03, ramp_time=0.02, record=True)
+    loop = ServoLoop(
+        still(), model, physics_hz=200, proxy_timeout=0.03, ramp_time=0.02, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.4)
     model.stall.set()
@@ -75,7 +77,9 @@ def test_watchdog_ramps_force_to_zero_when_physics_stalls():
 
 def test_watchdog_zeroes_force_when_device_stops_answering():
     dev = still()
-    loop = ServoLoop(dev, Proxy.plane(**WALL), device_timeout=0.02, ramp_time=0.02, record=True)
+    loop = ServoLoop(
+        dev, Proxy.plane(**WALL), device_timeout=0.02, ramp_time=0.02, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.3)
     dev.pause()
@@ -120,7 +124,9 @@ def test_clamp_and_rate_limit_hold_for_any_model_state():
     wobble = SimulatedDevice(
         lambda t: ((math.sin(40 * t), math.cos(33 * t), 0.3 * math.sin(7 * t)), 0), workspace=Workspace()
     )
-    loop = ServoLoop(wobble, ChaosModel(), max_force=2.5, max_force_rate=500.0, physics_hz=500, record=True)
+    loop = ServoLoop(
+        wobble, ChaosModel(), max_force=2.5, max_force_rate=500.0, physics_hz=500, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.6)
     stats = loop.stop()
@@ -142,7 +148,7 @@ class ExplodingProxy(Proxy):
 def test_zero_force_written_when_the_servo_thread_fails():
     dev = still()
     bad = ExplodingProxy("plane", WALL["point"], WALL["normal"], 0.0, False, 0.25, 30.0, 0.0, 0.0)
-    loop = ServoLoop(dev, bad)
+    loop = ServoLoop(dev, bad, mode="thread")
     loop.start()
     assert loop.finished.wait(2.0)
     with pytest.raises(DeviceError, match="model bug"):
@@ -161,7 +167,9 @@ def test_physics_exception_ramps_to_zero_and_is_reported():
             return Proxy.plane(**WALL)
 
     dev = still()
-    loop = ServoLoop(dev, Broken(), physics_hz=200, proxy_timeout=0.03, ramp_time=0.02, record=True)
+    loop = ServoLoop(
+        dev, Broken(), physics_hz=200, proxy_timeout=0.03, ramp_time=0.02, record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.5)
     stats = loop.stop()
@@ -178,14 +186,16 @@ def approach(t):
 
 def test_record_and_replay_give_identical_forces(tmp_path):
     path = tmp_path / "session.npz"
-    loop = ServoLoop(SimulatedDevice(approach, workspace=Workspace()), Proxy.plane(**WALL), record=path)
+    loop = ServoLoop(
+        SimulatedDevice(approach, workspace=Workspace()), Proxy.plane(**WALL), record=path, mode="thread"
+    )
     loop.start()
     time.sleep(0.5)
     loop.stop()
     rec = Recording.load(path)
     assert len(rec) > 300 and np.abs(rec.force).max() > 0.5 and rec.buttons.max() == 1
     replay = SimulatedDevice.replay(path, realtime=False)
-    loop2 = ServoLoop(replay, Proxy.plane(**WALL), record=True)
+    loop2 = ServoLoop(replay, Proxy.plane(**WALL), record=True, mode="thread")
     loop2.start()
     assert loop2.finished.wait(5.0)
     loop2.stop()
@@ -202,7 +212,9 @@ def test_record_and_replay_give_identical_forces(tmp_path):
 
 
 def test_plot_of_a_recorded_session(tmp_path):
-    loop = ServoLoop(SimulatedDevice(approach, workspace=Workspace()), Proxy.plane(**WALL), record=True)
+    loop = ServoLoop(
+        SimulatedDevice(approach, workspace=Workspace()), Proxy.plane(**WALL), record=True, mode="thread"
+    )
     loop.start()
     time.sleep(0.3)
     loop.stop()
@@ -225,9 +237,9 @@ def test_recording_file_errors_name_the_file(tmp_path):
 
 def test_bad_arguments_are_refused():
     with pytest.raises(ValueError, match="max_force"):
-        ServoLoop(still(), Proxy.plane(**WALL), max_force=0.0)
+        ServoLoop(still(), Proxy.plane(**WALL), max_force=0.0, mode="thread")
     with pytest.raises(ValueError, match="rate_hz"):
-        ServoLoop(still(), Proxy.plane(**WALL), rate_hz=float("nan"))
+        ServoLoop(still(), Proxy.plane(**WALL), rate_hz=float("nan"), mode="thread")
     with pytest.raises(TypeError, match="model"):
         ServoLoop(still(), object())
     with pytest.raises(ValueError, match="normal"):

@@ -81,7 +81,7 @@ def test_live_view_streams_draws_and_reconnects(browser, tmp_path):
     empty = ViewServer(lambda: {"title": "", "surface": None, "tool_radius": 0.0, "replay": None})
     model = Breathing()
     device = SimulatedDevice(circling, workspace=Workspace())
-    loop = ServoLoop(device, model, physics_hz=100, proxy_timeout=0.2)
+    loop = ServoLoop(device, model, physics_hz=100, proxy_timeout=0.2, mode="thread")
     scene, frame = live(loop, model, title="test session")
     with empty, loop, ViewServer(scene, frame) as server:
         page = browser.new_page(viewport={"width": 640, "height": 480})

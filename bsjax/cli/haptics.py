@@ -7,7 +7,7 @@ bsjax haptics --serial /dev/ttyACM0 --baud 921600
 bsjax haptics --hid 1234:5678 [--hid-layout layout.json]
 bsjax haptics --replay session.npz --plot session.png
 bsjax haptics --view [--port 8765]              # live 3-D view in the browser (127.0.0.1)
-bsjax haptics --servo-process                   # the 1 kHz servo in its own process
+bsjax haptics --servo-thread                    # the 1 kHz servo as a thread (default: its own process)
 bsjax haptics --sculpt drag                     # the point under the stylus follows it (bsjax.sculpt)
 ```
 Prints the servo telemetry at the end (also on Ctrl-C; zero force is written first). The
@@ -83,10 +83,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", type=c.output_file(".npz"), metavar="FILE", help="save the session (.npz)")
     p.add_argument("--plot", type=c.output_file(".png"), metavar="PNG", help="plot the session")
     p.add_argument("--cpu", type=c.count(0), help="pin the servo thread to this CPU")
-    p.add_argument(
+    servo = p.add_mutually_exclusive_group()
+    servo.add_argument(
         "--servo-process",
         action="store_true",
-        help="run the servo in its own process (pinned, SCHED_FIFO where permitted)",
+        help="run the servo in its own process, pinned, SCHED_FIFO where permitted (the default, "
+        "except with --hid, whose open handle cannot cross to another process)",
+    )
+    servo.add_argument(
+        "--servo-thread", action="store_true", help="run the servo as a thread of this process"
     )
     p.add_argument("--view", action="store_true", help="serve a live 3-D view on 127.0.0.1")
     p.add_argument("--port", type=c.count(0), default=0, help="view port (0: any free port)")
@@ -178,9 +183,13 @@ def _body(args) -> int:
     print("bsjax haptics: building the model and compiling the physics…", flush=True)
     model = _model(args)
     interrupted = False
-    # --servo-process (not for HID, whose handle the servo process cannot share): the device is
-    # opened in the servo process; this process writes zero through its own one if that dies
-    factory = args.servo_process and not args.hid
+    # the servo in its own process by default (not for HID, whose handle the servo process cannot
+    # share): the device is opened there; this process writes zero through its own one if that dies
+    if args.servo_process and args.hid:
+        raise c.UserError(
+            "--servo-process", "a HID device runs the servo as a thread (its handle cannot cross)"
+        )
+    factory = not (args.servo_thread or args.hid)
     try:
         device = _device(args, factory=factory)
     except (OSError, ValueError, DeviceError) as err:
@@ -195,7 +204,7 @@ def _body(args) -> int:
             physics_hz=args.physics_hz,
             record=bool(args.record or args.plot),
             cpu=args.cpu,
-            mode="process" if args.servo_process else "thread",
+            mode="process" if factory else "thread",
         )
         # Ctrl-C must stop the loop even where SIGINT was inherited ignored (a parent such as a
         # test runner's worker): Python then keeps it ignored at start-up

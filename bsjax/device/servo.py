@@ -29,7 +29,7 @@ Safety chain (paper 002 §4.2's servo contract; issue #16):
   thread does runs inside its `try`; if it dies, zero force is written, `running` is False,
   `error` holds the exception and `stop()` raises `DeviceError` naming it.
 
-Process mode (`mode="process"`, issue #15): the servo runs in its own interpreter (a
+Process mode (`mode="process"`, the default since issue #15): the servo runs in its own interpreter (a
 `multiprocessing` "spawn" child, `_process`), pinned to the last allowed CPU (or `cpu`) and
 `SCHED_FIFO` where permitted, while this process's threads — XLA's included — are kept off that
 CPU. Proxy, device sample and telemetry cross through seqlocked shared memory (`_shm`): the
@@ -41,7 +41,10 @@ gone, an exception); this process keeps its own `device` object and writes zero 
 soon as the servo process ends, killed or not (a factory is called once more for that, after
 the servo process has released the device). The physics dying or being killed stops the
 proxy arriving, so the servo's watchdog ramps the force to zero as in thread mode. Where
-the servo ran is in `placement` (`mode`, `pid`, `cpu`, `realtime`).
+the servo ran is in `placement` (`mode`, `pid`, `cpu`, `realtime`). Thread mode (`mode="thread"`)
+runs the servo as a thread of this process instead: for devices that cannot be sent to another
+process (an open HID handle, a script given as a lambda) and for tests that inspect the device
+object the servo writes to.
 
 Physics thread (every `1/physics_hz` s): hands the newest sample to `model.update(sample)` (JAX:
 collision, mass-spring, refit) and swaps in the `Proxy` it returns with one reference assignment.
@@ -107,8 +110,9 @@ class ServoLoop:
     - `spin_us`: busy-wait margin (≥ 0 µs) before each deadline; `switch_interval`: GIL switch
       interval while running (None: leave the interpreter's); `freeze_gc`: `gc.freeze()` the
       objects alive at start so that a garbage collection cannot stall a tick (undone on stop).
-    - `mode`: `"thread"` (default: the servo is a thread of this process) or `"process"` (its
-      own process, see the module docstring; `device` must pickle or be a factory). The servo
+    - `mode`: `"process"` (default: the servo in its own process, see the module docstring;
+      `device` must pickle or be a factory — a class or a `functools.partial` — else a
+      `TypeError` at `start()` names it) or `"thread"` (a thread of this process). The servo
       process applies the workspace gate of a model with `reach` and a centre (`SculptModel`);
       any other `accepts` runs in the physics thread only: a refused pose is never fed to the
       physics, but the servo may render it against the last proxy (bounded by the clamp).
@@ -135,7 +139,7 @@ class ServoLoop:
         spin_us: float = 150.0,
         switch_interval: float | None = 1e-4,
         freeze_gc: bool = True,
-        mode: str = "thread",
+        mode: str = "process",
     ):
         positive = dict(
             rate_hz=rate_hz,
@@ -673,7 +677,7 @@ class ServoLoop:
             raise TypeError(
                 f"device: process mode sends the device to the servo process; {type(self.device).__name__} "
                 f"could not be sent ({err}); pass a picklable device or a factory (its class or a "
-                "functools.partial)"
+                "functools.partial), or mode='thread'"
             ) from err
         child_conn.close()
         deadline = time.monotonic() + 60.0

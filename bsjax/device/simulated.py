@@ -13,6 +13,7 @@ good sample again (None before the first one), whose age makes the servo's watch
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sys
@@ -69,7 +70,7 @@ class SimulatedDevice(DeviceBase):
         if len(rec) == 0:
             raise ValueError("recording: expected at least one sample, got an empty recording")
         # positions are model coordinates already: identity map, any finite position in reach
-        dev = cls(script=lambda t: (np.zeros(3), 0), workspace=Workspace(reach=sys.float_info.max))
+        dev = cls(script=_origin, workspace=Workspace(reach=sys.float_info.max))
         dev._recording, dev._realtime, dev._loop = rec, realtime, loop
         return dev
 
@@ -144,12 +145,24 @@ def sculpt_script(
     Each cycle of `period` seconds at azimuth `θ_k = k·45°`: approach from outside (0–25 %),
     press the button and push `0.2` units into the surface (25–60 %), release and withdraw
     (60–80 %), orbit to the next azimuth (80–100 %). Returns device coordinates (model / `scale`).
+    The script is a picklable object, so a `SimulatedDevice()` can be sent to the servo process.
     """
-    touch = equator + tool_radius
-    far, deep = touch + 0.35, touch - 0.2
+    return SculptScript(equator, tool_radius, period, scale)
 
-    def script(t: float):
-        k, phase = divmod(t / period, 1.0)
+
+@dataclasses.dataclass(frozen=True)
+class SculptScript:
+    """`t ↦ (position, buttons)` of `sculpt_script` (a class so that it pickles)."""
+
+    equator: float = 0.62
+    tool_radius: float = 0.25
+    period: float = 4.0
+    scale: float = 10.0
+
+    def __call__(self, t: float):
+        touch = self.equator + self.tool_radius
+        far, deep = touch + 0.35, touch - 0.2
+        k, phase = divmod(t / self.period, 1.0)
         theta = k * math.pi / 4
         buttons = 0
         if phase < 0.25:
@@ -160,10 +173,14 @@ def sculpt_script(
             r = deep + (far - deep) * _smooth((phase - 0.6) / 0.2)
         else:
             r, theta = far, theta + math.pi / 4 * _smooth((phase - 0.8) / 0.2)
-        z = 0.08 * math.sin(2 * math.pi * t / (3 * period))
-        return (r * math.cos(theta) / scale, r * math.sin(theta) / scale, z / scale), buttons
+        z = 0.08 * math.sin(2 * math.pi * t / (3 * self.period))
+        s = self.scale
+        return (r * math.cos(theta) / s, r * math.sin(theta) / s, z / s), buttons
 
-    return script
+
+def _origin(t: float):
+    """The script of a replay (never evaluated: the recording supplies the poses)."""
+    return np.zeros(3), 0
 
 
 def _smooth(s: float) -> float:
