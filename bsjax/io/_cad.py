@@ -66,18 +66,29 @@ class Trim(eqx.Module):
     - `segments (S, 2, 2)`: every loop's polyline edges `(start, end)` in `(u, v)`, loop after loop.
     - `loop_sizes`: the number of edges of each loop (static).
     - `outer`: per loop, `True` for an outer boundary, `False` for a hole (static).
+    - `closed`: per direction `(u, v)`, `True` when the surface is closed there (a cylinder's or
+      a revolve's seam): its parameter space is then periodic with period 1 (static).
 
     `mask(u, v)` is the even–odd (crossing-number) rule over all edges at once, so a point inside
-    an outer loop and outside every hole is kept, whatever the loops' orientation.
+    an outer loop and outside every hole is kept, whatever the loops' orientation. On a closed
+    direction a loop may come shifted by a period or cross the seam (a hole over the seam given
+    as one loop running past 1 or below 0): the rule then counts the loops' translates by −1, 0
+    and +1 period too, which is the even–odd rule on the cylinder (the translates of a loop that
+    lies inside [0, 1] add an even count and change nothing).
     """
 
     segments: Float[Array, "S 2 2"]
     loop_sizes: tuple[int, ...] = eqx.field(static=True)
     outer: tuple[bool, ...] = eqx.field(static=True)
+    closed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
 
     @classmethod
-    def from_loops(cls, loops, outer) -> Trim:
-        """From closed polylines `loops[i] (k_i, 2)` (the last point may repeat the first)."""
+    def from_loops(cls, loops, outer, closed=(False, False)) -> Trim:
+        """From closed polylines `loops[i] (k_i, 2)` (the last point may repeat the first); on a
+        `closed` direction each loop is shifted by a whole period so that its mean lies in [0, 1)."""
+        closed = tuple(bool(c) for c in closed)
+        if len(closed) != 2:
+            _checks.fail("closed", "two flags (u, v)", closed)
         segments, sizes = [], []
         for k, loop in enumerate(loops):
             loop = np.asarray(loop, dtype=np.float64)
@@ -86,11 +97,13 @@ class Trim(eqx.Module):
                 _checks.fail(f"loops[{k}]", "a closed polyline of shape (k >= 3, 2)", loop.shape)
             if np.array_equal(loop[0], loop[-1]):
                 loop = loop[:-1]
+            loop = loop - np.where(closed, np.floor(loop.mean(axis=0)), 0.0)
             segments.append(np.stack([loop, np.roll(loop, -1, axis=0)], axis=1))
             sizes.append(loop.shape[0])
         if not segments:
             _checks.fail("loops", "at least one loop", "none")
-        return cls(jnp.asarray(np.concatenate(segments)), tuple(sizes), tuple(bool(o) for o in outer))
+        segments = jnp.asarray(np.concatenate(segments))
+        return cls(segments, tuple(sizes), tuple(bool(o) for o in outer), closed)  # pyright: ignore
 
     def loops(self) -> list[np.ndarray]:
         """Each loop as a closed polyline `(k + 1, 2)` (first point repeated at the end)."""
@@ -98,24 +111,96 @@ class Trim(eqx.Module):
         ends = np.cumsum((0, *self.loop_sizes))
         return [np.vstack([segments[a:b, 0], segments[a, :1]]) for a, b in itertools.pairwise(ends)]
 
+    def to_dict(self) -> dict:
+        """`{"loops", "outer"[, "closed"]}`, JSON-ready (what `.json` files and bsjax's `.3dm`
+        user string `bsjax.trim` hold)."""
+        loops = {"loops": [loop.tolist() for loop in self.loops()], "outer": list(self.outer)}
+        return {**loops, "closed": list(self.closed)} if any(self.closed) else loops
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Trim:
+        """Inverse of `to_dict`."""
+        return cls.from_loops(data["loops"], data["outer"], data.get("closed", (False, False)))
+
+    def window(self, name: str = "trim", tol: float = 1e-7) -> tuple[float, float, float, float]:
+        """The trim as a parameter window `(u0, u1, v0, v1)`, for `bsjax.merge.merge(...,
+        trim=...)` (which keeps rectangular windows only).
+
+        **Arguments:** `name`: the argument's name in an error; `tol`: how far (in [0, 1]²) a
+        loop point may lie off the window's sides (projected loops are not exact).
+
+        **Returns:** the tightest window around the outer loop, when the trim is one outer loop
+        whose every edge runs along one side of that window (an axis-aligned rectangle);
+        otherwise a `ValueError` naming `name` and what the trim is.
+        """
+        segments = np.asarray(self.segments, dtype=np.float64)
+        if len(self.loop_sizes) != 1 or not self.outer[0]:
+            holes = sum(not o for o in self.outer)
+            _checks.fail(
+                name,
+                "an axis-aligned rectangular trim (one outer loop, no hole) — merge keeps windows only",
+                f"{len(self.loop_sizes)} loops ({holes} holes)",
+            )
+        lo, hi = segments.reshape(-1, 2).min(axis=0), segments.reshape(-1, 2).max(axis=0)
+        sides = [
+            np.abs(segments[..., axis] - bound) <= tol for axis in (0, 1) for bound in (lo[axis], hi[axis])
+        ]
+        along = np.any([side.all(axis=1) for side in sides], axis=0)  # both ends on one side
+        if not along.all():
+            _checks.fail(
+                name,
+                "an axis-aligned rectangular trim (one outer loop, no hole) — merge keeps windows only",
+                f"a loop with {int((~along).sum())} of {along.size} edges off its bounding rectangle "
+                f"[{lo[0]:.4g}, {hi[0]:.4g}] x [{lo[1]:.4g}, {hi[1]:.4g}]",
+            )
+        return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
     @compiled
     def mask(self, u: Float[Array, "..."], v: Float[Array, "..."]) -> Bool[Array, "..."]:
         """`True` where `(u, v)` lies inside the trimmed face (even–odd rule; "Computational
-        Geometry in C", O'Rourke, §7.4 crossing test).
+        Geometry in C", O'Rourke, §7.4 crossing test; on a closed direction over the loops'
+        translates by −1, 0, +1 period).
 
         **Arguments:** `u`, `v`: finite parameters of the same shape (outside [0, 1]: outside).
         **Returns:** a boolean array of that shape.
         """
         u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
         u, v = _checks.finite(u, "u"), _checks.finite(v, "v")
-        lead = (1,) * u.ndim  # explicit broadcasting (rank promotion may be off)
-        u0, v0, u1, v1 = (self.segments[:, i, j].reshape(*lead, -1) for i in (0, 1) for j in (0, 1))
-        pu, pv = u[..., None], v[..., None]
-        straddles = (v0 > pv) != (v1 > pv)
-        dv = jnp.where(straddles, v1 - v0, 1.0)
-        crossing_u = u0 + (pv - v0) * (u1 - u0) / dv
-        crosses = straddles & (pu < crossing_u)
-        return jnp.sum(crosses, axis=-1) % 2 == 1
+        shifts = [(a, b) for a in _shifts(self.closed[0]) for b in _shifts(self.closed[1])]
+        crossings = sum(_crossings(self.segments, u - a, v - b) for a, b in shifts)
+        inside = crossings % 2 == 1
+        if any(self.closed):  # loops may run past the seam: [0, 1]² bounds the face explicitly
+            inside = inside & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        return inside
+
+
+def _shifts(closed: bool) -> tuple[float, ...]:
+    return (-1.0, 0.0, 1.0) if closed else (0.0,)
+
+
+def _crossings(segments, u, v):
+    """How many edges a ray from `(u, v)` towards +u crosses (per point)."""
+    lead = (1,) * u.ndim  # explicit broadcasting (rank promotion may be off)
+    u0, v0, u1, v1 = (segments[:, i, j].reshape(*lead, -1) for i in (0, 1) for j in (0, 1))
+    pu, pv = u[..., None], v[..., None]
+    straddles = (v0 > pv) != (v1 > pv)
+    dv = jnp.where(straddles, v1 - v0, 1.0)
+    crossing_u = u0 + (pv - v0) * (u1 - u0) / dv
+    return jnp.sum(straddles & (pu < crossing_u), axis=-1)
+
+
+def closed_directions(surface: BSplineSurface, rtol: float = 1e-9) -> tuple[bool, bool]:
+    """Per direction, whether the surface closes on itself (periodic, or a clamped net whose
+    first and last rows coincide, weights included): its trims wrap there."""
+    ctrl = np.asarray(surface.ctrl, dtype=np.float64)
+    w = np.ones(ctrl.shape[:2]) if surface.weights is None else np.asarray(surface.weights, dtype=np.float64)
+    hom = np.concatenate([ctrl * w[..., None], w[..., None]], axis=-1)
+    tol = rtol * max(1.0, float(np.abs(hom).max()))
+    out = []
+    for axis, periodic in enumerate((surface.periodic_u, surface.periodic_v)):
+        first, last = np.take(hom, 0, axis=axis), np.take(hom, -1, axis=axis)
+        out.append(bool(periodic) or bool(np.allclose(first, last, rtol=0, atol=tol)))
+    return out[0], out[1]
 
 
 class CadObject(eqx.Module):
@@ -149,6 +234,11 @@ class CadObject(eqx.Module):
         if self.trim is None:
             return jnp.ones(jnp.broadcast_shapes(jnp.shape(u), jnp.shape(v)), dtype=bool)
         return self.trim.mask(u, v)
+
+    def window(self, name: str = "trim") -> tuple[float, float, float, float]:
+        """`Trim.window` of the face's trim, `(0, 1, 0, 1)` for an untrimmed one: pass the
+        `CadObject` itself as a patch's entry of `bsjax.merge.merge(..., trim=...)`."""
+        return (0.0, 1.0, 0.0, 1.0) if self.trim is None else self.trim.window(name)
 
     @compiled
     def sample_mask(self, blending: Blending) -> Bool[Array, "m n"]:

@@ -277,7 +277,7 @@ def _json_item(obj: CadObject) -> dict:
     if obj.reversed:
         item["reversed"] = True
     if obj.trim is not None:
-        item["trim"] = {"loops": [loop.tolist() for loop in obj.trim.loops()], "outer": list(obj.trim.outer)}
+        item["trim"] = obj.trim.to_dict()
     return item
 
 
@@ -367,7 +367,7 @@ def _json_object(data, source: str, scale: float) -> CadObject:
     trim = data.get("trim")
     try:
         domain = None if domain is None else tuple((float(a), float(b)) for a, b in domain)
-        trim = None if trim is None else Trim.from_loops(trim["loops"], trim["outer"])
+        trim = None if trim is None else Trim.from_dict(trim)
         return CadObject(spline, str(name), str(layer), domain, bool(data.get("reversed", False)), trim)
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{source}: domain or trim: expected the layout bsjax writes, got {err}") from None

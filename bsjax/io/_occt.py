@@ -15,9 +15,12 @@ trims and orientation, free curves, units.
 * Writing: clamped B-spline surfaces over the stored domain (a periodic direction clamped first),
   a `Trim` written as degree-1 pcurves (outer loop counter-clockwise, holes clockwise), a reversed
   face reversed, curves as edges; the file's unit is bsjax's.
-* Names and layers (STEP): written and read through OCCT's XCAF document (`STEPCAFControl`,
-  `XCAFDoc_DocumentTool`, `TDataStd_Name`, `XCAFDoc_LayerTool`): each object is a product named
-  after the object, on its layer (`PRESENTATION_LAYER_ASSIGNMENT`). IGES carries neither.
+* Names and layers: written and read through OCCT's XCAF document (`STEPCAFControl`,
+  `IGESCAFControl`, `XCAFDoc_DocumentTool`, `TDataStd_Name`, `XCAFDoc_LayerTool`). STEP: each
+  object is a product named after the object, on its layer (`PRESENTATION_LAYER_ASSIGNMENT`).
+  IGES: the name is the entity's label and its name property (entity 406 form 15), ASCII only;
+  the layer is the entity's level, an integer — a layer named by an integer ("12") travels, any
+  other layer name is written as a level number OCCT chooses and reads back as that number.
 """
 
 from __future__ import annotations
@@ -30,9 +33,10 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
-from bsjax.io._cad import CadList, CadObject, Trim, unit_scale
+from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, unit_scale
 
 EDGE_SAMPLES = 33
+IGES_BREP_MODE = "BRep"
 _OCCT_UNITS = {"mm": "MM", "cm": "CM", "m": "M", "km": "KM", "in": "INCH", "ft": "FT", "mi": "MI", "um": "UM"}
 _STEP_NAMES = {  # unit names FileUnits reports → ours
     "millimetre": "mm",
@@ -132,7 +136,7 @@ def _face(face, trims: bool):
             loops01 = [
                 _project_loop(surface, BRep_Tool.Surface_s(face), uv, x) for uv, x in zip(loops, loops01)
             ]
-        trim = Trim.from_loops(loops01, outer)
+        trim = Trim.from_loops(loops01, outer, closed_directions(surface))
     return surface, domain, face.Orientation() == TopAbs_REVERSED, trim, trimmed
 
 
@@ -193,10 +197,13 @@ def _read_parts(path: Path):
     STEP goes through XCAF (`STEPCAFControl_Reader`): each free shape of the document (a
     product) is a part named by its `TDataStd_Name`, with its layers from the `XCAFDoc_LayerTool`
     (a face's own sub-shape label, when the file names or layers that face, wins). An assembly's
-    components are parts of their own, located. IGES: one part, no names.
+    components are parts of their own, located. IGES goes through XCAF too
+    (`IGESCAFControl_Reader`): entity names and levels. OCCT's auto-naming is off while
+    transferring, so an unnamed entity stays unnamed (not 'FACE').
     """
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
+    from OCP.XCAFDoc import XCAFDoc_ShapeTool
 
     _quiet()
     step = path.suffix.lower() in (".step", ".stp")
@@ -208,9 +215,11 @@ def _read_parts(path: Path):
         xcaf.SetLayerMode(True)
         reader = xcaf.ChangeReader()
     else:
-        from OCP.IGESControl import IGESControl_Reader
+        from OCP.IGESCAFControl import IGESCAFControl_Reader
 
-        reader = xcaf = IGESControl_Reader()
+        reader = xcaf = IGESCAFControl_Reader()
+        xcaf.SetNameMode(True)
+        xcaf.SetLayerMode(True)
     if xcaf.ReadFile(str(path)) != IFSelect_RetDone:
         _checks.fail(str(path), f"a readable {'STEP' if step else 'IGES'} file", "a file OCCT cannot parse")
     units = _file_units(reader, step)
@@ -221,14 +230,18 @@ def _read_parts(path: Path):
     Interface_Static.SetCVal_s("xstep.cascade.unit", _OCCT_UNITS.get(units or "mm", "MM"))
     Interface_Static.SetIVal_s("read.surfacecurve.mode", 2)  # the file's pcurves, not re-projections
     try:
-        if step:
-            doc = _xcaf_document()
-            if not xcaf.Transfer(doc):
-                _checks.fail(str(path), "a STEP file OCCT can transfer", "a transfer failure")
-            parts = _xcaf_parts(doc)
-        else:
-            reader.TransferRoots()
-            parts = [(reader.OneShape(), lambda _: ("", ""))]
+        doc = _xcaf_document()
+        naming = XCAFDoc_ShapeTool.AutoNaming_s()
+        XCAFDoc_ShapeTool.SetAutoNaming_s(False)  # else an unnamed IGES entity is named 'FACE'
+        try:
+            transferred = xcaf.Transfer(doc)
+        finally:
+            XCAFDoc_ShapeTool.SetAutoNaming_s(naming)
+        if not transferred:
+            _checks.fail(
+                str(path), f"a {'STEP' if step else 'IGES'} file OCCT can transfer", "a transfer failure"
+            )
+        parts = _xcaf_parts(doc)
     finally:
         Interface_Static.SetCVal_s("xstep.cascade.unit", previous[0])
         Interface_Static.SetIVal_s("read.surfacecurve.mode", previous[1])
@@ -536,8 +549,8 @@ def _quiet() -> None:
 
 
 def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
-    """Write `objects` as STEP (through XCAF: each object a product carrying its name and layer,
-    `TDataStd_Name` and `XCAFDoc_LayerTool`) or IGES (one compound; no names)."""
+    """Write `objects` as STEP or IGES through an XCAF document (`_named_document`: each object
+    a free shape carrying its name and layer); IGES in B-Rep mode (`IGES_BREP_MODE`)."""
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Interface import Interface_Static
 
@@ -547,10 +560,13 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
         _checks.fail("units", f"one of {', '.join(_OCCT_UNITS)} for STEP/IGES", repr(units))
     step = path.suffix.lower() in (".step", ".stp")
     shapes = [_object_shape(obj) for obj in objects]
-    keys = ("xstep.cascade.unit", "write.step.unit" if step else "write.iges.unit")
-    previous = [Interface_Static.CVal_s(k) for k in keys]
-    for k in keys:
-        Interface_Static.SetCVal_s(k, unit)
+    # IGES: B-Rep mode (faces with their loops and orientation in a 514 shell), not mode 0's 144
+    settings = {"xstep.cascade.unit": unit, "write.step.unit" if step else "write.iges.unit": unit}
+    if not step:
+        settings["write.iges.brep.mode"] = IGES_BREP_MODE
+    previous = {k: Interface_Static.CVal_s(k) for k in settings}
+    for k, v in settings.items():
+        Interface_Static.SetCVal_s(k, v)
     try:
         if step:
             from OCP.STEPCAFControl import STEPCAFControl_Writer
@@ -562,14 +578,14 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
             ok = writer.Transfer(_named_document(objects, shapes), STEPControl_AsIs)
             ok = ok and writer.Write(str(path)) == IFSelect_RetDone
         else:
-            from OCP.IGESControl import IGESControl_Writer
+            from OCP.IGESCAFControl import IGESCAFControl_Writer
 
-            writer = IGESControl_Writer(unit, 1)  # mode 1: B-Rep (faces with trims)
-            writer.AddShape(_compound(shapes))
-            writer.ComputeModel()
-            ok = writer.Write(str(path))
+            writer = IGESCAFControl_Writer()
+            writer.SetNameMode(True)
+            writer.SetLayerMode(True)
+            ok = writer.Transfer(_named_document(objects, shapes)) and writer.Write(str(path))
     finally:
-        for k, v in zip(keys, previous):
+        for k, v in previous.items():
             Interface_Static.SetCVal_s(k, v)
     if not ok:
         raise OSError(f"{path}: OCCT could not write the file")
@@ -581,17 +597,6 @@ def _object_shape(obj: CadObject):
     if isinstance(obj.geometry, BSplineCurve):
         return BRepBuilderAPI_MakeEdge(to_geom_curve(obj.geometry, obj.domain)).Edge()
     return _face_shape(obj)
-
-
-def _compound(shapes):
-    from OCP.BRep import BRep_Builder
-    from OCP.TopoDS import TopoDS_Compound
-
-    compound, builder = TopoDS_Compound(), BRep_Builder()
-    builder.MakeCompound(compound)
-    for shape in shapes:
-        builder.Add(compound, shape)
-    return compound
 
 
 def _named_document(objects: list[CadObject], shapes):

@@ -26,7 +26,7 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
-from bsjax.io._cad import CadList, CadObject, Trim, unit_scale
+from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, unit_scale
 
 _RHINO_UNITS = {  # bsjax unit name → rhino3dm.UnitSystem member
     "nm": "Nanometers",
@@ -211,7 +211,7 @@ class _Reader:
             reverse = bool(face.OrientationIsReversed)
             trim = None
             if stored is not None and len(brep.Faces) == 1:
-                trim = Trim.from_loops([np.asarray(loop) for loop in stored["loops"]], stored["outer"])
+                trim = Trim.from_dict(stored)
             elif trimmed and self.trims:
                 trim = _face_trim(brep, face, surface)
             self.untrimmed += trimmed and trim is None
@@ -223,7 +223,13 @@ class _Reader:
 
 
 def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
-    """The face's loops as polylines in [0, 1]²: each trim's 3-D edge sampled and projected."""
+    """The face's loops as polylines in [0, 1]²: each trim's 3-D edge sampled and projected.
+
+    On a closed direction a point on the seam projects to 0 or to 1 at random (and a seam
+    trim's points with it): each projected loop is unwrapped there (consecutive samples moved
+    by whole periods to be less than half a period apart, as `numpy.unwrap`), so it stays one
+    closed polyline; `Trim.from_loops` then brings it into [0, 1] by a whole period."""
+    closed = closed_directions(surface)
     loops, outer = [], []
     for loop in face.Loops:
         pieces = []
@@ -237,9 +243,21 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
             pieces.append(np.array([_xyz(edge.PointAt(float(t))) for t in ts]))
         points = np.concatenate(pieces)
         uv = np.asarray(closest_points(surface, points.astype(surface.ctrl.dtype)).params, dtype=np.float64)
-        loops.append(uv)
+        loops.append(_unwrap(uv, closed))
         outer.append(str(loop.LoopType).endswith("Outer"))
-    return Trim.from_loops(loops, outer)
+    return Trim.from_loops(loops, outer, closed)
+
+
+def _unwrap(uv: np.ndarray, closed) -> np.ndarray:
+    """A densely sampled loop made continuous across the seam of its closed directions, unless
+    it winds around the surface (then unwrapping would open it: it is left as projected)."""
+    out = uv.copy()
+    for axis in (0, 1):
+        if closed[axis]:
+            unwrapped = np.unwrap(uv[:, axis], period=1.0)
+            if abs(unwrapped[-1] - unwrapped[0]) < 0.5:
+                out[:, axis] = unwrapped
+    return out
 
 
 def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) -> CadList:
@@ -310,8 +328,7 @@ def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
             if obj.reversed:
                 brep.Flip()
             if obj.trim is not None:
-                loops = [loop.tolist() for loop in obj.trim.loops()]
-                brep.SetUserString(_TRIM_KEY, json.dumps({"loops": loops, "outer": list(obj.trim.outer)}))
+                brep.SetUserString(_TRIM_KEY, json.dumps(obj.trim.to_dict()))
             model.Objects.AddBrep(brep, attributes)
     if not model.Write(str(path), 7):
         raise OSError(f"{path}: rhino3dm could not write the file")

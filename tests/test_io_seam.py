@@ -1,0 +1,150 @@
+"""Trims on closed surfaces (issue #17): a face whose trim loop crosses or lies on the seam of a
+cylinder. The mask is compared with OCCT's own face classifier (`BRepClass_FaceClassifier`) at
+many points on both sides of the seam, for the loops as OCCT gives them (split at the seam), for
+the same loops shifted by a period, and for a hole given as one loop across the seam."""
+
+import numpy as np
+import pytest
+import rhino3dm
+
+from bsjax import io
+from bsjax.basis import closest_points
+from bsjax.io import _rhino
+
+pytest.importorskip("OCP")
+
+
+def _holed_cylinder():
+    """A unit cylinder (height 2) drilled along x at z = 1 (radius 0.3): the hole at +x crosses
+    OCCT's seam (u = 0), the one at −x (u = π) lies inside the face."""
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeCylinder
+    from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt
+
+    drill = BRepPrimAPI_MakeCylinder(gp_Ax2(gp_Pnt(-2, 0, 1), gp_Dir(1, 0, 0)), 0.3, 4.0).Shape()
+    return BRepAlgoAPI_Cut(BRepPrimAPI_MakeCylinder(1.0, 2.0).Shape(), drill).Shape()
+
+
+@pytest.fixture(scope="module")
+def drilled(tmp_path_factory):
+    from tests.test_io_cad import _occt_write
+
+    return _wall(_occt_write(_holed_cylinder(), tmp_path_factory.mktemp("seam") / "drilled.step"))
+
+
+def _wall(path):
+    """The drilled cylinder's wall: (OCCT face from the file, bsjax object from the file)."""
+    from OCP.BRepAdaptor import BRepAdaptor_Surface
+    from OCP.GeomAbs import GeomAbs_Cylinder
+
+    from tests.test_io_cad import _occt_faces
+
+    faces, loaded = _occt_faces(path), io.load_all(path, trims=True)
+    walls = [
+        (face, obj)
+        for face, obj in zip(faces, loaded)
+        if BRepAdaptor_Surface(face).GetType() == GeomAbs_Cylinder and obj.domain[1] == (0.0, 2.0)
+    ]
+    assert len(walls) == 1
+    return walls[0]
+
+
+def _occt_inside(face, points):
+    """OCCT's classifier at the (angle, height) of each 3-D point on the unit cylinder:
+    `(inside, decided)`; a point on the seam itself is `ON` the face's boundary for OCCT (its
+    seam is an edge), so not decided."""
+    from OCP.BRepClass import BRepClass_FaceClassifier
+    from OCP.gp import gp_Pnt2d
+    from OCP.TopAbs import TopAbs_IN, TopAbs_ON
+
+    angle = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
+    states = [
+        BRepClass_FaceClassifier(face, gp_Pnt2d(float(a), float(z)), 1e-9).State()
+        for a, z in zip(angle, points[:, 2])
+    ]
+    return np.array([s == TopAbs_IN for s in states]), np.array([s != TopAbs_ON for s in states])
+
+
+def _samples(obj, count: int = 60):
+    """Parameters crowded near the seam (u = 0 and u = 1) and spread over the face."""
+    u = np.concatenate(
+        [
+            np.linspace(0.0, 0.12, count // 3),
+            np.linspace(0.88, 1.0, count // 3),
+            np.linspace(0.0, 1.0, count // 3),
+        ]
+    )
+    s, t = np.meshgrid(u, np.linspace(0.3, 0.7, 21), indexing="ij")
+    points = np.asarray(obj.geometry.evaluate(s, t)).reshape(-1, 3)
+    # polyline chords of the round holes lie up to ~1e-3 inside: keep clear of the hole edges
+    clear = np.all(np.abs(np.hypot(points[:, 1:2] - 0, points[:, 2:3] - 1.0) - 0.3) > 0.01, axis=1)
+    return s.ravel(), t.ravel(), points, clear
+
+
+def test_step_cylinder_with_a_hole_across_the_seam_matches_occt(drilled):
+    face, obj = drilled
+    assert obj.trim is not None and obj.trim.closed == (True, False)
+    s, t, points, clear = _samples(obj)
+    occt, decided = _occt_inside(face, points)
+    clear &= decided
+    assert not occt[clear].all() and occt[clear].any()  # both holes are sampled
+    near_seam = (s < 0.05) | (s > 0.95)
+    assert not occt[clear & near_seam].all()  # the seam hole is sampled on both sides
+    np.testing.assert_array_equal(np.asarray(obj.mask(s, t))[clear], occt[clear])
+
+    # the same loops shifted by a period (as a file may give them): the same mask
+    loops = obj.trim.loops()
+    shifted = io.Trim.from_loops([loop + (1.0, 0.0) for loop in loops], obj.trim.outer, (True, False))
+    np.testing.assert_array_equal(np.asarray(shifted.mask(s, t))[clear], occt[clear])
+
+
+def test_a_hole_given_as_one_loop_across_the_seam(drilled):
+    """The full wall as the outer loop and the seam hole as one closed loop around u = 0 (half of
+    it below 0): inside the hole on both sides of the seam, as OCCT's classifier says for the
+    drilled cylinder (the other hole left out of both)."""
+    face, obj = drilled
+    s, t, points, clear = _samples(obj)
+    away = np.abs(np.arctan2(points[:, 1], points[:, 0])) < np.pi / 2  # the seam hole's half
+    a = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    y, z = 0.3 * np.cos(a), 1.0 + 0.3 * np.sin(a)  # the drill's rim on the unit cylinder
+    xyz = np.c_[np.sqrt(1 - y**2), y, z]
+    uv = np.array(closest_points(obj.geometry, xyz).params)  # the rim's (u, v) on the NURBS
+    uv[:, 0] = np.unwrap(uv[:, 0], period=1.0)
+    wall = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    trim = io.Trim.from_loops([wall, uv], [True, False], (True, False))
+    assert np.asarray(trim.segments)[:, :, 0].min() < 0 or np.asarray(trim.segments)[:, :, 0].max() > 1
+    occt, decided = _occt_inside(face, points)
+    keep = clear & away & decided
+    np.testing.assert_array_equal(np.asarray(trim.mask(s, t))[keep], occt[keep])
+    # without the seam wrap the hole's far half is lost: the mask would be wrong there
+    flat = io.Trim.from_loops([wall, uv], [True, False])
+    assert np.any(np.asarray(flat.mask(s, t))[keep] != occt[keep])
+
+
+def test_rhino_cylinder_seam_trims_project_to_one_closed_loop():
+    """A Rhino cylinder face's loop runs along the seam twice; its points project to u = 0 or 1
+    at random. The loop is unwrapped, so the whole face is inside."""
+    cylinder = rhino3dm.Cylinder(rhino3dm.Circle(rhino3dm.Point3d(0, 0, 0), 1.0), 2.0)
+    brep = rhino3dm.Brep.CreateFromCylinder(cylinder, False, False)
+    face = brep.Faces[0]
+    surface, _ = _rhino.surface_from_rhino(face.ToNurbsSurface())
+    trim = _rhino._face_trim(brep, face, surface)
+    assert trim.closed[0] or trim.closed[1]
+    s, t = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0.02, 0.98, 11), indexing="ij")
+    assert np.asarray(trim.mask(s, t)).all()
+
+
+def test_closed_trim_round_trips_through_json_and_3dm(tmp_path):
+    loop = np.array([[-0.1, 0.4], [0.1, 0.4], [0.1, 0.6], [-0.1, 0.6]])
+    wall = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    trim = io.Trim.from_loops([wall, loop], [True, False], (True, False))
+    cylinder = rhino3dm.Cylinder(rhino3dm.Circle(rhino3dm.Point3d(0, 0, 0), 1.0), 2.0)
+    surface, _ = _rhino.surface_from_rhino(cylinder.ToNurbsSurface())
+    obj = io.CadObject(surface, trim=trim)
+    s, t = np.meshgrid(np.linspace(0, 1, 31), np.linspace(0, 1, 31), indexing="ij")
+    expected = np.asarray(trim.mask(s, t))
+    assert not expected[-1, 15] and not expected[0, 15] and expected[15, 15]
+    for ext in (".json", ".3dm"):
+        back = io.load_all(io.save(obj, tmp_path / f"c{ext}"), trims=True)[0]
+        assert back.trim.closed == (True, False)
+        np.testing.assert_array_equal(np.asarray(back.mask(s, t)), expected)
