@@ -213,9 +213,13 @@ def _merged_direction(knots_by_line, degree, continuity):
 
 
 def _window(t, name, direction):
-    """One patch's `(u0, u1, v0, v1)` from `None`, `(lo, hi)` along `direction`, or a full window."""
+    """One patch's `(u0, u1, v0, v1)` from `None`, `(lo, hi)` along `direction`, a full window, or
+    a face whose trim is a rectangle (a `bsjax.io.CadObject` or `Trim`: anything with a
+    `window(name)` method, duck-typed so that merge does not import io)."""
     if t is None:
         return (0.0, 1.0, 0.0, 1.0)
+    if callable(getattr(t, "window", None)):
+        return _window(t.window(name), name, None)
     t = tuple(float(x) for x in t)
     if direction is not None and len(t) == 2:
         t = t + (0.0, 1.0) if direction == "u" else (0.0, 1.0) + t
@@ -459,9 +463,14 @@ def _values_key(surfaces, names, why):
 
 
 def _freeze(x):
-    """Lists → tuples, floats kept: a hashable key part."""
+    """Lists → tuples, floats kept, a face's trim (`window()`) as its window: a hashable key part."""
     if isinstance(x, (list, tuple)):
         return tuple(_freeze(v) for v in x)
+    if callable(getattr(x, "window", None)):
+        try:
+            return ("window", x.window())
+        except ValueError:  # not a rectangle: `_window` raises it, naming the patch's entry
+            return ("window", id(x))
     return float(x) if isinstance(x, (float, np.floating)) else x
 
 
@@ -537,7 +546,8 @@ def plan(
       meets patch i+1's `= 0` edge; or one `(transpose, flip_u, flip_v)` per patch.
     - `trim`: per patch `None` or `(lo, hi)`: keep only the sample rows with parameter in
       `[lo, hi]` along `direction` (trimmed or intersecting patches, §4.4.1), in the parameters
-      of the patch as oriented.
+      of the patch as oriented; or a face read from a CAD file (`bsjax.io.CadObject` / `Trim`)
+      whose trim is an axis-aligned rectangle: its window (`Trim.window`; other trims refused).
     - `overlap`: `"keep"`, or `"drop"` to find intersecting patches' overlapping sample rows and
       leave them out (§4.4.1, `overlap_trims`). Not with `trim`.
     - `overlap_method`: `"collide"` (bsjax.collide's surface contacts) or `"dense"` (a distance
