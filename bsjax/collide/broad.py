@@ -64,22 +64,31 @@ def hulls_apart(
 
 def _hulls_apart(a, b, margin, steps: int = _FW_STEPS):
     """The kernel of `hulls_apart` (no checks; called inside the compiled queries)."""
+    a, b, margin = jax.lax.stop_gradient((a, b, margin))  # a decision: no gradient
     x0 = a[0] - b[0]
 
     def support(d):
         return a[jnp.argmin(a @ d)] - b[jnp.argmax(b @ d)]
 
-    def body(_, carry):
-        x, certified = carry
+    def undecided(carry):
+        # `x` lies in the Minkowski difference, so `|x| ≥ dist ≥ any gap`: once `|x| ≤ margin`
+        # no later step can certify, and once certified the answer stays — the remaining
+        # steps of the fixed count would not change the result (the early exit of a touching
+        # tool, the common case of a contact query)
+        i, x, certified = carry
+        return (i < steps) & ~certified & (_safe.norm(x) > margin)
+
+    def body(carry):
+        i, x, certified = carry
         s = support(x)
         gap = jnp.where(jnp.any(x != 0), _safe.ratio(jnp.dot(s, x), _safe.norm(x)), -jnp.inf)
         certified = certified | (gap > margin)
         d = x - s
         gamma = jnp.clip(_safe.ratio(jnp.dot(x, d), jnp.sum(d * d)), 0, 1)
-        return x - gamma * d, certified
+        return i + 1, x - gamma * d, certified
 
-    _, certified = jax.lax.fori_loop(0, steps, body, (x0, jnp.zeros((), bool)))
-    return jax.lax.stop_gradient(certified)
+    _, _, certified = jax.lax.while_loop(undecided, body, (0, x0, jnp.zeros((), bool)))
+    return certified
 
 
 def support_start(a: Float[Array, "m r"], degree: int, periodic: bool) -> Array:

@@ -32,6 +32,7 @@ from jaxtyping import Array, Bool, Float, Int
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
 from bsjax.basis import Blending
+from bsjax.collide import _soa
 from bsjax.collide.broad import _blocks, _hulls_apart, _parametric_window, support_start
 from bsjax.collide.flat import flat_pairs, normal_cones, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
@@ -233,8 +234,50 @@ def _masked(contact: Contact, sample_mask) -> Contact:
 
 
 def points_normals(blending, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:
-    """Samples `A_u P A_v^T` and unit normals (limit normal at poles) of the grid."""
-    return blending.points(ctrl), blending.normals(ctrl)
+    """Samples `A_u P A_v^T` and unit normals `T_u × T_v / |·|` (limit normal at poles) of the grid.
+
+    The same values as `blending.points(ctrl)` and `blending.normals(ctrl)` (to rounding), in
+    fewer passes for polynomial surfaces: the three products `A_u P A_v^T`, `A'_u P A_v^T`,
+    `A_u P A'_v^T` (thesis eq. 3.6) are written component-major `(3, m, n)`, the normal is formed
+    per component (`collide._soa`), and the mixed derivative `A'_u P A'_v^T` that only the limit
+    normal at a pole needs is computed only when some sample is degenerate (`lax.cond`).
+    Rational surfaces take the blending's own methods.
+    """
+    if blending.weights is not None:
+        return blending.points(ctrl), blending.normals(ctrl)
+    a_u, a_v = blending.a_u, blending.a_v
+
+    def product(k: int, l: int):
+        return jnp.einsum("ai,ijc,bj->cab", a_u[k], ctrl, a_v[l])
+
+    points, t_u, t_v = product(0, 0), product(1, 0), product(0, 1)
+    normal = _unit_normal(t_u, t_v, lambda: product(1, 1), blending.params_u, blending.params_v)
+    return _soa.stack(points), _soa.stack(normal)
+
+
+def _unit_normal(t_u, t_v, mixed, params_u, params_v):
+    """`bsjax.basis` unit normal (`_tensor.unit_normal`) of component-major tangents `(3, m, n)`.
+
+    Where `|T_u × T_v| ≤ √ε (|T_u|² + |T_v|²)` (a pole) the limit `±T_u × T_uv` (or `±T_uv × T_v`)
+    replaces the cross product; `mixed()` gives `T_uv` and runs only when such a sample exists.
+    """
+    n = _soa.cross(t_u, t_v)
+    uu, vv = _soa.dot(t_u, t_u), _soa.dot(t_v, t_v)
+    degenerate = _soa.norm(n) <= jnp.sqrt(jnp.finfo(uu.dtype).eps) * (uu + vv)
+
+    def with_limit(n):
+        t_uv = mixed()
+        pole_in_v = vv <= uu
+        sign_u = jnp.where(params_u < 0.5, 1.0, -1.0).astype(uu.dtype)[:, None]
+        sign_v = jnp.where(params_v < 0.5, 1.0, -1.0).astype(uu.dtype)[None, :]
+        along_u, along_v = _soa.cross(t_u, t_uv), _soa.cross(t_uv, t_v)
+        return tuple(
+            jnp.where(degenerate, jnp.where(pole_in_v, sign_u * lu, sign_v * lv), c)
+            for c, lu, lv in zip(n, along_u, along_v)
+        )
+
+    n = jax.lax.cond(jnp.any(degenerate), with_limit, lambda n: n, n)
+    return _soa.unit(n)
 
 
 def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:

@@ -26,6 +26,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax.collide import _soa
 from bsjax.collide.broad import hulls_apart
 
 
@@ -203,14 +204,16 @@ class Sphere(AbstractTool):
 
     @compiled
     def value(self, x):
-        return jnp.sum((x - _bc(self.center, x)) ** 2, -1) - self.radius**2
+        y = _soa.sub(_soa.split(x), self.center)  # per component: one fused loop on CPU
+        return _soa.dot(y, y) - self.radius**2
 
     @compiled
     def penetration(self, x, n):
-        y = x - _bc(self.center, x)
-        t = _closer_root(jnp.sum(n * n, -1), jnp.sum(y * n, -1), jnp.sum(y * y, -1) - self.radius**2)
-        hit = x + t[..., None] * n
-        return jnp.abs(t), _safe.unit(hit - _bc(self.center, hit))
+        x, n = _soa.split(x), _soa.split(n)
+        y = _soa.sub(x, self.center)
+        t = _closer_root(_soa.dot(n, n), _soa.dot(y, n), _soa.dot(y, y) - self.radius**2)
+        hit = tuple(x[i] + t * n[i] for i in range(3))
+        return jnp.abs(t), _soa.stack(_soa.unit(_soa.sub(hit, self.center)))
 
     @compiled
     def push(self, x):
@@ -273,10 +276,15 @@ class Ellipsoid(AbstractTool):
     def _local(self, x):
         return ((x - _bc(self.center, x)) @ self.rotation) / _bc(self.radii, x)
 
+    def _to_local(self, d):
+        """Components of `Rᵀ d / radii` for component arrays `d` (a direction or an offset)."""
+        r = self.rotation
+        return tuple((d[0] * r[0, i] + d[1] * r[1, i] + d[2] * r[2, i]) / self.radii[i] for i in range(3))
+
     @compiled
     def value(self, x):
-        y = self._local(x)
-        return jnp.sum(y * y, -1) - 1
+        y = self._to_local(_soa.sub(_soa.split(x), self.center))
+        return _soa.dot(y, y) - 1
 
     @compiled
     def push(self, x):
@@ -295,11 +303,13 @@ class Ellipsoid(AbstractTool):
 
     @compiled
     def penetration(self, x, n):
-        y, m = self._local(x), (n @ self.rotation) / _bc(self.radii, n)
-        t = _closer_root(jnp.sum(m * m, -1), jnp.sum(y * m, -1), jnp.sum(y * y, -1) - 1)
-        hit_local = y + t[..., None] * m
-        grad = (hit_local / _bc(self.radii, hit_local)) @ self.rotation.T
-        return jnp.abs(t), _safe.unit(grad)
+        y = self._to_local(_soa.sub(_soa.split(x), self.center))
+        m = self._to_local(_soa.split(n))
+        t = _closer_root(_soa.dot(m, m), _soa.dot(y, m), _soa.dot(y, y) - 1)
+        g = [(y[i] + t * m[i]) / self.radii[i] for i in range(3)]  # the gradient at the hit point
+        r = self.rotation
+        grad = tuple(g[0] * r[j, 0] + g[1] * r[j, 1] + g[2] * r[j, 2] for j in range(3))
+        return jnp.abs(t), _soa.stack(_soa.unit(grad))
 
     def bound(self):
         return self.center, jnp.max(self.radii)
@@ -426,7 +436,7 @@ class Plane(AbstractTool):
 
     @compiled
     def value(self, x):
-        return jnp.sum((x - _bc(self.point, x)) * _bc(self.normal, x), -1)
+        return _soa.dot(_soa.sub(_soa.split(x), self.point), self.normal)
 
     @compiled
     def penetration(self, x, n):
