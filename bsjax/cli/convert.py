@@ -49,10 +49,11 @@ def _body(args) -> int:
     if not loaded:
         raise c.UserError(args.source, f"no surface or curve to convert (the file holds {loaded.holding()})")
     dt = c.dtype(args)
-    cast = [
-        eqx.tree_at(lambda o: o.geometry, o, o.geometry.with_ctrl(np.asarray(o.geometry.ctrl, dt)))
-        for o in loaded
-    ]
+
+    def _cast(g):  # a polycurve is a tuple of curves
+        return tuple(map(_cast, g)) if isinstance(g, tuple) else g.with_ctrl(np.asarray(g.ctrl, dt))
+
+    cast = [eqx.tree_at(lambda o: o.geometry, o, _cast(o.geometry)) for o in loaded]
     items = io.CadList(cast, loaded.units, cast, loaded.held)
     if args.target.lower().endswith(io.MESH_FORMATS):
         surfaces = [o for o in cast if isinstance(o.geometry, BSplineSurface)]

@@ -207,21 +207,45 @@ class CadObject(eqx.Module):
     """One surface or curve of a CAD file with what the file says about it.
 
     **Fields:**
-    - `geometry`: the `BSplineSurface` or `BSplineCurve`, parametrised over [0, 1].
+    - `geometry`: the `BSplineSurface` or `BSplineCurve`, parametrised over [0, 1]; or a
+      polycurve (a Rhino `PolyCurve`, a STEP wire of several edges): a tuple of `BSplineCurve`s,
+      one per segment, in order.
     - `name`, `layer`: the object's name and layer path ("" when the file has none).
     - `domain`: the file's parameter interval per direction, `((u0, u1), (v0, v1))` for a
-      surface, `((t0, t1),)` for a curve; a save maps [0, 1] back onto it.
+      surface, `((t0, t1),)` for a curve, one `(t0, t1)` per segment of a polycurve; a save
+      maps [0, 1] back onto it.
     - `reversed`: `True` when the face's normal is opposite to the surface's `S_u × S_v`
       (a Brep face with a reversed orientation flag).
     - `trim`: the face's `Trim`, or `None` for an untrimmed surface.
     """
 
-    geometry: BSplineSurface | BSplineCurve
+    geometry: BSplineSurface | BSplineCurve | tuple[BSplineCurve, ...]
     name: str = eqx.field(static=True, default="")
     layer: str = eqx.field(static=True, default="")
     domain: tuple[tuple[float, float], ...] | None = eqx.field(static=True, default=None)
     reversed: bool = eqx.field(static=True, default=False)
     trim: Trim | None = None
+
+    def __check_init__(self):
+        g = self.geometry
+        if isinstance(g, tuple) and g and all(isinstance(c, BSplineCurve) for c in g):
+            return
+        if not isinstance(g, (BSplineSurface, BSplineCurve)):
+            _checks.fail(
+                "geometry",
+                "a BSplineSurface, a BSplineCurve or a non-empty tuple of BSplineCurves (a polycurve)",
+                type(g).__name__ if not isinstance(g, tuple) else f"a tuple of {len(g)} items",
+            )
+
+    @property
+    def item(self) -> BSplineSurface | BSplineCurve | list[BSplineCurve]:
+        """What `load_all` lists for this object: the spline, or a polycurve's segments as a list."""
+        return list(self.geometry) if isinstance(self.geometry, tuple) else self.geometry
+
+    @property
+    def is_curve(self) -> bool:
+        """A curve or a polycurve."""
+        return not isinstance(self.geometry, BSplineSurface)
 
     @property
     def surface(self) -> BSplineSurface:

@@ -16,6 +16,7 @@ MESH_FORMATS = (".obj", ".stl", ".ply", ".glb")
 _FORMAT = "bsjax.surface"
 _CURVE_FORMAT = "bsjax.curve"
 _MIXED_FORMAT = "bsjax.splines"  # a list holding curves (a list of surfaces only: "bsjax.surfaces")
+_POLYCURVE_FORMAT = "bsjax.polycurve"  # {"segments": [curve objects]}
 _KINDS = {"surface": BSplineSurface, "curve": BSplineCurve, None: (BSplineSurface, BSplineCurve)}
 
 
@@ -213,18 +214,24 @@ _SPLINE_FORMATS = (".json", ".3dm", *_CAD)
 _ON_UNSUPPORTED = ("raise", "skip")
 
 
+def _polycurve(item) -> bool:
+    return isinstance(item, (list, tuple)) and bool(item) and all(isinstance(c, BSplineCurve) for c in item)
+
+
 def _objects(items) -> list[CadObject]:
+    """`save`'s items as `CadObject`s; an item that is itself a list of curves is a polycurve."""
     splines = (BSplineSurface, BSplineCurve)
     listed = [items] if isinstance(items, (*splines, CadObject)) else list(items)
-    if not listed or not all(isinstance(s, (*splines, CadObject)) for s in listed):
+    if not listed or not all(isinstance(s, (*splines, CadObject)) or _polycurve(s) for s in listed):
         _checks.fail(
             "surfaces",
-            "a BSplineSurface, BSplineCurve or CadObject, or a non-empty list of them",
+            "a BSplineSurface, BSplineCurve or CadObject, or a non-empty list of them "
+            "(a list of BSplineCurves in it: a polycurve)",
             type(items).__name__,
         )
     if isinstance(items, CadList) and len(items.objects) == len(items):
         listed = items.objects
-    return [s if isinstance(s, CadObject) else CadObject(s) for s in listed]
+    return [s if isinstance(s, CadObject) else CadObject(tuple(s) if _polycurve(s) else s) for s in listed]
 
 
 def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> Path:
@@ -257,7 +264,7 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
     elif ext in MESH_FORMATS:
         import trimesh
 
-        if any(isinstance(o.geometry, BSplineCurve) for o in objects):
+        if any(o.is_curve for o in objects):
             _checks.fail("surfaces", f"only surfaces for a mesh format ({ext})", "a BSplineCurve")
         meshes = [_trimmed_mesh(o, m, n) for o in objects]
         (meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)).export(str(path))
@@ -269,7 +276,10 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
 
 
 def _json_item(obj: CadObject) -> dict:
-    item = to_dict(obj.geometry)
+    if isinstance(obj.geometry, tuple):
+        item = {"format": _POLYCURVE_FORMAT, "version": 1, "segments": [to_dict(c) for c in obj.geometry]}
+    else:
+        item = to_dict(obj.geometry)
     if obj.name or obj.layer:
         item.update(name=obj.name, layer=obj.layer)
     if obj.domain is not None:
@@ -322,8 +332,8 @@ def load_all(
         _checks.fail("trims", "True or False", repr(trims))
     check_units(units)
     read = _read_all(Path(path), units, on_unsupported, trims)
-    objects = [o for o in read.objects if isinstance(o.geometry, _KINDS[kind])]
-    items = objects if trims else [o.geometry for o in objects]
+    objects = [o for o in read.objects if kind is None or (kind == "curve") == o.is_curve]
+    items = objects if trims else [o.item for o in objects]
     return CadList(items, read.units, objects, read.held)
 
 
@@ -354,14 +364,25 @@ def _read_all(path: Path, units, on_unsupported: str, trims: bool) -> CadList:
                 _checks.fail(f"{path}: {key}", "a list of spline objects", _json_type(listed))
             items = [(d, f"{path} {what} {k}") for k, d in enumerate(listed)]  # pyright: ignore
     objects = [_json_object(d, source, scale) for d, source in items]
-    held = Counter(type(o.geometry).__name__ for o in objects)
-    return CadList([o.geometry for o in objects], units or file_units, objects, held)
+    held = Counter(
+        "PolyCurve" if isinstance(o.geometry, tuple) else type(o.geometry).__name__ for o in objects
+    )
+    return CadList([o.item for o in objects], units or file_units, objects, held)
 
 
 def _json_object(data, source: str, scale: float) -> CadObject:
-    spline = from_dict(data, source)
-    if scale != 1.0:
-        spline = spline.with_ctrl(spline.ctrl * scale)
+    if isinstance(data, dict) and data.get("format") == _POLYCURVE_FORMAT:
+        segments = data.get("segments")
+        if not isinstance(segments, list) or not segments:
+            _checks.fail(f"{source}: segments", "a non-empty list of curve objects", _json_type(segments))
+        curves = [from_dict(d, f"{source} segment {k}") for k, d in enumerate(segments)]  # pyright: ignore
+        if not all(isinstance(c, BSplineCurve) for c in curves):
+            _checks.fail(f"{source}: segments", "curves only", "a surface")
+        spline = tuple(c.with_ctrl(c.ctrl * scale) if scale != 1.0 else c for c in curves)
+    else:
+        spline = from_dict(data, source)
+        if scale != 1.0:
+            spline = spline.with_ctrl(spline.ctrl * scale)
     name, layer = data.get("name", ""), data.get("layer", "")
     domain = data.get("domain")
     trim = data.get("trim")

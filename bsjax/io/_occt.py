@@ -202,7 +202,6 @@ def _read_parts(path: Path):
     transferring, so an unnamed entity stays unnamed (not 'FACE').
     """
     from OCP.IFSelect import IFSelect_RetDone
-    from OCP.Interface import Interface_Static
     from OCP.XCAFDoc import XCAFDoc_ShapeTool
 
     _quiet()
@@ -223,12 +222,13 @@ def _read_parts(path: Path):
     if xcaf.ReadFile(str(path)) != IFSelect_RetDone:
         _checks.fail(str(path), f"a readable {'STEP' if step else 'IGES'} file", "a file OCCT cannot parse")
     units = _file_units(reader, step)
-    previous = (
-        Interface_Static.CVal_s("xstep.cascade.unit"),
-        Interface_Static.IVal_s("read.surfacecurve.mode"),
-    )
-    Interface_Static.SetCVal_s("xstep.cascade.unit", _OCCT_UNITS.get(units or "mm", "MM"))
-    Interface_Static.SetIVal_s("read.surfacecurve.mode", 2)  # the file's pcurves, not re-projections
+    settings = {
+        "xstep.cascade.unit": _OCCT_UNITS.get(units or "mm", "MM"),
+        "read.surfacecurve.mode": 2,  # the file's pcurves, not re-projections
+    }
+    if not step:  # curves as the file has them (OCCT splits B-splines at C1 knots by default)
+        settings["read.iges.bspline.continuity"] = 0
+    previous = _set_static(settings)
     try:
         doc = _xcaf_document()
         naming = XCAFDoc_ShapeTool.AutoNaming_s()
@@ -243,9 +243,21 @@ def _read_parts(path: Path):
             )
         parts = _xcaf_parts(doc)
     finally:
-        Interface_Static.SetCVal_s("xstep.cascade.unit", previous[0])
-        Interface_Static.SetIVal_s("read.surfacecurve.mode", previous[1])
+        _set_static(previous)
     return parts, units
+
+
+def _set_static(settings: dict) -> dict:
+    """Set OCCT's `Interface_Static` parameters (ints by `SetIVal`, strings by `SetCVal`);
+    return their previous values, to restore them."""
+    from OCP.Interface import Interface_Static
+
+    previous = {}
+    for k, v in settings.items():
+        integer = isinstance(v, int)
+        previous[k] = Interface_Static.IVal_s(k) if integer else Interface_Static.CVal_s(k)
+        (Interface_Static.SetIVal_s if integer else Interface_Static.SetCVal_s)(k, v)
+    return previous
 
 
 def _xcaf_document():
@@ -353,11 +365,42 @@ def _file_units(reader, step: bool) -> str | None:
     return {1: "in", 2: "mm", 4: "ft", 5: "mi", 6: "m", 7: "km", 9: "um", 10: "cm"}.get(flag)
 
 
-def load_occt(path: Path, units: str | None, on_unsupported: str, trims: bool) -> CadList:
+def _edge_curve(edge, scale: float):
+    """A free edge's 3-D curve as `(BSplineCurve, ((t0, t1),))`, in the edge's direction (a
+    reversed edge of a wire: its curve reversed, `t → t0 + t1 − t`)."""
     from OCP.BRep import BRep_Tool
     from OCP.Geom import Geom_TrimmedCurve
     from OCP.GeomConvert import GeomConvert
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_VERTEX
+    from OCP.TopAbs import TopAbs_REVERSED
+
+    geom, first, last = BRep_Tool.Curve_s(edge, 0.0, 0.0), *BRep_Tool.Range_s(edge)
+    bc = GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geom, first, last))
+    if edge.Orientation() == TopAbs_REVERSED:
+        bc.Reverse()
+    curve, domain = bspline_curve(bc)
+    return curve.with_ctrl(curve.ctrl * scale), domain
+
+
+def _chained(curves, rtol: float = 1e-9) -> bool:
+    """Whether each curve starts where the previous one ends (relative to their extent)."""
+    ends = np.array([np.asarray(c.evaluate(np.array([0.0, 1.0]))) for c in curves], dtype=np.float64)
+    tol = rtol * max(1.0, float(np.ptp(ends.reshape(-1, ends.shape[-1]), axis=0).max()))
+    return bool(np.all(np.linalg.norm(ends[1:, 0] - ends[:-1, 1], axis=-1) <= tol))
+
+
+def _wire_edges(wire) -> list:
+    """A wire's edges in order along it (`BRepTools_WireExplorer`), each with its orientation."""
+    from OCP.BRepTools import BRepTools_WireExplorer
+
+    edges, explorer = [], BRepTools_WireExplorer(wire)
+    while explorer.More():
+        edges.append(explorer.Current())
+        explorer.Next()
+    return edges
+
+
+def load_occt(path: Path, units: str | None, on_unsupported: str, trims: bool) -> CadList:
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_VERTEX, TopAbs_WIRE
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -378,15 +421,31 @@ def load_occt(path: Path, units: str | None, on_unsupported: str, trims: bool) -
             surface = surface.with_ctrl(surface.ctrl * scale)
             objects.append(CadObject(surface, *describe(face), domain, reverse, trim))
             explorer.Next()
-        explorer = TopExp_Explorer(shape, TopAbs_EDGE, TopAbs_FACE)  # free edges: curves
+        explorer = TopExp_Explorer(shape, TopAbs_WIRE, TopAbs_FACE)  # free wires: polycurves
+        while explorer.More():
+            wire = TopoDS.Wire(explorer.Current())
+            read = [_edge_curve(edge, scale) for edge in _wire_edges(wire)]
+            held["wire"] += 1
+            if len(read) == 1:
+                objects.append(CadObject(*read[0][:1], *describe(wire), read[0][1]))
+            elif read:
+                curves, domains = tuple(c for c, _ in read), tuple(d for _, (d,) in read)
+                objects.append(CadObject(curves, *describe(wire), domains))
+            explorer.Next()
+        explorer, free = TopExp_Explorer(shape, TopAbs_EDGE, TopAbs_WIRE), []  # free edges: curves
         while explorer.More():
             edge = TopoDS.Edge(explorer.Current())
-            geom, first, last = BRep_Tool.Curve_s(edge, 0.0, 0.0), *BRep_Tool.Range_s(edge)
             held["edge"] += 1
-            bc = GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geom, first, last))
-            curve, domain = bspline_curve(bc)
-            objects.append(CadObject(curve.with_ctrl(curve.ctrl * scale), *describe(edge), domain))
+            free.append((edge, *_edge_curve(edge, scale)))
             explorer.Next()
+        if shape.ShapeType() != TopAbs_EDGE and len(free) > 1 and _chained([c for _, c, _ in free]):
+            # a part of edges only, meeting end to start: a STEP writer's polycurve (OCCT writes a
+            # wire as a GEOMETRIC_CURVE_SET of its edges)
+            domains = tuple(d for _, _, (d,) in free)
+            objects.append(CadObject(tuple(c for _, c, _ in free), *describe(shape), domains))
+            held["wire"] += 1
+        else:
+            objects.extend(CadObject(c, *describe(e), d) for e, c, d in free)
         explorer = TopExp_Explorer(shape, TopAbs_VERTEX, TopAbs_EDGE)
         while explorer.More():
             held["vertex"] += 1
@@ -400,7 +459,7 @@ def load_occt(path: Path, units: str | None, on_unsupported: str, trims: bool) -
             f"{path}: {untrimmed} trimmed faces loaded as their untrimmed surfaces (trims=True keeps trims)",
             stacklevel=4,
         )
-    return CadList([o.geometry for o in objects], units or file_units, objects, held)
+    return CadList([o.item for o in objects], units or file_units, objects, held)
 
 
 # --- writing ------------------------------------------------------------------------------
@@ -552,7 +611,6 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
     """Write `objects` as STEP or IGES through an XCAF document (`_named_document`: each object
     a free shape carrying its name and layer); IGES in B-Rep mode (`IGES_BREP_MODE`)."""
     from OCP.IFSelect import IFSelect_RetDone
-    from OCP.Interface import Interface_Static
 
     _quiet()
     unit = _OCCT_UNITS.get(units)
@@ -564,9 +622,7 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
     settings = {"xstep.cascade.unit": unit, "write.step.unit" if step else "write.iges.unit": unit}
     if not step:
         settings["write.iges.brep.mode"] = IGES_BREP_MODE
-    previous = {k: Interface_Static.CVal_s(k) for k in settings}
-    for k, v in settings.items():
-        Interface_Static.SetCVal_s(k, v)
+    previous = _set_static(settings)
     try:
         if step:
             from OCP.STEPCAFControl import STEPCAFControl_Writer
@@ -585,8 +641,7 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
             writer.SetLayerMode(True)
             ok = writer.Transfer(_named_document(objects, shapes)) and writer.Write(str(path))
     finally:
-        for k, v in previous.items():
-            Interface_Static.SetCVal_s(k, v)
+        _set_static(previous)
     if not ok:
         raise OSError(f"{path}: OCCT could not write the file")
 
@@ -594,9 +649,27 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
 def _object_shape(obj: CadObject):
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge
 
+    if isinstance(obj.geometry, tuple):
+        return _polycurve_wire(obj)
     if isinstance(obj.geometry, BSplineCurve):
         return BRepBuilderAPI_MakeEdge(to_geom_curve(obj.geometry, obj.domain)).Edge()
     return _face_shape(obj)
+
+
+def _polycurve_wire(obj: CadObject):
+    """A polycurve as a wire of its segments' edges (STEP/IGES: a composite curve); segments
+    must meet end to start (OCCT's `BRepBuilderAPI_MakeWire`, within 1e-7)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeWire
+
+    maker = BRepBuilderAPI_MakeWire()
+    domains = obj.domain or (None,) * len(obj.geometry)  # pyright: ignore[reportArgumentType]
+    for k, (curve, domain) in enumerate(zip(obj.geometry, domains)):  # pyright: ignore[reportArgumentType]
+        edge = BRepBuilderAPI_MakeEdge(to_geom_curve(curve, None if domain is None else (domain,))).Edge()
+        maker.Add(edge)
+        if not maker.IsDone():
+            where = f"polycurve {obj.name!r} segment {k}"
+            _checks.fail(where, "a segment starting where the previous one ends", "a gap")
+    return maker.Wire()
 
 
 def _named_document(objects: list[CadObject], shapes):

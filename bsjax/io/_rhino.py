@@ -184,6 +184,10 @@ class _Reader:
                 placed = member.Geometry.Duplicate()
                 placed.Transform(geometry.Xform)
                 self.add(placed, member.Attributes, f"{where} block member {k}")
+        elif isinstance(geometry, rhino3dm.PolyCurve):
+            read = [curve_from_rhino(c.ToNurbsCurve(), self.scale) for c in _segments(geometry)]
+            domains = tuple(domain for _, (domain,) in read)
+            self.objects.append(CadObject(tuple(c for c, _ in read), name, layer, domains))
         elif isinstance(geometry, rhino3dm.Curve):
             curve, domain = curve_from_rhino(geometry.ToNurbsCurve(), self.scale)
             self.objects.append(CadObject(curve, name, layer, domain))
@@ -220,6 +224,22 @@ class _Reader:
 
     def _layer(self, index: int) -> str:
         return self.layers[index] if 0 <= index < len(self.layers) else ""
+
+
+def _segments(polycurve) -> list:
+    """A `PolyCurve`'s segments in order, nested polycurves flattened (OpenNURBS keeps each
+    segment's own domain: `SegmentCurve(i).PointAt(t)` is the curve on it)."""
+    out = []
+    for i in range(polycurve.SegmentCount):
+        segment = polycurve.SegmentCurve(i)
+        out.extend(_segments(segment) if isinstance(segment, _rhino().PolyCurve) else [segment])
+    return out
+
+
+def _rhino():
+    import rhino3dm
+
+    return rhino3dm
 
 
 def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
@@ -282,7 +302,7 @@ def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) ->
     if notes:
         warnings.warn(f"{path}: " + "; ".join(notes), stacklevel=4)
     held = reader.held
-    return CadList([o.geometry for o in reader.objects], units or file_units, reader.objects, held)
+    return CadList([o.item for o in reader.objects], units or file_units, reader.objects, held)
 
 
 def report(path: Path, unsupported: list[str], on_unsupported: str) -> None:
@@ -319,7 +339,9 @@ def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
             if obj.layer not in layers:
                 layers[obj.layer] = model.Layers.AddLayer(obj.layer, (0, 0, 0, 255))
             attributes.LayerIndex = layers[obj.layer]
-        if isinstance(obj.geometry, BSplineCurve):
+        if isinstance(obj.geometry, tuple):
+            model.Objects.AddCurve(_polycurve_to_rhino(obj), attributes)
+        elif isinstance(obj.geometry, BSplineCurve):
             model.Objects.AddCurve(curve_to_rhino(obj.geometry, obj.domain), attributes)
         elif obj.trim is None and not obj.reversed:
             model.Objects.AddSurface(surface_to_rhino(obj.geometry, obj.domain), attributes)
@@ -332,6 +354,19 @@ def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
             model.Objects.AddBrep(brep, attributes)
     if not model.Write(str(path), 7):
         raise OSError(f"{path}: rhino3dm could not write the file")
+
+
+def _polycurve_to_rhino(obj: CadObject):
+    """A polycurve `CadObject` → a rhino3dm `PolyCurve`, each segment on its own domain
+    (`AppendSegment` keeps the segment's geometry; OpenNURBS refuses a segment after a closed run)."""
+    import rhino3dm
+
+    out = rhino3dm.PolyCurve()
+    domains = obj.domain or (None,) * len(obj.geometry)  # pyright: ignore[reportArgumentType]
+    for k, (curve, domain) in enumerate(zip(obj.geometry, domains)):  # pyright: ignore[reportArgumentType]
+        if not out.AppendSegment(curve_to_rhino(curve, None if domain is None else (domain,))):
+            _checks.fail(f"polycurve {obj.name!r} segment {k}", "a segment OpenNURBS can append", "refused")
+    return out
 
 
 def _xyz(p):
