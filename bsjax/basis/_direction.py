@@ -7,11 +7,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from bsjax import _checks
 from bsjax._typing import ArrayLike
-from bsjax.basis._functions import check_order, periodic_rows, rows
+from bsjax.basis._functions import check_order, periodic_rows, periodic_support, rows, support
 from bsjax.basis._knots import clamped_knots, float_dtype
 
 
@@ -94,6 +94,15 @@ class SplineDirection(eqx.Module):
         if self.knots is None:
             return periodic_rows(self.n_ctrl, self.degree, params, tuple(orders))
         return rows(self.knots.astype(params.dtype), self.degree, params, tuple(orders))
+
+    def support(self, params: Float[Array, " m"]) -> Int[Array, "m k1"]:
+        """Column indices of the `degree + 1` basis functions that can be non-zero at each
+        parameter, `(m, degree + 1)` int32 (cyclic for a periodic direction): every other entry
+        of the rows of `matrices(params, orders)` is exactly zero, for every derivative order.
+        A kernel like `matrices` (The NURBS Book A2.1, span search)."""
+        if self.knots is None:
+            return periodic_support(self.n_ctrl, self.degree, params)
+        return support(self.knots.astype(params.dtype), self.degree, params)
 
     def matrix(self, params: Float[Array, " m"], nu: int = 0) -> Float[Array, "m n"]:
         """One blending matrix, `(m, n_ctrl)` (see `matrices`)."""

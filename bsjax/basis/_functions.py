@@ -14,7 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
@@ -54,19 +54,41 @@ def basis_functions(knots: Float[Array, " L"], degree: int, t: Float[Array, ""],
     n_ctrl = L - degree - 1
     if nu > degree:
         return jnp.zeros((n_ctrl,), dtype=knots.dtype)
-    lo, hi = knots[degree], knots[n_ctrl]
-    t = jnp.where(t < lo, lo, jnp.where(t > hi, hi, t))
-    # Last non-empty span at or left of t; at the right end this is the last interval.
-    domain = knots[degree : n_ctrl + 1]
-    span = jnp.searchsorted(domain, t, side="right").astype(jnp.int32) - 1
-    nonempty = jnp.where(jnp.diff(domain) > 0, jnp.arange(n_ctrl - degree, dtype=jnp.int32), 0)
-    span = jnp.minimum(span, jnp.max(nonempty)) + degree
+    t, span = _clip_and_span(knots, degree, t)
     values = (jnp.arange(L - 1, dtype=jnp.int32) == span).astype(knots.dtype)
     for p in range(1, degree - nu + 1):
         values = _raise_degree(values, knots, t, p)
     for p in range(degree - nu + 1, degree + 1):
         values = _differentiate(values, knots, p)
     return values
+
+
+def _clip_and_span(knots, degree: int, t):
+    """`(t clipped to the domain, span)`: the knot span `t_span ≤ t < t_{span+1}` whose `degree + 1`
+    basis functions `span − degree … span` are the only ones non-zero at `t` (The NURBS Book A2.1,
+    with the last non-empty span at or left of `t`, so the right end `t = 1` is included)."""
+    n_ctrl = knots.shape[0] - degree - 1
+    lo, hi = knots[degree], knots[n_ctrl]
+    t = jnp.where(t < lo, lo, jnp.where(t > hi, hi, t))
+    domain = knots[degree : n_ctrl + 1]
+    span = jnp.searchsorted(domain, t, side="right").astype(jnp.int32) - 1
+    nonempty = jnp.where(jnp.diff(domain) > 0, jnp.arange(n_ctrl - degree, dtype=jnp.int32), 0)
+    return t, jnp.minimum(span, jnp.max(nonempty)) + degree
+
+
+def support(knots, degree: int, params) -> Int[Array, "m k1"]:
+    """Indices `span − degree … span` of the `degree + 1` basis functions that can be non-zero
+    (with all their derivatives) at each parameter, `(m, degree + 1)` int32 (a kernel; no checks).
+    Every other entry of the row `basis_functions(knots, degree, t, nu)` is exactly zero."""
+    first = jax.vmap(lambda t: _clip_and_span(knots, degree, t)[1])(params) - degree
+    return first[:, None] + jnp.arange(degree + 1, dtype=jnp.int32)[None, :]
+
+
+def periodic_support(n_ctrl: int, degree: int, params) -> Int[Array, "m k1"]:
+    """`support` of the uniform closed basis (thesis eq. 3.3): the unwrapped indices taken modulo
+    `n_ctrl` (distinct, since `degree < n_ctrl`)."""
+    knots = periodic_knots(n_ctrl, degree, dtype=params.dtype)
+    return support(knots, degree, params - jnp.floor(params)) % n_ctrl
 
 
 def rows(knots, degree: int, params, orders: tuple[int, ...]):

@@ -215,6 +215,11 @@ class Blending(eqx.Module):
       its seam twice and too few distinct samples has not; `refit` then raises).
     - `weights (r, s)` or `None`; `direction_u`, `direction_v`: the `SplineDirection`s.
     - `index_u (m,)`, `index_v (n,)`: rows of the full grid this view holds.
+    - `support_u (m, k+1)`, `band_u (3, m, k+1)`: the band of `a_u` — the columns of the `k+1`
+      basis functions non-zero at each sample (`SplineDirection.support`) and their values (and
+      derivatives): `a_u[nu, i, support_u[i, c]] == band_u[nu, i, c]`, every other entry zero.
+    - `banded` (static): evaluate through the band (`_tensor.banded_grid`) rather than the dense
+      product; chosen from the shapes when the matrices are built (`_tensor.prefer_banded`).
     """
 
     params_u: Float[Array, " m"]
@@ -229,6 +234,9 @@ class Blending(eqx.Module):
     direction_v: SplineDirection
     index_u: Int[Array, " m"]
     index_v: Int[Array, " n"]
+    support_u: Int[Array, "m k1"]
+    band_u: Float[Array, "3 m k1"]
+    banded: bool = eqx.field(static=True)
 
     @classmethod
     def from_surface(cls, surface: BSplineSurface, m: int = 82, n: int = 82, params_u=None, params_v=None):
@@ -275,12 +283,16 @@ class Blending(eqx.Module):
             _checks.fail("nu, nv", f"derivative orders in 0..{_ORDERS - 1}", (nu, nv))
         ctrl = _checks.finite(ctrl, "ctrl")
         if self.weights is None:
-            return _tensor.grid(self.a_u[nu], ctrl, self.a_v[nv])
+            return self._grid(nu, ctrl, nv)
         net = _tensor.homogeneous(ctrl, self.weights)
-        h = {
-            (k, l): _tensor.grid(self.a_u[k], net, self.a_v[l]) for k in range(nu + 1) for l in range(nv + 1)
-        }
+        h = {(k, l): self._grid(k, net, l) for k in range(nu + 1) for l in range(nv + 1)}
         return _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
+
+    def _grid(self, nu: int, net, nv: int):
+        """`A_u^{(nu)} P A_v^{(nv)T}` through the band or the dense product (`banded`)."""
+        if self.banded:
+            return _tensor.banded_grid(self.support_u, self.band_u[nu], net, self.a_v[nv])
+        return _tensor.grid(self.a_u[nu], net, self.a_v[nv])
 
     @compiled
     def tangents(self, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:
@@ -316,7 +328,7 @@ class Blending(eqx.Module):
         )
         if self.weights is None:
             return _tensor.grid(self.refit_u, points, self.refit_v)
-        denom = _tensor.grid(self.a_u[0], self.weights[..., None], self.a_v[0])
+        denom = self._grid(0, self.weights[..., None], 0)
         return _tensor.grid(self.refit_u, points * denom, self.refit_v) / self.weights[..., None]
 
     # --- views -------------------------------------------------------------------------------
@@ -349,7 +361,18 @@ class Blending(eqx.Module):
 
     def _take(self, rows, cols) -> Blending:
         return eqx.tree_at(
-            lambda b: (b.params_u, b.params_v, b.a_u, b.a_v, b.refit_u, b.refit_v, b.index_u, b.index_v),
+            lambda b: (
+                b.params_u,
+                b.params_v,
+                b.a_u,
+                b.a_v,
+                b.refit_u,
+                b.refit_v,
+                b.index_u,
+                b.index_v,
+                b.support_u,
+                b.band_u,
+            ),
             self,
             (
                 self.params_u[rows],
@@ -360,6 +383,8 @@ class Blending(eqx.Module):
                 None,
                 self.index_u[rows],
                 self.index_v[cols],
+                self.support_u[rows],
+                self.band_u[:, rows],
             ),
             is_leaf=lambda x: x is None,
         )
@@ -384,10 +409,14 @@ def _blending(du: SplineDirection, dv: SplineDirection, pu, pv, weights) -> Blen
     pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
     a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
     (refit_u, ok_u), (refit_v, ok_v) = _tensor.pseudo_inverse(a_u[0]), _tensor.pseudo_inverse(a_v[0])
+    support_u = du.support(pu)
+    (m, r), (n, s) = a_u.shape[1:], a_v.shape[1:]
     return Blending(
         params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
         full_rank=ok_u & ok_v, weights=weights, direction_u=du, direction_v=dv,
         index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
+        support_u=support_u, band_u=jnp.take_along_axis(a_u, support_u[None], axis=2),
+        banded=_tensor.prefer_banded(m, n, r, s, du.degree),
     )  # fmt: skip
 
 

@@ -24,6 +24,36 @@ def grid(a_u, ctrl, a_v):
     return jnp.einsum("ai,ijc,bj->abc", a_u, ctrl, a_v)
 
 
+def banded_grid(support_u, band_u, ctrl, a_v):
+    """`M = A_u P A_v^T` with `A_u` given by its band: `(m, k+1) (m, k+1) (r, s, d) (n, s) → (m, n, d)`.
+
+    Row `a` of `A_u` has its only non-zeros `band_u[a, c]` in the columns `support_u[a, c]`, so
+    `M[a] = Σ_c band_u[a, c] Q[support_u[a, c]]` with `Q = P A_v^T` `(r, n, d)` (thesis eq. 3.6
+    evaluated span by span, as The NURBS Book A3.5 does for one point): the `u` stage costs
+    `m (k+1) n d` multiply-adds instead of `m r n d`, and each gathered row of `Q` is a contiguous
+    `(n, d)` slab, which XLA on the CPU fuses into one loop (a gather on the `v` axis, whose slabs
+    are `d` numbers long, measured slower than the dense product there, so that stage stays dense).
+    The indices are in range by construction (`SplineDirection.support`).
+    """
+    q = jnp.einsum("bj,ijc->ibc", a_v, ctrl)
+    out = None
+    for c in range(support_u.shape[1]):
+        term = band_u[:, c, None, None] * q.at[support_u[:, c]].get(mode="promise_in_bounds")
+        out = term if out is None else out + term
+    return out
+
+
+def prefer_banded(m: int, n: int, r: int, s: int, k: int) -> bool:
+    """Whether `banded_grid` does no more multiply-adds than the best order of the dense product
+    `grid` for an `(m, r) (r, s) (n, s)` shape with degree `k` along `u` (a static choice made when
+    the blending matrices are built). Dense wins only when `m` is much smaller than `n` (then
+    `A_u P` first is cheap); at equal counts the banded form is chosen, since it measured faster
+    (the dense `einsum` pays for its layout changes)."""
+    banded = n * s * r + m * (k + 1) * n
+    dense = min(m * r * s + m * s * n, r * s * n + m * r * n)
+    return banded <= dense
+
+
 def pointwise(rows_u, ctrl, rows_v):
     """Row-wise contraction for scattered parameters: `(k, r) (r, s, d) (k, s) → (k, d)`."""
     return jnp.einsum("ki,ijc,kj->kc", rows_u, ctrl, rows_v)
