@@ -11,9 +11,10 @@ is `v`. Planar curves (d = 2) lie in the plane z = 0 (except `revolve`, which re
 (radius, height) in the axial half-plane).
 
 Knot vectors are planned on the host: the merged knots and the change-of-basis matrices are
-cached by the curves' (degree, knots) and re-used, so a direct call is one compiled XLA call.
-The plan is a constant of that call, so each new knot configuration compiles once (256 plans are
-kept; `bsjax._boundary.clear_caches()` forgets them and their compilations).
+cached by the curves' (degree, knots) and re-used (256 plans are kept;
+`bsjax._boundary.clear_caches()` forgets them), so a direct call is one compiled XLA call. The plan
+enters that call as an input, so curves with new knot values but the same degrees and counts (and
+the same merged knot count) re-use the compilation.
 Control points (and weights) may be traced: every constructor works under `jit`, `vmap` and
 `grad` in the control points. Curves whose *knots* are traced (curves passed as arguments of
 the caller's own `jit`) must already be compatible — same degree and control count, equal knots
@@ -68,14 +69,16 @@ class _Plan(NamedTuple):
     check_equal: bool
 
 
-class _FixedPlan:
-    """A cached plan of concrete knots, passed to the compiled kernels as a *static* argument
-    (hashed by identity: the cache hands out one object per knot configuration), so its knots
-    and matrices are constants of the compiled program and the knot checks of the surface built
-    inside fold away (as inputs they would cost run-time checks on every call)."""
+class _FixedPlan(eqx.Module):
+    """A cached plan of concrete knots: the merged direction and each curve's change-of-basis
+    matrix (`None`: already in the merged basis). A pytree whose knots and matrices are *inputs*
+    of the compiled kernels, so a new knot configuration with the same counts (a new
+    chord-parametrised stroke, say) re-uses the compilation; only the host-side planning (numpy,
+    cached by the knot values) runs again."""
 
-    def __init__(self, direction: SplineDirection, transforms: tuple):
-        self.direction, self.transforms, self.check_equal = direction, transforms, False
+    direction: SplineDirection
+    transforms: tuple
+    check_equal: bool = eqx.field(static=True, default=False)
 
 
 _AnyPlan = _Plan | _FixedPlan

@@ -754,3 +754,26 @@ def test_rail_rotation_grad_and_bad_input():
         construct.rail_rotation(rail_a, rail_b, closed, 5)
     with pytest.raises(ValueError, match="n_sections"):
         construct.rail_rotation(rail_a, rail_b, profile, 1)
+
+
+def test_new_knot_values_with_the_same_counts_reuse_the_compilation():
+    """The plan (merged knots, change-of-basis matrices) is an input of the compiled kernel: a new
+    pair of strokes with other interior knots but the same degree and counts compiles nothing
+    new, and the ruled surface is still exact (`S(u, v) = (1 − v) C0(u) + v C1(u)`)."""
+    rng = np.random.default_rng(7)
+
+    def stroke(z):
+        knots = np.concatenate([[0.0] * 4, np.sort(rng.uniform(0.05, 0.95, 5)), [1.0] * 4])
+        ctrl = np.stack([np.linspace(0, 1, 9), 0.1 * rng.normal(size=9), np.full(9, z)], -1)
+        return BSplineCurve(ctrl, knots, 3)
+
+    construct._ruled.clear_cache()
+    t = np.linspace(0, 1, 11)
+    for _ in range(3):
+        c0, c1 = stroke(0.0), stroke(1.0)
+        surface = construct.ruled(c0, c1)
+        for v in (0.0, 0.3, 1.0):
+            expected = (1 - v) * _scipy_points(c0, t) + v * _scipy_points(c1, t)
+            np.testing.assert_allclose(surface.evaluate(t, np.full_like(t, v)), expected, atol=1e-12)
+    (jitted,) = construct._ruled._cache.values()
+    assert jitted._cache_size() == 1
