@@ -6,12 +6,15 @@
 All libraries run in this process on the same control net, knots and sample parameters, after a
 check that they agree. Times are per call (per net for the batched rows): median and p99 over
 many calls; compile time (first call minus steady state) is reported separately. Ratios are
-peer time / bsjax time, so > 1 means bsjax is faster.
+peer time / bsjax time, so > 1 means bsjax is faster. The previous kernel (the dense product
+`A_u P A_v^T`, `Blending` with `banded=False`) is timed in alternation with the banded one.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import os
 import time
 
 import jax
@@ -21,7 +24,7 @@ jax.config.update("jax_enable_x64", True)
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _timing import timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
+from _timing import paired, timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 from geomdl import BSpline as GBSpline  # noqa: E402
 from scipy.interpolate import NdBSpline  # noqa: E402
 
@@ -62,16 +65,44 @@ def bench_grid(m: int, calls: dict, rows: list, dtype=np.float64, peers=True):
     nets = jnp.asarray(ctrl[None] + 0.01 * rng.normal(size=(BATCH, R, R, 3)), dtype=dtype)
     tag = f"{m}x{m}" + ("" if dtype == np.float64 else " float32")
 
+    # The previous kernel, the dense product `A_u P A_v^T`, is the same Blending with banded=False:
+    # timed in alternation with the banded one, so the ratio is the evidence on a loaded machine.
+    dense = dataclasses.replace(b, banded=False)
     compile_single = first_call(lambda: points(b, ctrl).block_until_ready())
-    med, p99 = timed(lambda: points(b, ctrl).block_until_ready(), calls["bsjax"])
+    compile_dense = first_call(lambda: points(dense, ctrl).block_until_ready())
+    med, p99, dmed, dp99 = paired(
+        lambda: points(b, ctrl).block_until_ready(),
+        lambda: points(dense, ctrl).block_until_ready(),
+        calls["bsjax"],
+    )
     compile_single -= med
+    compile_dense -= dmed
     compile_batch = first_call(lambda: batched(b, nets).block_until_ready())
-    bmed, bp99 = timed(lambda: batched(b, nets).block_until_ready(), max(20, calls["bsjax"] // 20))
+    compile_dbatch = first_call(lambda: batched(dense, nets).block_until_ready())
+    bmed, bp99, dbmed, dbp99 = paired(
+        lambda: batched(b, nets).block_until_ready(),
+        lambda: batched(dense, nets).block_until_ready(),
+        max(20, calls["bsjax"] // 20),
+    )
     compile_batch -= bmed
+    compile_dbatch -= dbmed
     ref = np.asarray(points(b, ctrl), dtype=np.float64)
-    rows.append((tag, "bsjax Blending.points (as called)", med, p99, compile_single, None))
+    check(tag, "the dense product", points(dense, ctrl), ref)
+    kernel = "banded" if b.banded else "dense"
+    rows.append((tag, f"bsjax Blending.points (as called, {kernel})", med, p99, compile_single, None))
+    rows.append((tag, "bsjax dense product (previous kernel)", dmed, dp99, compile_dense, dmed / med))
     rows.append(
         (tag, f"bsjax vmap over {BATCH} nets, per net", bmed / BATCH, bp99 / BATCH, compile_batch, None)
+    )
+    rows.append(
+        (
+            tag,
+            f"bsjax vmap over {BATCH} nets, dense product, per net",
+            dbmed / BATCH,
+            dbp99 / BATCH,
+            compile_dbatch,
+            dbmed / bmed,
+        )
     )
     if not peers:
         return med, bmed / BATCH
@@ -182,7 +213,7 @@ def main():
     }
     print(
         f"bsjax basis benchmark: {R}x{R} bicubic, clamped uniform knots, float64, jax {jax.__version__}, "
-        f"{jax.devices()[0].platform}"
+        f"{jax.devices()[0].platform}, load average {os.getloadavg()[0]:.2f} at the start"
     )
     rows, summary = [], {}
     for m in (82, 244):
@@ -207,6 +238,7 @@ def main():
     print(f"  bsjax vs scipy NdBSpline: {scipy82 / s82:.1f}x (target >= 15x)")
     print(f"  bsjax vs geomdl:          {geomdl82 / s82:.0f}x (target >= 1000x)")
     print(f"  vmap per net vs scipy:    {scipy82 / b82:.1f}x (target >= 50x)")
+    print(f"  load average at the end: {os.getloadavg()[0]:.2f}")
     s32, b32 = summary["f32"]
     print(f"  float32: single {scipy82 / s32:.1f}x, vmap per net {scipy82 / b32:.1f}x scipy (float64)")
 
