@@ -80,19 +80,21 @@ def _deviation_occt(path: Path, k: int) -> tuple[int, float]:
 
     from bsjax.io import _occt
 
-    shape, _ = _occt._read_shape(path)
+    parts, _ = _occt._read_parts(path)
     u, v = _grid(k)
-    count, worst, explorer = 0, 0.0, TopExp_Explorer(shape, TopAbs_FACE)
-    while explorer.More():
-        face = TopoDS.Face(explorer.Current())
-        surface = _occt._face(face, False)[0]
-        points = np.asarray(surface.evaluate(u, v)).reshape(-1, 3)
-        geom = BRep_Tool.Surface_s(face)
-        d = max(GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, p)), geom).LowerDistance() for p in points)
-        size = max(float(np.ptp(points, axis=0).max()), 1e-300)
-        worst = max(worst, d / size)
-        count += 1
-        explorer.Next()
+    count, worst = 0, 0.0
+    for shape, _ in parts:
+        explorer = TopExp_Explorer(shape, TopAbs_FACE)
+        while explorer.More():
+            face = TopoDS.Face(explorer.Current())
+            surface = _occt._face(face, False)[0]
+            points = np.asarray(surface.evaluate(u, v)).reshape(-1, 3)
+            geom = BRep_Tool.Surface_s(face)
+            d = max(GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, p)), geom).LowerDistance() for p in points)
+            size = max(float(np.ptp(points, axis=0).max()), 1e-300)
+            worst = max(worst, d / size)
+            count += 1
+            explorer.Next()
     return count, worst
 
 

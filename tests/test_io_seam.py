@@ -148,3 +148,23 @@ def test_closed_trim_round_trips_through_json_and_3dm(tmp_path):
         back = io.load_all(io.save(obj, tmp_path / f"c{ext}"), trims=True)[0]
         assert back.trim.closed == (True, False)
         np.testing.assert_array_equal(np.asarray(back.mask(s, t)), expected)
+
+
+def test_mask_on_a_torus_wraps_both_directions():
+    """A round hole about the corner (0, 0) of a surface closed in u and v (a torus) covers all
+    four corners of [0, 1]²: the mask against the periodic distance, under jit too."""
+    import jax
+
+    a = np.linspace(0, 2 * np.pi, 160, endpoint=False)
+    hole = np.c_[0.15 * np.cos(a), 0.15 * np.sin(a)]
+    wall = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    trim = io.Trim.from_loops([wall, hole], [True, False], (True, True))
+    u, v = np.random.default_rng(3).uniform(0.0, 1.0, (2, 2000))
+    r = np.hypot(np.minimum(u, 1 - u), np.minimum(v, 1 - v))
+    clear = np.abs(r - 0.15) > 1e-3
+    np.testing.assert_array_equal(np.asarray(trim.mask(u, v))[clear], (r > 0.15)[clear])
+    np.testing.assert_array_equal(
+        np.asarray(jax.jit(lambda x, y: trim.mask(x, y))(u, v)), np.asarray(trim.mask(u, v))
+    )
+    flat = io.Trim.from_loops([wall, hole], [True, False])  # not closed: three corners lost
+    assert np.any(np.asarray(flat.mask(u, v))[clear] != (r > 0.15)[clear])

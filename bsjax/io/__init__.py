@@ -15,7 +15,13 @@ tessellated meshes (trimesh).
 * Trims reach collision and meshes: `CadObject.sample_mask(blending)` is a face's trim on a
   sample grid, for `collide.contacts(..., sample_mask=)` and `tessellate(..., mask=)` (a mesh
   format written by `save` drops the triangles outside a face's trim).
-* STEP keeps names and layers (OCCT's XCAF document: products and layer assignments).
+* Closed surfaces: a trim loop that lies on or crosses the seam (shifted by a period, or split
+  there) masks correctly on both sides of the seam (`Trim.closed`).
+* Polycurves (a `.3dm` `PolyCurve`, a STEP/IGES wire) load as a list of `BSplineCurve`s, one per
+  segment; `save` writes a list of curves inside the list as a polycurve.
+* `merge.merge(..., trim=[face, ...])` takes a face whose trim is a rectangle (`Trim.window`).
+* STEP keeps names and layers (OCCT's XCAF document: products and layer assignments); IGES keeps
+  ASCII names and integer layers (levels).
 * From the shell: `bsjax convert IN OUT` (`bsjax.cli.convert`).
 
 rhino3dm, OCP and trimesh are imported by the functions that use them, so `import bsjax.io`

@@ -166,8 +166,7 @@ class Trim(eqx.Module):
         """
         u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
         u, v = _checks.finite(u, "u"), _checks.finite(v, "v")
-        shifts = [(a, b) for a in _shifts(self.closed[0]) for b in _shifts(self.closed[1])]
-        crossings = sum(_crossings(self.segments, u - a, v - b) for a, b in shifts)
+        crossings = sum(_crossings(self.segments, u, v - b, self.closed[0]) for b in _shifts(self.closed[1]))
         inside = crossings % 2 == 1
         if any(self.closed):  # loops may run past the seam: [0, 1]² bounds the face explicitly
             inside = inside & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
@@ -178,15 +177,18 @@ def _shifts(closed: bool) -> tuple[float, ...]:
     return (-1.0, 0.0, 1.0) if closed else (0.0,)
 
 
-def _crossings(segments, u, v):
-    """How many edges a ray from `(u, v)` towards +u crosses (per point)."""
+def _crossings(segments, u, v, wrap_u: bool):
+    """How many edges a ray from `(u, v)` towards +u crosses (per point); with `wrap_u`, the
+    edges' translates by −1, 0 and +1 in u too (one pass: the edge at `c + k` lies right of the
+    point when `u − c < k`)."""
     lead = (1,) * u.ndim  # explicit broadcasting (rank promotion may be off)
     u0, v0, u1, v1 = (segments[:, i, j].reshape(*lead, -1) for i in (0, 1) for j in (0, 1))
     pu, pv = u[..., None], v[..., None]
     straddles = (v0 > pv) != (v1 > pv)
     dv = jnp.where(straddles, v1 - v0, 1.0)
-    crossing_u = u0 + (pv - v0) * (u1 - u0) / dv
-    return jnp.sum(straddles & (pu < crossing_u), axis=-1)
+    gap = pu - (u0 + (pv - v0) * (u1 - u0) / dv)
+    right = sum((gap < k).astype(jnp.int32) for k in _shifts(wrap_u))  # how many translates
+    return jnp.sum(jnp.where(straddles, right, 0), axis=-1)
 
 
 def closed_directions(surface: BSplineSurface, rtol: float = 1e-9) -> tuple[bool, bool]:

@@ -240,7 +240,8 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
     **Arguments:**
     - `surfaces`: a `BSplineSurface`, `BSplineCurve` or `CadObject`, a list of them, or what
       `load_all` returned (its `objects` — names, layers, domains, trims, orientation — and its
-      `units` are written).
+      `units` are written). A list of `BSplineCurve`s inside the list is one polycurve (a `.3dm`
+      `PolyCurve`, a STEP/IGES wire: its segments must meet end to start).
     - `path`: `.json`, `.3dm`, `.step`/`.stp`, `.iges`/`.igs` keep the splines exactly; `.obj`,
       `.stl`, `.ply`, `.glb` hold the tessellated `m × n` sample grid (surfaces only).
     - `units`: the unit system recorded in the file (a key of `bsjax.io.UNITS`); default the
@@ -319,6 +320,9 @@ def load_all(
       with the same list.
     - `trims`: `False` returns the splines; `True` returns a `CadObject` per surface or curve
       (a Brep face with its `Trim` loops in [0, 1]² and its orientation flag `reversed`).
+
+    A polycurve (a `.3dm` `PolyCurve`, a STEP/IGES wire) is one item: a list of `BSplineCurve`s,
+    one per segment, in order (`kind="curve"` keeps it).
 
     **Returns:** a `CadList`: a `list` of the splines (or `CadObject`s with `trims=True`), with
     the attributes `units` (the file's unit system, or `units` when converted), `objects` (a

@@ -9,9 +9,20 @@ extrusions with caps, block instances, curves, units, names and layers.
 * Trims: rhino3dm exposes a Brep trim's loop, edge and direction but not its 2-D curve; the
   loops are recovered by projecting the 3-D edge curves onto the face's surface
   (`bsjax.basis.closest_points`, point inversion, "The NURBS Book" §6.1) as polylines in [0, 1]².
-  rhino3dm cannot build a trimmed Brep either: a trimmed face is written as its surface (a
-  Brep, flipped when reversed) with its loops in the user string `bsjax.trim`, which bsjax reads
-  back exactly; Rhino itself shows the untrimmed surface.
+  On a closed surface a seam point projects to 0 or 1 at random: the loops are unwrapped across
+  the seam and the `Trim` knows the surface is closed (`Trim.closed`).
+* Writing trims: rhino3dm (8.35) cannot build a trimmed Brep. Its `BrepFaceList`, `BrepLoopList`,
+  `BrepTrimList`, `BrepEdgeList`, `BrepVertexList` and `BrepSurfaceList` have no `Add`;
+  `BrepLoop`/`BrepTrim` are read-only views (rhino3dm PR #713 exposed them for reading); the only
+  trimmed constructor, `Brep.CreateTrimmedPlane(plane, curve)`, makes a plane surface with one
+  outer loop (no hole, not the face's NURBS); `Brep.Decode` reads OpenNURBS's binary archive
+  (chunked, CRC-checked `ON_Brep` records), which would have to be written byte by byte. So a
+  trimmed face is written as its surface (a Brep, flipped when reversed) with its loops in the
+  user string `bsjax.trim`, which bsjax reads back exactly; Rhino itself shows the untrimmed
+  surface.
+* Polycurves: a `PolyCurve` loads as a tuple of `BSplineCurve`s (`CadObject.geometry`; a list in
+  `load_all`'s result), one per segment in order (nested polycurves flattened), each on its own
+  domain; `save` writes a tuple or list of curves back as a `PolyCurve` (`AppendSegment`).
 """
 
 from __future__ import annotations
