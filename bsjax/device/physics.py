@@ -56,6 +56,7 @@ import numpy as np
 from bsjax import _checks, _safe, collide, mss, shapes
 from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
+from bsjax.mss._integrators import _explicit
 
 
 @runtime_checkable
@@ -264,7 +265,7 @@ class SculptModel:
             self.set_tool(radius=positive_number(tool_radius, "tool_radius"))
         else:
             self.set_tool(axes=tool_axes)
-        self._tick = jax.jit(self._tick_impl, static_argnums=5)  # one program per tool kind
+        self._tick = jax.jit(self._tick_impl, static_argnums=2)  # one program per tool kind
         self._compiled: set[bool] = set()
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
@@ -295,34 +296,37 @@ class SculptModel:
         (the cheaper exact push), else a `collide.Ellipsoid` aligned with the stylus."""
         return collide.Sphere(centre, axes[0]) if sphere else collide.Ellipsoid(centre, axes, rot)
 
-    def _step(self, carry, tools, contact):
-        state, rest, rest_seam, _ = carry
+    def _substep(self, carry, tools, contact):
+        """One semi-implicit Euler step of the lattice (`mss.step`'s kernel, thesis eqs.
+        5.14–5.16) with the seam springs as external force.
+
+        The unchecked kernel: `mss.step` would check the state, forces and `dt` on every
+        substep (a host callback each); the tick checks its outputs once instead (`ok`), and
+        `dt` once at construction (`check_step`)."""
+        state, rest, rest_seam = carry
         seam = None
         if self.seam is not None:
             seam = mss.spring_forces(self.seam, state.position, state.velocity, rest_seam)
-        state, ctrl = mss.coupled_step(
-            self.lattice,
-            self.coupling,
-            state,
-            self.dt,
-            tools,
-            contact,
-            external_force=seam,
-            rest_length=rest,
-            check_stability=False,  # checked once by the constructor (`check_step`)
-        )
-        return state, rest, rest_seam, ctrl
+        state = _explicit(self.lattice, state, self.dt, seam, None, tools, contact, rest)
+        return state, rest, rest_seam
 
-    def _tick_impl(self, carry, centre, axes, rot, pressing, sphere, settle):
+    def _tick_impl(self, carry, inputs, sphere):
+        """One physics tick: `substeps` steps of `mss.coupled_step`'s chain (the refit once, after
+        the last one: the earlier refits are not used), then the proxy data from the new surface.
+
+        `inputs (17,)`: tool centre (3), semi-axes (3), rotation (9, row-major), pressing (1:
+        held, 0: not) and settle (1: set the shape first); one host → device transfer a tick."""
+        centre, axes, rot = inputs[0:3], inputs[3:6], inputs[6:15].reshape(3, 3)
+        pressing, settle = inputs[15], inputs[16] > 0
         tool = self._tool(centre, axes, rot, sphere)
-        zero = jnp.zeros((), self.dtype)
-        contact = mss.Contact(self.tool_stiffness * pressing, zero)
+        contact = mss.Contact(self.tool_stiffness * pressing, jnp.zeros((), self.dtype))
         carry = self._settled(carry, settle)
-        ctrl = jnp.zeros(self.surface0.ctrl.shape, self.dtype)  # the last substep's refit replaces it
 
         def substeps(tools):
             def run(carry):
-                carry = jax.lax.fori_loop(0, self.substeps, lambda _, c: self._step(c, tools, contact), carry)
+                carry = jax.lax.fori_loop(
+                    0, self.substeps, lambda _, c: self._substep(c, tools, contact), carry
+                )
                 x = carry[0].position
                 # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
                 f = mss.tool_forces(tools, x, jnp.zeros_like(x), contact.stiffness) if tools else x * 0
@@ -332,17 +336,18 @@ class SculptModel:
 
         # the tool acts only while the button is held: skip its push (an ellipsoid's is the
         # costly part of the tick) otherwise
-        carry, reaction = jax.lax.cond(pressing > 0, substeps((tool,)), substeps(()), (*carry, ctrl))
-        carry, ctrl = carry[:3], carry[3]
+        carry, reaction = jax.lax.cond(pressing > 0, substeps((tool,)), substeps(()), carry)
         x = carry[0].position
-        pts = self.dense.points(ctrl).reshape(-1, 3)
-        nrm = self.sign * self.dense.normals(ctrl).reshape(-1, 3)
+        ctrl = self.coupling.ctrl(x)  # refit of the outer layer (thesis eq. 3.7)
+        # Distributed springs of 002 §3.2 (eq. 3.3, surface-normal method) through bsjax.collide.
+        # method="dense": 40×40 samples are cheap, and one branch-free program compiles faster.
+        # Its samples and normals are the proxy grid's (`Blending.points`/`normals`, to rounding).
+        contact = collide.contacts(self.dense, ctrl, tool, method="dense")
+        pts = contact.points.reshape(-1, 3)
+        nrm = self.sign * contact.normals.reshape(-1, 3)
         k = jnp.argmin(jnp.sum((pts - centre[None]) ** 2, axis=-1))
         q, nq = pts[k], nrm[k]
         support = axes[0] if sphere else _safe.norm(axes * (nq @ rot))  # support distance along nq
-        # Distributed springs of 002 §3.2 (eq. 3.3, surface-normal method) through bsjax.collide.
-        # method="dense": 40×40 samples are cheap, and one branch-free program compiles faster.
-        contact = collide.contacts(self.dense, ctrl, tool, method="dense")
         spring = self.sign * collide.contact_force(contact, self.contact_stiffness)
         hit = contact.hit.astype(x.dtype)
         out = jnp.concatenate([q, nq, support[None], reaction[None], spring, hit[None]])
@@ -353,26 +358,23 @@ class SculptModel:
     def _settled(self, carry, settle):
         """Plastic set (on button release): rest lengths ← current lengths when `settle`."""
 
-        def lengths(lattice, x):
-            e = lattice.edges
-            return _safe.norm(x[e[:, 0]] - x[e[:, 1]])
-
         def set_shape(carry):
             state, _, rest_seam = carry
             x = state.position
-            seam = lengths(self.seam, x) if self.seam is not None else rest_seam
-            return state, lengths(self.lattice, x), seam
+            seam = mss.edge_lengths(self.seam, x) if self.seam is not None else rest_seam
+            return state, mss.edge_lengths(self.lattice, x), seam
 
         return jax.lax.cond(settle, set_shape, lambda c: c, carry)
 
     # --- model interface ----------------------------------------------------------------------
-    def _tool_args(self, position, orientation):
-        dt = self.dtype
-        return (
-            jnp.asarray(position, dt),
-            jnp.asarray(self.tool_axes, dt),
-            jnp.asarray(quat_to_matrix(orientation), dt),
-        )
+    def _inputs(self, position, orientation, pressed: bool, settle: bool) -> np.ndarray:
+        """The tick's `(17,)` inputs (see `_tick_impl`) as one host array of the model's dtype."""
+        out = np.empty(17, self.dtype)
+        out[0:3] = position
+        out[3:6] = self.tool_axes
+        out[6:15] = quat_to_matrix(orientation).ravel()
+        out[15], out[16] = float(pressed), float(settle)
+        return out
 
     def _sphere(self) -> bool:
         return _is_sphere(self.tool_axes)
@@ -381,9 +383,8 @@ class SculptModel:
         """Compile the tick for one tool kind (a tick with the tool far away, result dropped)."""
         if sphere in self._compiled:
             return
-        centre, axes, rot = self._tool_args(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0))
-        off = jnp.asarray(0.0, self.dtype)
-        jax.block_until_ready(self._tick(self._state, centre, axes, rot, off, sphere, jnp.asarray(False)))
+        inputs = self._inputs(np.full(3, 10.0), (1.0, 0.0, 0.0, 0.0), False, False)
+        jax.block_until_ready(self._tick(self._state, inputs, sphere))
         self._compiled.add(sphere)
 
     def warmup(self) -> None:
@@ -420,18 +421,10 @@ class SculptModel:
             return self._last_proxy
         pressed = sample.pressed
         with self._lock:
-            centre, axes, rot = self._tool_args(sample.position, sample.orientation)
-            settle = jnp.asarray(self._was_pressed and not pressed)  # released: set the shape first
+            settle = self._was_pressed and not pressed  # released: set the shape first
+            inputs = self._inputs(sample.position, sample.orientation, pressed, settle)
             try:
-                state, ctrl, out = self._tick(
-                    self._state,
-                    centre,
-                    axes,
-                    rot,
-                    jnp.asarray(float(pressed), self.dtype),
-                    self._sphere(),
-                    settle,
-                )
+                state, ctrl, out = self._tick(self._state, inputs, self._sphere())
                 out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
             except Exception as err:  # a value check inside the tick fired (a non-finite state)
                 return self._rolled_back(err)

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import collide
+from bsjax import _checks, _safe, collide
 from bsjax._boundary import compiled
 from bsjax.mss._lattice import HEX_DIRECTIONS, Lattice, _slices
 
@@ -71,6 +72,31 @@ def edge_sum(lattice: Lattice, pair, node_arrays, edge_arrays) -> Float[Array, "
     f = pair(*((a[i] - a[j]).T for a in node_arrays), *edge_arrays).T
     n = node_arrays[0].shape[0]
     return jax.ops.segment_sum(f, i, n) - jax.ops.segment_sum(f, j, n)
+
+
+@compiled
+def edge_lengths(lattice: Lattice, x: Float[Array, "N 3"]) -> Float[Array, " E"]:
+    """Current length `l_ij = |x_i − x_j|` of every spring (thesis eq. 5.10's `l`), in m.
+
+    **Arguments:** `lattice` (its edges); `x (N, 3)`: node positions, finite.
+
+    **Returns:** `(E,)` in the lattice's edge order — e.g. the new rest lengths of a plastic set.
+    On a hexahedral grid (`lattice.grid_shape`) they come from dense slices per direction (no
+    gather, the order of `hex_edges`), else from the edge list; both give the same values
+    (`bsjax._safe.norm`: exact 0 and a finite gradient for a zero-length spring).
+    """
+    if np.shape(x) != (lattice.n_nodes, 3):
+        _checks.fail("x", f"node positions of shape ({lattice.n_nodes}, 3)", f"shape {np.shape(x)}")
+    x = _checks.finite(jnp.asarray(x), "x")
+    if lattice.grid_shape is None:
+        return _safe.norm(x[lattice.edges[:, 0]] - x[lattice.edges[:, 1]])
+    shape = lattice.grid_shape
+    grid = x.reshape(shape + (3,))
+    parts = []
+    for direction in HEX_DIRECTIONS:
+        s0, s1 = zip(*(_slices(o, n) for o, n in zip(direction, shape)))
+        parts.append(_safe.norm(grid[s0] - grid[s1]).reshape(-1))
+    return jnp.concatenate(parts)
 
 
 def _grid_sum(shape, pair, node_arrays, edge_arrays):
