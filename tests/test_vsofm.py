@@ -202,3 +202,119 @@ def test_fit_inside_jit_on_a_grid_with_repeated_poles():
     for nodes in (jitted, direct):
         rep = vsofm.report(pts, nodes)
         assert rep.inverted == 0 and rep.boundary_max < 0.03, rep
+
+
+# --- the faster training gives the nodes of the training as first written ----------------------
+
+
+def _reference_fit(points, key, shape, cycles, settings=vsofm.Settings()):
+    """`vsofm.fit`'s training as first written (issue #11 keeps it as the reference): a
+    `jax.random.choice` draw and a brute-force `argmin` best-matching unit inside every cycle,
+    and a brute-force nearest sample (all N × P distances) for every boundary snap."""
+    dtype = points.dtype
+    nbr, copies = vsofm._neighbours(points, vsofm._NEAR)
+    gap = jnp.linalg.norm(points[nbr[:, 1:7]] - points[:, None], axis=-1)
+    weights = jnp.mean(gap, axis=1) ** 2 / copies.astype(dtype)
+    weights = weights / jnp.sum(weights)
+    n, bmask = int(np.prod(shape)), vsofm.boundary_mask(shape)
+    bidx = jnp.asarray(np.nonzero(bmask.ravel())[0].astype(np.int32))
+    bgrid = jnp.asarray(bmask)[..., None]
+    lo, hi = jnp.min(points, axis=0), jnp.max(points, axis=0)
+    axes = jnp.meshgrid(*[jnp.linspace(0.0, 1.0, s, dtype=dtype) for s in shape], indexing="ij")
+    nodes = lo[None, None, None] + jnp.stack(axes, axis=-1) * (hi - lo)[None, None, None]
+    idx = [jnp.arange(s, dtype=dtype) for s in shape]
+    frac = jnp.arange(cycles, dtype=dtype) / max(cycles - 1, 1)
+    r0, l0 = settings.radius_start, settings.learning_rate_start
+    sigma = r0 * (settings.radius_end / r0) ** frac
+    alpha = l0 * (settings.learning_rate_end / l0) ** frac
+
+    def cycle(nodes, xs):
+        sig, lr, k = xs
+        x = points[jax.random.choice(k, points.shape[0], (settings.batch,), p=weights)]
+        wb = nodes.reshape(-1, 3)[bidx]
+        win = bidx[jnp.argmin(jnp.sum(wb * wb, axis=-1)[None, :] - 2.0 * x @ wb.T, axis=1)]
+        ones = jnp.ones((settings.batch, 1), dtype)
+        acc = jax.ops.segment_sum(jnp.concatenate([x, ones], axis=-1), win, n)
+        acc = vsofm._gauss_smooth(acc.reshape(shape + (4,)), idx, sig)
+        ok = acc[..., 3:] > 1e-6 * jnp.max(acc[..., 3:])
+        target = acc[..., :3] / jnp.where(ok, acc[..., 3:], 1.0)
+        moved = jnp.where(ok & bgrid, nodes + lr * (target - nodes), nodes)
+        return vsofm._jacobi(moved, bgrid, settings.sweeps), None
+
+    nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, jax.random.split(key, cycles)))[0]
+    frame, coef = vsofm._patches(points, nbr)
+
+    def snap(nodes):
+        flat = nodes.reshape(-1, 3)
+        y = flat[bidx]
+        i = jnp.argmin(jnp.sum((y[:, None] - points[None]) ** 2, axis=-1), axis=1)
+        f, c, p = frame[i], coef[i], points[i]
+        u, v = jnp.einsum("nj,nj->n", f[:, 0], y - p), jnp.einsum("nj,nj->n", f[:, 1], y - p)
+        w = c[:, 0] + c[:, 1] * u + c[:, 2] * v + c[:, 3] * u * u + c[:, 4] * u * v + c[:, 5] * v * v
+        return flat.at[bidx].set(p + u[:, None] * f[:, 0] + v[:, None] * f[:, 1] + w[:, None] * f[:, 2])
+
+    nodes = snap(nodes).reshape(nodes.shape)
+    for _ in range(settings.boundary_smoothing):
+        nodes = snap(jnp.where(bgrid, vsofm._boundary_mean(nodes, bgrid), nodes)).reshape(nodes.shape)
+    return vsofm._harmonic_interior(nodes, bgrid, 4 * max(shape))
+
+
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-12), (np.float32, 1e-5)])
+def test_fit_gives_the_nodes_of_the_reference_training(dtype, tol):
+    """Same key, same nodes as the training as first written (hoisted draws, two-reduction
+    best-matching unit, k-d tree snaps change the speed, not the algorithm), on a non-cubic
+    lattice; directly and inside the caller's `jit`."""
+    # distinct and sorted (as `fit` orders concrete samples); max |x| ≈ 0.5: its rescaling is exact
+    pts = jnp.asarray(np.unique(fibonacci_sphere(600, 0.5), axis=0), dtype=dtype)
+    shape, key = (5, 6, 7), jax.random.PRNGKey(2)
+    ref = np.asarray(jax.jit(_reference_fit, static_argnums=(2, 3))(pts, key, shape, 40))
+    assert ref.dtype == dtype and np.isfinite(ref).all()
+    direct = np.asarray(vsofm.fit(pts, shape, cycles=40, key=key))
+    jitted = np.asarray(jax.jit(lambda p: vsofm.fit(p, shape, cycles=40, key=key))(pts))
+    np.testing.assert_allclose(direct, ref, rtol=0, atol=tol)
+    np.testing.assert_allclose(jitted, ref, rtol=0, atol=tol)
+
+
+def test_draws_are_jax_random_choice():
+    """The hoisted draws are, index for index, `jax.random.choice(key_c, P, (batch,), p=w)`."""
+    keys = jax.random.split(jax.random.PRNGKey(5), 7)
+    for dtype in (np.float64, np.float32):
+        w = jnp.asarray(np.random.default_rng(0).uniform(0.1, 2.0, 300), dtype=dtype)
+        w = w / jnp.sum(w)
+        drawn = np.asarray(vsofm._draws(keys, w, 64))
+        want = np.stack([np.asarray(jax.random.choice(k, 300, (64,), p=w)) for k in keys])
+        np.testing.assert_array_equal(drawn, want)
+
+
+def test_nearest_node_and_nearest_sample_match_brute_force():
+    """Best-matching unit: the first node of least `|w|² − 2x·w` (ties to the lower index, as
+    `argmin`), also under `vmap`; the k-d tree's nearest sample: the brute-force nearest, with
+    repeated samples (either copy), under `jit` and `vmap`."""
+    rng = np.random.default_rng(1)
+    nodes = rng.normal(size=(40, 3))
+    nodes[7] = nodes[3]  # a tie: the lower index wins
+    x = np.concatenate([rng.normal(size=(30, 3)), nodes[3:4] + 1e-3])
+    brute = np.argmin(np.sum(nodes**2, -1)[None] - 2.0 * x @ nodes.T, axis=1)
+    np.testing.assert_array_equal(vsofm._nearest_node(jnp.asarray(x), jnp.asarray(nodes)), brute)
+    assert brute[-1] == 3
+    batched = jax.vmap(vsofm._nearest_node, in_axes=(0, None))(jnp.asarray(np.stack([x, x[::-1]])), nodes)
+    np.testing.assert_array_equal(batched[1], brute[::-1])
+
+    pts = np.concatenate([rng.normal(size=(200, 3)), np.zeros((5, 3))])  # five copies of the origin
+    y = np.concatenate([rng.normal(size=(50, 3)), [[1e-3, 0.0, 0.0]]])
+    want = pts[np.argmin(np.sum((y[:, None] - pts[None]) ** 2, axis=-1), axis=1)]
+    near = jax.jit(vsofm._nearest_sample)(jnp.asarray(y), jnp.asarray(pts))
+    np.testing.assert_array_equal(pts[np.asarray(near)], want)
+    twice = jax.vmap(vsofm._nearest_sample, in_axes=(0, None))(jnp.asarray(np.stack([y, -y])), pts)
+    np.testing.assert_array_equal(pts[np.asarray(twice[0])], want)
+
+
+def test_projection_gradient_matches_finite_differences():
+    """The snap's quadric projection is differentiable in the projected points (the nearest
+    sample is an integer choice, held fixed): `jax.grad` against central differences."""
+    from tests.helpers import check_grad
+
+    p = jnp.asarray(fibonacci_sphere(400))
+    frame, coef = vsofm._patches(p, vsofm._neighbours(p, vsofm._NEAR)[0])
+    y = jnp.asarray(1.03 * fibonacci_sphere(9))
+    check_grad(lambda y: jnp.sum(vsofm._project(y, p, frame, coef) ** 2), y, eps=1e-7)
