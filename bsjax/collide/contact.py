@@ -385,7 +385,6 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
     )
 
 
-@compiled(static=("capacity", "flat_angle"))
 def surface_contacts(
     blending_a,
     ctrl_a: Float[Array, "ra sa 3"],
@@ -409,7 +408,35 @@ def surface_contacts(
 
     **Returns:** a `SurfaceContact`; `mask_a`/`mask_b` mark the vertices of the triangles of
     each tessellation (`hierarchy.tessellate`) that intersect the other surface's triangles.
+
+    The flat pass runs only when the exact refinement overflows. Called directly (concrete
+    arrays), the two passes are two compiled programs and the host reads `overflow` in between,
+    so the common case compiles and runs only the exact one (a program that also holds the
+    unused flat branch ran about twice as long on CPU); inside the caller's `jit`/`vmap` one
+    program decides with `lax.cond`. Both give the same result.
     """
+    args = (blending_a, ctrl_a, blending_b, ctrl_b)
+    options = dict(capacity=capacity, method=method, flat_angle=flat_angle)
+    if method != "hierarchy" or flat_angle is None or _traced(args):
+        return _surface_contacts(*args, **options, passes="cond")
+    exact = _surface_contacts(*args, **options, passes="exact")
+    if not bool(exact.overflow):  # the host decides: one small read-back
+        return exact
+    return _surface_contacts(*args, **options, passes="flat")
+
+
+def _traced(tree) -> bool:
+    """Whether any leaf of `tree` is a tracer (the call runs inside a `jit`, `vmap` or `grad`)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
+
+
+@compiled(static=("capacity", "flat_angle"))
+def _surface_contacts(
+    blending_a, ctrl_a, blending_b, ctrl_b, *, capacity, method, flat_angle, passes: str
+) -> SurfaceContact:
+    """`surface_contacts` compiled: `passes` (static) is `"cond"` (the exact refinement, then the
+    flat pass under `lax.cond` when it overflows), `"exact"` (the first only) or `"flat"` (the
+    second only)."""
     if method not in ("hierarchy", "dense"):
         _checks.fail("method", "'hierarchy' or 'dense'", repr(method))
     capacity = _checks.check_count(capacity, "capacity")
@@ -430,6 +457,7 @@ def surface_contacts(
         _hierarchy_surfaces,
         capacity=int(capacity),
         flat_angle=None if flat_angle is None else float(flat_angle),
+        passes=passes,
     )
     return _unless_apart(apart, query, blending_a, ctrl_a, blending_b, ctrl_b)
 
@@ -440,18 +468,21 @@ def _vertex_mask(faces, tri_hit, shape):
     return jnp.zeros(shape[0] * shape[1], bool).at[faces.reshape(-1)].max(flags).reshape(shape)
 
 
-def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_angle):
+def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_angle, passes="cond"):
     """Refine every candidate pair down to triangles; only when that overflows the capacity
     (flat contact: every sphere intersects) run again with flat pairs resolved by planes, so
-    the common case pays nothing for the flat test (`lax.cond`)."""
+    the common case pays nothing for the flat test (`lax.cond`; `passes`: see
+    `_surface_contacts`)."""
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
     spheres = (_sphere_hierarchy(pa, lev_a), _sphere_hierarchy(pb, lev_b))  # built once for both passes
-    exact = _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, None)
-    if flat_angle is None:
-        return exact
     flat = lambda: _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle)
+    if flat_angle is not None and passes == "flat":
+        return flat()
+    exact = _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, None)
+    if flat_angle is None or passes == "exact":
+        return exact
     return jax.lax.cond(exact.overflow, flat, lambda: exact)
 
 

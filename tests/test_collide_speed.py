@@ -1,0 +1,225 @@
+"""The faster collision kernels give the results of the plain formulas (issue #11, item 2).
+
+References are independent of the kernels under test: the basis's own `Blending.points` and
+`Blending.normals`, the tools' closed forms written with numpy, a fixed-step Frank–Wolfe loop
+in numpy for the hull test, and the one-program (`lax.cond`) path of `surface_contacts` inside
+the caller's `jit` for its two-program direct path.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsjax import shapes
+from bsjax.basis import BSplineSurface, SplineDirection
+from bsjax.collide import Ellipsoid, Plane, Sphere, contacts, hulls_apart, sample_window, surface_contacts
+from bsjax.collide.contact import points_normals
+from tests.helpers import check_grad, raises_both, random_surface
+
+
+def _periodic(rng):
+    """Closed in u (a tube-like band), clamped in v."""
+    du, dv = SplineDirection.closed(6, 3), SplineDirection.uniform(5, 2)
+    angle = np.linspace(0, 2 * np.pi, 6, endpoint=False)[:, None]
+    height = np.linspace(0, 1, 5)[None, :]
+    ring = 1 + 0.1 * rng.normal(size=(6, 5))
+    ctrl = np.stack([ring * np.cos(angle), ring * np.sin(angle), np.broadcast_to(height, (6, 5))], -1)
+    return BSplineSurface.from_directions(ctrl, du, dv)
+
+
+def _pole(rng):
+    """A polynomial surface whose first row collapses to one point (T_v = 0 there)."""
+    surf = random_surface(rng, 6, 5, 3, 2)
+    ctrl = np.asarray(surf.ctrl).copy()
+    ctrl[0] = ctrl[0].mean(0)
+    return surf.with_ctrl(jnp.asarray(ctrl))
+
+
+SHAPES = {
+    "clamped 3x2": lambda rng: random_surface(rng, 6, 5, 3, 2),
+    "degrees 1x5": lambda rng: random_surface(rng, 4, 7, 1, 5),
+    "degrees 4x2 uniform": lambda rng: random_surface(rng, 6, 4, 4, 2, uniform=True),
+    "periodic": _periodic,
+    "rational": lambda rng: random_surface(rng, 5, 6, 2, 3, weights=True),
+    "pole": _pole,
+}
+
+
+def _surface(name, seed=0):
+    surf = SHAPES[name](np.random.default_rng(seed))
+    return surf, surf.blending(13, 11), jnp.asarray(surf.ctrl)
+
+
+@pytest.mark.parametrize("name", list(SHAPES))
+def test_points_normals_match_the_basis(name):
+    _, b, ctrl = _surface(name)
+    pts, nrm = jax.jit(points_normals)(b, ctrl)
+    np.testing.assert_allclose(np.asarray(pts), np.asarray(b.points(ctrl)), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(nrm), np.asarray(b.normals(ctrl)), rtol=0, atol=1e-12)
+    if name == "pole":  # the limit normal branch ran: unit normals on the collapsed row too
+        np.testing.assert_allclose(np.linalg.norm(np.asarray(nrm)[0], axis=-1), 1, atol=1e-12)
+
+
+def _rotation(seed):
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _closer_root(a, b, c):
+    disc = np.sqrt(np.maximum(b * b - a * c, 0))
+    t_plus, t_minus = (-b + disc) / a, (-b - disc) / a
+    return np.where(np.abs(t_plus) <= np.abs(t_minus), t_plus, t_minus)
+
+
+def _unit(x):
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _reference(tool, x, n):
+    """`(value, depth, tool_normal)` of the tool's closed form, vectors as `(..., 3)` arrays."""
+    if isinstance(tool, Sphere):
+        c, r = np.asarray(tool.center), float(tool.radius)
+        y = x - c
+        t = _closer_root(np.sum(n * n, -1), np.sum(y * n, -1), np.sum(y * y, -1) - r * r)
+        return np.sum(y * y, -1) - r * r, np.abs(t), _unit(x + t[..., None] * n - c)
+    if isinstance(tool, Ellipsoid):
+        c, radii, rot = (np.asarray(a) for a in (tool.center, tool.radii, tool.rotation))
+        y, m = ((x - c) @ rot) / radii, (n @ rot) / radii
+        t = _closer_root(np.sum(m * m, -1), np.sum(y * m, -1), np.sum(y * y, -1) - 1)
+        grad = ((y + t[..., None] * m) / radii) @ rot.T
+        return np.sum(y * y, -1) - 1, np.abs(t), _unit(grad)
+    p, normal = np.asarray(tool.point), np.asarray(tool.normal)
+    value = np.sum((x - p) * normal, -1)
+    return value, -value, np.broadcast_to(normal, x.shape)
+
+
+TOOLS = {
+    "sphere": Sphere([0.5, 0.45, 0.05], 0.3),
+    "ellipsoid": Ellipsoid([0.45, 0.5, 0.0], [0.35, 0.2, 0.15], _rotation(3)),
+    "plane": Plane([0.0, 0.0, 0.02], [0.1, -0.2, 1.0]),
+}
+
+
+@pytest.mark.parametrize("tool", list(TOOLS))
+def test_tool_kernels_match_closed_forms(tool):
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-0.2, 1.2, (7, 5, 3))
+    n = _unit(rng.normal(size=(7, 5, 3)))
+    value, depth, normal = _reference(TOOLS[tool], x, n)
+    got_depth, got_normal = TOOLS[tool].penetration(jnp.asarray(x), jnp.asarray(n))
+    np.testing.assert_allclose(np.asarray(TOOLS[tool].value(jnp.asarray(x))), value, rtol=0, atol=1e-12)
+    inside = value < 0  # outside, a quadric's ray may miss it (then both give the vertex of the quadratic)
+    np.testing.assert_allclose(np.asarray(got_depth)[inside], depth[inside], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(got_normal)[inside], normal[inside], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "name, tool",
+    [(name, "sphere") for name in SHAPES] + [("clamped 3x2", "ellipsoid"), ("periodic", "plane")],
+)
+def test_contacts_match_a_dense_reference(name, tool):
+    """Masks identical, depths and normals to 1e-12 against the basis's samples and normals and
+    the tools' closed forms (inside the window of `sample_window`)."""
+    _, b, ctrl = _surface(name)
+    if name == "periodic":  # the band around the origin: a tool near its wall
+        tool_obj = {"sphere": Sphere([1.0, 0.0, 0.5], 0.3), "plane": Plane([0.9, 0, 0], [1.0, 0.1, 0])}[tool]
+    else:
+        tool_obj = TOOLS[tool]
+    got = contacts(b, ctrl, tool_obj)
+    x, n = np.asarray(b.points(ctrl)), np.asarray(b.normals(ctrl))
+    value, depth, tool_normal = _reference(tool_obj, x, n)
+    window_mask, window = sample_window(b, ctrl, tool_obj)
+    inside = (value < 0) & np.asarray(window_mask)
+    assert inside.any()
+    np.testing.assert_array_equal(np.asarray(got.mask), inside)
+    np.testing.assert_allclose(np.asarray(got.depth), np.where(inside, depth, 0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(got.points), x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(got.normals), n, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(got.tool_normals)[inside], tool_normal[inside], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(got.window), np.asarray(window))
+
+
+def test_contacts_jit_vmap_and_gradient():
+    _, b, ctrl = _surface("clamped 3x2", seed=2)
+    sphere = TOOLS["sphere"]
+    direct = contacts(b, ctrl, sphere)
+    jitted = jax.jit(contacts)(b, ctrl, sphere)
+    for field in ("mask", "depth", "normals", "tool_normals"):
+        np.testing.assert_array_equal(np.asarray(getattr(jitted, field)), np.asarray(getattr(direct, field)))
+    lifts = jnp.array([0.0, 0.05, 5.0])
+    up = jnp.array([0.0, 0.0, 1.0])[None, None]
+    batched = jax.vmap(lambda h: contacts(b, ctrl + up * h, sphere).depth)(lifts)
+    for k in range(3):
+        one = contacts(b, ctrl + up * lifts[k], sphere).depth
+        np.testing.assert_allclose(np.asarray(batched[k]), np.asarray(one), rtol=0, atol=1e-14)
+    assert float(batched[2].sum()) == 0 and float(batched[0].sum()) > 0
+    check_grad(jax.jit(lambda p: contacts(b, p, sphere).depth.sum()), ctrl, rtol=1e-4)
+    check_grad(jax.jit(lambda p: contacts(b, p, TOOLS["ellipsoid"]).tool_normals.sum()), ctrl, rtol=1e-4)
+
+
+def _hulls_apart_reference(a, b, margin, steps=24):
+    """The fixed-step Frank–Wolfe certificate of `hulls_apart`, every step run (numpy)."""
+    x, certified = a[0] - b[0], False
+    for _ in range(steps):
+        s = a[np.argmin(a @ x)] - b[np.argmax(b @ x)]
+        if np.any(x != 0):
+            certified |= bool(np.dot(s, x) / np.linalg.norm(x) > margin)
+        d = x - s
+        dd = np.dot(d, d)
+        gamma = np.clip(np.dot(x, d) / dd, 0, 1) if dd > 0 else 0.0
+        x = x - gamma * d
+    return certified
+
+
+def test_hulls_apart_stops_early_with_the_same_answer():
+    rng = np.random.default_rng(4)
+    answers = set()
+    for k in range(24):
+        a = rng.normal(size=(rng.integers(1, 30), 3))
+        b = rng.normal(size=(rng.integers(1, 30), 3)) + rng.uniform(0, 6) * _unit(rng.normal(size=3))
+        margin = [0.0, 0.3, 1.0, np.inf][k % 4]
+        expect = _hulls_apart_reference(a, b, margin)
+        assert bool(hulls_apart(a, b, margin)) == expect, k
+        answers.add(expect)
+    assert answers == {True, False}
+
+
+def _crossing(seed=5):
+    a = random_surface(np.random.default_rng(seed), 6, 6, 3, 3)
+    ctrl_b = np.asarray(random_surface(np.random.default_rng(seed + 1), 6, 6, 3, 3).ctrl).copy()
+    ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 0.8 + 0.2 * ctrl_b[..., 2]
+    return a.blending(16, 16), jnp.asarray(a.ctrl), jnp.asarray(ctrl_b)
+
+
+@pytest.mark.parametrize("case", ["crossing", "flat"])
+def test_surface_contacts_direct_equals_one_program(case):
+    """The direct call (exact program, then the flat one only after an overflow) gives the
+    result of the one program that decides with `lax.cond` inside the caller's `jit`."""
+    if case == "crossing":
+        b, ca, cb = _crossing()
+        capacity = 2048
+    else:  # two coplanar plates: every sphere intersects, the exact pass overflows
+        plate = shapes.plate(6, 6)
+        b, ca = plate.blending(16, 16), jnp.asarray(plate.ctrl)
+        cb, capacity = ca + jnp.array([0.3, 0.2, 0.0]), 64
+    query = lambda x, y: surface_contacts(b, x, b, y, capacity=capacity)
+    direct, jitted = query(ca, cb), jax.jit(query)(ca, cb)
+    for field in direct.__dataclass_fields__:
+        np.testing.assert_array_equal(np.asarray(getattr(direct, field)), np.asarray(getattr(jitted, field)))
+    if case == "crossing":
+        assert bool(direct.hit) and not bool(direct.overflow)
+        dense = surface_contacts(b, ca, b, cb, method="dense")
+        np.testing.assert_array_equal(np.asarray(direct.mask_a), np.asarray(dense.mask_a))
+        np.testing.assert_array_equal(np.asarray(direct.mask_b), np.asarray(dense.mask_b))
+    else:
+        assert int(direct.flat_pairs) > 0 and bool(direct.hit)
+
+
+def test_bad_values_raise_eagerly_and_under_jit():
+    _, b, ctrl = _surface("clamped 3x2")
+    bad = ctrl.at[1, 2, 0].set(jnp.nan)
+    raises_both(lambda p: contacts(b, p, TOOLS["sphere"]), bad, match="ctrl")
+    raises_both(lambda p: surface_contacts(b, ctrl, b, p, capacity=64), bad, match="ctrl_b")
+    raises_both(lambda a: hulls_apart(a, jnp.ones((2, 3))), jnp.full((3, 3), jnp.inf), match="a")
