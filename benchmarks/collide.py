@@ -8,6 +8,10 @@ query: bsjax returns the per-sample mask, depth and normals; fcl all contacts.
     .venv/bin/python benchmarks/collide.py            # float32, the full tables (a few minutes)
     .venv/bin/python benchmarks/collide.py --quick    # fewer sizes
     .venv/bin/python benchmarks/collide.py --x64      # float64
+    .venv/bin/python benchmarks/collide.py --x64 --tables issue   # only issue #11's two rows
+
+The last lines print issue #11's rows (sphere/ellipsoid/plane/point vs a bumped 20×20 plate at
+82×82 with `contacts`; two 20×20 surfaces at 82×82 with `surface_contacts`) against their goals.
 """
 
 from __future__ import annotations
@@ -77,7 +81,7 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--tables",
         default="1,2,s,f",
-        help="which experiments: 1, 2, s (surface vs surface), f (flat contact)",
+        help="which experiments: 1, 2, s (surface vs surface), f (flat contact), issue (issue #11's rows)",
     )
     parser.add_argument("--capacity", type=int, default=2048, help="surface_contacts capacity")
     args = parser.parse_args(argv)
@@ -88,7 +92,7 @@ def main(argv=None) -> int:
     import fcl
     import jax.numpy as jnp
 
-    from bsjax.collide import Plane, Point, Sphere, contacts, surface_contacts
+    from bsjax.collide import Ellipsoid, Plane, Point, Sphere, contacts, surface_contacts
     from bsjax.collide.hierarchy import tessellate
 
     dtype = np.float64 if args.x64 else np.float32
@@ -105,12 +109,19 @@ def main(argv=None) -> int:
             Sphere([0.5, 0.5, 0.1], 0.15),
             lambda: fcl.CollisionObject(fcl.Sphere(0.15), fcl.Transform(np.array([0.5, 0.5, 0.1]))),
         ),
+        "ellipsoid": (
+            Ellipsoid([0.5, 0.5, 0.08], [0.2, 0.15, 0.12]),
+            lambda: fcl.CollisionObject(
+                fcl.Ellipsoid(0.2, 0.15, 0.12), fcl.Transform(np.array([0.5, 0.5, 0.08]))
+            ),
+        ),
         "plane": (
             Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
             lambda: fcl.CollisionObject(fcl.Halfspace(np.array([0.0, 0.0, 1.0]), 0.0), fcl.Transform()),
         ),
     }
     rows = []
+    issue_rows = []
 
     def run(net, m, kind, label, thesis):
         surf = bumpy(net, 0, dtype)
@@ -138,6 +149,8 @@ def main(argv=None) -> int:
         g_med, _ = timeit(lambda: fcl_query(prebuilt, other), n_fcl)
         contacts_n = int(query(ctrl, tool).mask.sum())
         rows.append((label, kind, med, p99, compile_s, f_med, g_med))
+        if net == 20 and m == 82:
+            issue_rows.append((f"{kind} vs a bumped 20x20 plate at 82x82", med, p99, compile_s, f_med, g_med))
         print(
             f"{label:<22} {kind:<6} bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, {contacts_n:5d} samples in contact)"
             f" | fcl rebuild {f_med:7.3f} ({f_med / med:6.1f}x)  fcl prebuilt {g_med:7.3f} ({g_med / med:5.1f}x) | thesis {thesis}"
@@ -174,6 +187,8 @@ def main(argv=None) -> int:
         f_med, _ = timeit(lambda: fcl_query(*fcl_meshes()), max(10, args.calls // 10))
         prebuilt = fcl_meshes()
         g_med, _ = timeit(lambda: fcl_query(*prebuilt), max(10, args.calls // 10))
+        if "20x20 vs 20x20" in label:
+            issue_rows.append(("two 20x20 surfaces at 82x82", med, p99, compile_s, f_med, g_med))
         print(
             f"{label} (capacity {args.capacity})  bsjax {med:7.3f} / {p99:7.3f}  (compile {compile_s:5.1f} s, "
             f"{int(res.pair_hit.sum())} contact cell pairs, {int(res.flat_pairs)} flat pairs, overflow {bool(res.overflow)})"
@@ -210,6 +225,34 @@ def main(argv=None) -> int:
         surface_row("coplanar, overlapping  ", bl, pc, bl, pc + shift, "—")
         tilted = pc.at[..., 2].set(0.02 * (pc[..., 0] - 0.6)) + shift
         surface_row("crossing at 1.1°       ", bl, pc, bl, tilted, "—")
+    if "issue" in tables and not issue_rows:
+        for kind in ("sphere", "ellipsoid", "plane", "point"):
+            run(20, 82, kind, "20x20 net, 82x82", "—")
+        a = bumpy(20, 1, dtype)
+        ctrl_b = np.asarray(bumpy(20, 2, dtype).ctrl).copy()
+        ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 0.8 + ctrl_b[..., 2]
+        ctrl_b[..., 0] = 0.1 + 0.8 * ctrl_b[..., 0]
+        bl = a.blending(82, 82)
+        surface_row(
+            "20x20 vs 20x20, 82x82", bl, jnp.asarray(a.ctrl), bl, jnp.asarray(ctrl_b), THESIS_SURF[20]
+        )
+    if issue_rows:
+        import os
+
+        print(
+            f"\nIssue #11 rows (as called, {'float64' if args.x64 else 'float32'}; load average {os.getloadavg()[0]:.2f}):"
+        )
+        for label, med, p99, compile_s, f_med, g_med in issue_rows:
+            surface = label.startswith("two")
+            goal = (
+                "goal < 5 ms, >= 10x fcl+rebuild"
+                if surface
+                else "goal median < 1 ms, p99 < 2 ms, >= 20x fcl+rebuild, >= 1x fcl static"
+            )
+            print(
+                f"  {label:<42} bsjax {med:.3f} ms / p99 {p99:.3f} ms (compile {compile_s:.1f} s) | "
+                f"fcl+rebuild {f_med:.3f} ms = {f_med / med:.1f}x | fcl static {g_med:.3f} ms = {g_med / med:.2f}x | {goal}"
+            )
     return 0
 
 
