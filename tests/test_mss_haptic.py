@@ -55,7 +55,7 @@ def _reference_tick(model, carry, inputs, sphere):
 
 @pytest.fixture(scope="module")
 def small_model():
-    return SculptModel(grid=(8, 8), layers=4, proxy_grid=12, fixed_layers=1)
+    return SculptModel(grid=(8, 9), layers=4, proxy_grid=12, fixed_layers=1)
 
 
 @pytest.mark.parametrize("sphere", [True, False])
@@ -127,3 +127,17 @@ def test_edge_lengths_errors():
     lat, x = _hex()
     raises_both(lambda p: mss.edge_lengths(lat, p), x.at[3, 1].set(jnp.nan), match="x: expected")
     raises_both(lambda p: mss.edge_lengths(lat, p), x[:-1], match=r"x: expected node positions of shape")
+
+
+def test_seam_forces_by_slices_equal_the_edge_list(small_model):
+    """The seam springs of a body closed in v, summed by slices, equal `mss.spring_forces` of
+    the seam's edge-list lattice (non-square grid, stretched rest lengths, random velocities)."""
+    model = small_model
+    rng = np.random.default_rng(0)
+    x = model._initial[0].position + 0.01 * rng.standard_normal((model.n_nodes, 3))
+    v = jnp.asarray(rng.standard_normal((model.n_nodes, 3)))
+    rest = model.seam.rest_length * (1 + 0.1 * rng.random(model.seam.n_edges))
+    expected = mss.spring_forces(model.seam, x, v, rest)
+    got = jax.jit(model._seam_forces)(x, v, rest)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=0, atol=1e-13)
+    assert float(jnp.max(jnp.abs(expected))) > 0.1

@@ -56,7 +56,9 @@ import numpy as np
 from bsjax import _checks, _safe, collide, mss, shapes
 from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
+from bsjax.mss._forces import _pair_force
 from bsjax.mss._integrators import _explicit
+from bsjax.mss._lattice import _slices
 
 
 @runtime_checkable
@@ -306,9 +308,33 @@ class SculptModel:
         state, rest, rest_seam = carry
         seam = None
         if self.seam is not None:
-            seam = mss.spring_forces(self.seam, state.position, state.velocity, rest_seam)
+            seam = self._seam_forces(state.position, state.velocity, rest_seam)
         state = _explicit(self.lattice, state, self.dt, seam, None, tools, contact, rest)
         return state, rest, rest_seam
+
+    def _seam_forces(self, x, v, rest_seam):
+        """`mss.spring_forces` of the seam lattice, `(N, 3)`, by dense slices: the springs of
+        direction `(da, db, dc)` join column `n − 1` to column 0 (db = 1) or 0 to `n − 1`
+        (db = −1), in the order of `seam_edges` (C order of the first node's `(a, c)`), so no
+        gather or scatter."""
+        m, n, layers = self.lattice.grid_shape
+        grids = [a.T.reshape(3, m, n, layers) for a in (x, v)]
+        out = jnp.zeros_like(grids[0])
+        start = 0
+        for da, db, dc in mss.HEX_DIRECTIONS:
+            if db == 0:
+                continue
+            c0, c1 = _slices(dc, layers)
+            sub = (m - da, c0.stop - c0.start)
+            seg = slice(start, start + sub[0] * sub[1])
+            start = seg.stop
+            b0, b1 = (n - 1, 0) if db == 1 else (0, n - 1)
+            i0 = (slice(None), slice(0, m - da), b0, c0)
+            i1 = (slice(None), slice(da, m), b1, c1)
+            edge = (p[seg].reshape(sub) for p in (rest_seam, self.seam.stiffness, self.seam.damping))
+            f = _pair_force(*(g[i0] - g[i1] for g in grids), *edge)
+            out = out.at[i0].add(f).at[i1].add(-f)
+        return out.reshape(3, -1).T
 
     def _tick_impl(self, carry, inputs, sphere):
         """One physics tick: `substeps` steps of `mss.coupled_step`'s chain (the refit once, after
