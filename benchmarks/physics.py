@@ -6,12 +6,14 @@ beside them. float32 (no x64), like a haptic loop.
 
     .venv/bin/python benchmarks/physics.py                 # everything (a few minutes)
     .venv/bin/python benchmarks/physics.py --quick         # small sizes only
-    .venv/bin/python benchmarks/physics.py --only vsofm    # one section (lattice, contact, vsofm)
+    .venv/bin/python benchmarks/physics.py --only vsofm    # one section (lattice, contact, haptic, vsofm)
+    .venv/bin/python benchmarks/physics.py --only haptic --x64   # issue #11's haptic row, float64
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import jax
@@ -243,6 +245,73 @@ def contact_section(calls):
         )
 
 
+def stylus_samples(count: int, centre, period: int = 150):
+    """`DeviceSample`s of a stylus that presses into the body from outside (+x) for `period` ticks
+    with the button held, then releases (plastic set) and hovers for `period` ticks, and so on."""
+    from bsjax.device.protocol import DeviceSample
+
+    out = []
+    for k in range(count):
+        t = k / 100.0
+        depth = min((k % (2 * period)) / period, 1.0)
+        x = centre[0] + 0.95 - 0.3 * depth
+        pressed = (k // period) % 2 == 0
+        pos = np.array([x, centre[1] + 0.05 * np.sin(3 * t), centre[2] + 0.02])
+        out.append(DeviceSample(pos, np.array([1.0, 0.0, 0.0, 0.0]), int(pressed), t, k, 0.0))
+    return out
+
+
+def haptic_section(calls):
+    """Issue #11 row "haptic physics update": `SculptModel.update` as the servo's physics thread
+    calls it (one `DeviceSample` per tick, a pressing stylus), beside the numpy step of the same
+    springs (3 substeps of `numpy_step` over the lattice and seam springs: no contact, no refit)."""
+    from bsjax.device.physics import SculptModel
+
+    print(
+        "\n== haptic physics update: SculptModel, 12×12 surface on a 12³ lattice, 3 substeps, 40×40 contact"
+    )
+    t = time.perf_counter()
+    model = SculptModel(grid=(12, 12), layers=12)
+    build = time.perf_counter() - t
+    t = time.perf_counter()
+    model.warmup()
+    compile_s = time.perf_counter() - t
+    samples = stylus_samples(max(300, calls * 30), model.centre)
+    times = []
+    for sample in samples:
+        t = time.perf_counter()
+        model.update(sample)
+        times.append((time.perf_counter() - t) * 1e3)
+    # the stylus sculpted: the plastic sets moved rest lengths
+    moved = float(np.max(np.abs(np.asarray(model._state[1]) - np.asarray(model.lattice.rest_length))))
+    med, p99 = stats(times[10:])
+    edges = np.concatenate([np.asarray(model.lattice.edges), np.asarray(model.seam.edges)])
+    rest = np.concatenate([np.asarray(model.lattice.rest_length), np.asarray(model.seam.rest_length)])
+    k = np.concatenate([np.asarray(model.lattice.stiffness), np.asarray(model.seam.stiffness)])
+    c = np.concatenate([np.asarray(model.lattice.damping), np.asarray(model.seam.damping)])
+    x = np.asarray(model.lattice.rest_positions)
+    mass = np.asarray(model.lattice.mass)
+    box = [(x, np.zeros_like(x))]
+
+    def numpy_tick():
+        for _ in range(model.substeps):
+            box[0] = numpy_step(*box[0], edges, rest, k, c, mass, model.dt)
+
+    numpy_tick()
+    np_med, np_p99 = time_calls(numpy_tick, max(20, calls * 5), 1)
+    print(
+        f"  {model.n_nodes} nodes, {model.n_springs} springs, dtype {model.dtype}; build {build:.2f} s, "
+        f"compile {compile_s:.2f} s; {len(samples)} ticks ({model.ticks} run, {model.rollbacks} rolled back, "
+        f"largest rest-length change {moved:.3g})"
+    )
+    print(f"  bsjax update (as called)   median {med:.3f} ms  p99 {p99:.3f} ms  max {max(times[10:]):.3f} ms")
+    print(f"  numpy 3 spring steps       median {np_med:.3f} ms  p99 {np_p99:.3f} ms  (springs only)")
+    print(
+        f"  ratio numpy/bsjax {np_med / med:.2f} (median); goal p99 < 2 ms (500 Hz): "
+        f"{'met' if p99 < 2.0 else 'NOT met'}; load average {os.getloadavg()}"
+    )
+
+
 def vsofm_section(sizes, shape_names=("teardrop", "sphere"), dtype=np.float32):
     """VSOFM on each shape's 82×82 blending samples, as a user calls `vsofm.fit` (no jax.jit
     here): compile + first call apart, then the median and the slowest (p99 of so few calls) of
@@ -296,13 +365,18 @@ def main():
     )
     parser.add_argument("--quick", action="store_true", help="small sizes only")
     parser.add_argument("--calls", type=int, default=20)
-    parser.add_argument("--only", choices=("lattice", "contact", "vsofm"), help="run one section")
+    parser.add_argument("--only", choices=("lattice", "contact", "haptic", "vsofm"), help="run one section")
+    parser.add_argument("--x64", action="store_true", help="float64 (the haptic row's dtype in issue #11)")
     args = parser.parse_args()
+    if args.x64:
+        jax.config.update("jax_enable_x64", True)
     print(f"jax {jax.__version__}, devices {jax.devices()}, x64 {jax.config.jax_enable_x64}")
     if args.only in (None, "lattice"):
         lattice_section((10, 15) if args.quick else (10, 15, 20, 30), args.calls)
     if args.only in (None, "contact"):
         contact_section(args.calls)
+    if args.only in (None, "haptic"):
+        haptic_section(args.calls)
     if args.only in (None, "vsofm"):
         vsofm_section((10, 12) if args.quick else (10, 12, 15, 20, 25, 30, 40))
 
