@@ -121,16 +121,28 @@ def test_a_hole_given_as_one_loop_across_the_seam(drilled):
     assert np.any(np.asarray(flat.mask(s, t))[keep] != occt[keep])
 
 
-def test_rhino_cylinder_seam_trims_project_to_one_closed_loop():
-    """A Rhino cylinder face's loop runs along the seam twice; its points project to u = 0 or 1
-    at random. The loop is unwrapped, so the whole face is inside."""
+def _rhino_closed_breps():
     cylinder = rhino3dm.Cylinder(rhino3dm.Circle(rhino3dm.Point3d(0, 0, 0), 1.0), 2.0)
-    brep = rhino3dm.Brep.CreateFromCylinder(cylinder, False, False)
+    sphere = rhino3dm.Sphere(rhino3dm.Point3d(1, 2, 3), 1.5)
+    return {
+        "cylinder": rhino3dm.Brep.CreateFromCylinder(cylinder, False, False),
+        "sphere": rhino3dm.Brep.CreateFromSphere(sphere),  # two poles: singular trims
+    }
+
+
+@pytest.mark.parametrize("name", ["cylinder", "sphere"])
+def test_rhino_seam_trims_project_to_one_closed_loop(name):
+    """A Rhino cylinder's or sphere's face loop runs along the seam twice (the sphere's also
+    through two poles, trims without an edge); seam points project to u = 0 or 1 at random.
+    Each piece is placed by its direction, so the whole face is inside."""
+    brep = _rhino_closed_breps()[name]
     face = brep.Faces[0]
     surface, _ = _rhino.surface_from_rhino(face.ToNurbsSurface())
     trim = _rhino._face_trim(brep, face, surface)
-    assert trim.closed[0] or trim.closed[1]
+    assert trim.closed[0] != trim.closed[1]
     s, t = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0.02, 0.98, 11), indexing="ij")
+    if trim.closed[1]:
+        s, t = t, s
     assert np.asarray(trim.mask(s, t)).all()
 
 

@@ -256,38 +256,46 @@ def _rhino():
 def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
     """The face's loops as polylines in [0, 1]²: each trim's 3-D edge sampled and projected.
 
-    On a closed direction a point on the seam projects to 0 or to 1 at random (and a seam
-    trim's points with it): each projected loop is unwrapped there (consecutive samples moved
-    by whole periods to be less than half a period apart, as `numpy.unwrap`), so it stays one
-    closed polyline; `Trim.from_loops` then brings it into [0, 1] by a whole period."""
+    On a closed direction a point on the seam projects to 0 or to 1 at random, so each trim's
+    piece is placed on its own (`_place`): a piece along the seam goes to the side its direction
+    says (the face lies left of its trims, "The NURBS Book" §12 and OpenNURBS's loop rule: going
+    up the u-seam is u = 1, down is u = 0), any other piece is unwrapped and moved by a whole
+    period into [0, 1] (Rhino splits trims at the seam). A singular trim (a pole) has no edge:
+    its uv segment is the gap the polyline closes."""
     closed = closed_directions(surface)
     loops, outer = [], []
     for loop in face.Loops:
         pieces = []
         for trim in loop.Trims:
-            if trim.EdgeIndex < 0:  # a singular trim (a pole): its uv segment is the gap closed
+            if trim.EdgeIndex < 0:
                 continue
             edge = brep.Edges[trim.EdgeIndex]
-            t0, t1 = edge.Domain.T0, edge.Domain.T1
-            ts = np.linspace(t0, t1, EDGE_SAMPLES)
+            ts = np.linspace(edge.Domain.T0, edge.Domain.T1, EDGE_SAMPLES)
             ts = ts[::-1] if trim.IsReversed else ts
             pieces.append(np.array([_xyz(edge.PointAt(float(t))) for t in ts]))
-        points = np.concatenate(pieces)
-        uv = np.asarray(closest_points(surface, points.astype(surface.ctrl.dtype)).params, dtype=np.float64)
-        loops.append(_unwrap(uv, closed))
+        points = np.concatenate(pieces).astype(surface.ctrl.dtype)
+        uv = np.asarray(closest_points(surface, points).params, dtype=np.float64)
+        split = np.split(uv, np.cumsum([len(piece) for piece in pieces])[:-1])
+        loops.append(np.concatenate([_place(piece, closed) for piece in split]))
         outer.append(str(loop.LoopType).endswith("Outer"))
     return Trim.from_loops(loops, outer, closed)
 
 
-def _unwrap(uv: np.ndarray, closed) -> np.ndarray:
-    """A densely sampled loop made continuous across the seam of its closed directions, unless
-    it winds around the surface (then unwrapping would open it: it is left as projected)."""
+SEAM_TOL = 1e-6  # a projected piece this close to 0 or 1 (in [0, 1]) lies on the seam
+
+
+def _place(uv: np.ndarray, closed) -> np.ndarray:
+    """One trim's projected points placed across the seam of the closed directions."""
     out = uv.copy()
     for axis in (0, 1):
-        if closed[axis]:
-            unwrapped = np.unwrap(uv[:, axis], period=1.0)
-            if abs(unwrapped[-1] - unwrapped[0]) < 0.5:
-                out[:, axis] = unwrapped
+        if not closed[axis]:
+            continue
+        x = np.unwrap(uv[:, axis], period=1.0)
+        if np.all(np.abs(x - np.round(x)) < SEAM_TOL):  # along the seam
+            rising = uv[-1, 1 - axis] > uv[0, 1 - axis]
+            out[:, axis] = float(rising) if axis == 0 else float(not rising)
+        else:
+            out[:, axis] = x - np.floor(x.mean())
     return out
 
 
