@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from bsjax import sculpt, shapes
+from bsjax.device._model import AbstractHapticModel
 from bsjax.device.constraint_sculpt import ConstraintSculptModel, border_free
+from bsjax.device.physics import SculptModel
 from bsjax.device.protocol import DeviceSample
 from bsjax.device.record import Recording
 
@@ -206,3 +208,23 @@ def test_cli_sculpt_errors_are_one_line(argv, name, capsys):
     assert haptics.main([*argv, "--duration", "0.1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("bsjax haptics: ") and name in err and "\n" not in err
+
+
+def test_both_models_share_one_servo_protocol():
+    """Pose gating, rollback, counters and the degenerate-plane guard live once, in
+    `AbstractHapticModel`; the rollback message names the model's class."""
+    for cls in (SculptModel, ConstraintSculptModel):
+        assert issubclass(cls, AbstractHapticModel)
+        for name in ("accepts", "update", "_rolled_back", "_plane"):
+            assert getattr(cls, name) is getattr(AbstractHapticModel, name), (cls, name)
+    # a zero normal: no contact model rather than a bad plane
+    none = AbstractHapticModel._plane((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 10.0, 0.1, 0.2)
+    assert none.kind == "none"
+    plane = AbstractHapticModel._plane((0.0, 0.0, 0.0), (0.0, 0.0, 2.0), 10.0, 0.1, 0.2)
+    assert plane.kind == "plane" and np.allclose(plane.normal, (0.0, 0.0, 1.0))
+    m = ConstraintSculptModel(proxy_grid=8, max_rollbacks=1)
+    m._advance = lambda sample: None  # every tick non-finite
+    good = DeviceSample(np.asarray(m.centre) + 2.0, np.array([1.0, 0, 0, 0]), 0, 0.0, 0, 0.0)
+    assert m.update(good).kind == "none" and m.rollbacks == 1
+    with pytest.raises(FloatingPointError, match=r"^ConstraintSculptModel\.update: 2 ticks in a row"):
+        m.update(good)

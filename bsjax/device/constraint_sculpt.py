@@ -36,8 +36,6 @@ servo's physics thread (its watchdog then ramps the force to zero).
 from __future__ import annotations
 
 import math
-import numbers
-import threading
 from dataclasses import dataclass
 
 import jax
@@ -48,6 +46,7 @@ from jaxtyping import Array, Float
 from bsjax import _checks, _safe, basis, sculpt, shapes
 from bsjax._boundary import compiled
 from bsjax.basis import Blending, BSplineSurface
+from bsjax.device._model import AbstractHapticModel
 from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
 
@@ -99,7 +98,7 @@ class Grab:
     normal: np.ndarray  # the surface normal at the grab, facing the tool
 
 
-class ConstraintSculptModel:
+class ConstraintSculptModel(AbstractHapticModel):
     """A B-spline surface sculpted by dragging the point under the stylus (minimum-norm edits).
 
     **Arguments:**
@@ -150,25 +149,15 @@ class ConstraintSculptModel:
         self.proxy_stiffness = positive_number(proxy_stiffness, "proxy_stiffness")
         self.proxy_damping = positive_number(proxy_damping, "proxy_damping", allow_zero=True)
         self.free = self._free_mask(surface, free, border)
-        net = np.asarray(surface.ctrl, dtype=np.float64).reshape(-1, 3)
-        lo, hi = net.min(axis=0), net.max(axis=0)
-        self.centre = (lo + hi) / 2
-        self._centre = tuple(float(c) for c in self.centre)  # the servo process's workspace gate
-        reach = 10.0 * float(np.linalg.norm(hi - lo)) if reach is None else reach
-        if isinstance(reach, bool) or not isinstance(reach, numbers.Real):
-            raise TypeError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
-        if not reach > 0:
-            raise ValueError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
-        self.reach = float(reach)
+        self._init_protocol(surface, reach, self.max_rollbacks)
         self.dtype = surface.ctrl.dtype
         self.surface0 = surface
         self.dense = surface.blending(proxy_grid, proxy_grid)
         params = np.linspace(0.0, 1.0, proxy_grid)
         self._uv = np.stack(np.meshgrid(params, params, indexing="ij"), -1).reshape(-1, 2)
         self._free = jnp.asarray(self.free)
-        self._lock = threading.Lock()
         self.reset()
-        self.ticks = self.grabs = self.dropped_poses = self.rollbacks = 0
+        self.grabs = 0
 
     @staticmethod
     def _free_mask(surface, free, border) -> np.ndarray:
@@ -207,44 +196,11 @@ class ConstraintSculptModel:
         factor, _, point = _grab(self.surface(), self._free, self._uv0(k), centre, self.project_steps)
         jax.block_until_ready(factor.drag([point]))
 
-    def accepts(self, sample) -> bool:
-        """True when `sample`'s pose may be fed to the model: a finite `(3,)` position within
-        `reach` of the body's centre and a `(4,)` orientation whose squared norm is finite
-        (pure Python, about a microsecond: the servo thread asks it for every new sample)."""
-        try:
-            x, y, z = map(float, sample.position)
-            w, a, b, c = map(float, sample.orientation)
-        except (AttributeError, TypeError, ValueError):
-            return False
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            return False
-        if not math.isfinite(w * w + a * a + b * b + c * c):
-            return False
-        cx, cy, cz = self._centre
-        return math.hypot(x - cx, y - cy, z - cz) <= self.reach
-
-    def update(self, sample: DeviceSample) -> Proxy:
-        """One physics tick with the tool at `sample`; returns the proxy for the servo.
-
-        Button held and touching: grab (first tick) and drag; button released: the dragged
-        surface is kept. A refused pose is dropped (`dropped_poses`) and a failed or non-finite
-        tick rolled back (`rollbacks`); both return the last good proxy.
-        """
-        if not self.accepts(sample):
-            self.dropped_poses += 1
-            return self._last_proxy
-        centre = np.asarray(sample.position, dtype=np.float64)
-        with self._lock:
-            try:
-                proxy = self._tick(centre, sample.pressed)
-            except Exception as err:  # a value check inside a solve fired
-                return self._rolled_back(err)
-            if proxy is None:
-                return self._rolled_back(None)
-            self._bad_ticks = 0
-            self.ticks += 1
-            self._last_proxy = proxy
-        return proxy
+    def _advance(self, sample: DeviceSample) -> Proxy | None:
+        """One tick (`AbstractHapticModel.update` gates the pose and rolls a bad tick back):
+        button held and touching: grab (first tick) and drag; button released: the dragged
+        surface is kept."""
+        return self._tick(np.asarray(sample.position, dtype=np.float64), sample.pressed)
 
     # --- one tick -----------------------------------------------------------------------------
     def _tick(self, centre: np.ndarray, pressed: bool) -> Proxy | None:
@@ -308,29 +264,13 @@ class ConstraintSculptModel:
     # --- proxies ------------------------------------------------------------------------------
     def _surface_proxy(self, q, normal) -> Proxy:
         """The felt surface: the plane at the nearest sample, its normal facing the tool."""
-        return self._plane(q, normal, self.proxy_stiffness, self.tool_radius)
+        return self._plane(q, normal, self.proxy_stiffness, self.proxy_damping, self.tool_radius)
 
     def _spring_proxy(self, centre, force, normal) -> Proxy:
         """A plane along `force` placed so that the servo renders exactly `force` at `centre` (and
         extrapolates it with `drag_stiffness`); along the grab normal while the force is zero."""
         size = float(np.linalg.norm(force))
         n = force / size if size > 0 else normal
-        return self._plane(centre + n * (size / self.drag_stiffness), n, self.drag_stiffness, 0.0)
-
-    def _plane(self, point, normal, stiffness, tool_radius) -> Proxy:
-        try:
-            return Proxy.plane(point, normal, stiffness, self.proxy_damping, tool_radius=tool_radius)
-        except ValueError:  # a degenerate plane (zero normal): no contact model rather than a bad one
-            return Proxy()
-
-    def _rolled_back(self, cause: Exception | None) -> Proxy:
-        """Keep the last good surface and proxy; after `max_rollbacks` bad ticks in a row raise
-        `FloatingPointError` (the servo's physics thread stops, its watchdog zeroes the force)."""
-        self.rollbacks += 1
-        self._bad_ticks += 1
-        if self._bad_ticks > self.max_rollbacks:
-            raise FloatingPointError(
-                f"ConstraintSculptModel.update: {self._bad_ticks} ticks in a row failed or went "
-                f"non-finite (max_rollbacks = {self.max_rollbacks}); the model cannot recover"
-            ) from cause
-        return self._last_proxy
+        return self._plane(
+            centre + n * (size / self.drag_stiffness), n, self.drag_stiffness, self.proxy_damping, 0.0
+        )

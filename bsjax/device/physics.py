@@ -44,9 +44,6 @@ servo's physics thread stops and its watchdog ramps the force to zero).
 
 from __future__ import annotations
 
-import math
-import numbers
-import threading
 from typing import Protocol, runtime_checkable
 
 import jax
@@ -54,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks, _safe, collide, mss, shapes
+from bsjax.device._model import AbstractHapticModel
 from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
 from bsjax.mss._forces import _pair_force
@@ -132,7 +130,7 @@ def quat_to_matrix(q) -> np.ndarray:
     )
 
 
-class SculptModel:
+class SculptModel(AbstractHapticModel):
     """Teardrop (or any surface) on a volumetric mass-spring lattice, sculpted by a sphere/ellipsoid.
 
     **Arguments:**
@@ -215,16 +213,7 @@ class SculptModel:
             contact_stiffness=contact_stiffness,
         ).items():
             positive_number(value, name, allow_zero=True)
-        net = np.asarray(surface.ctrl, dtype=np.float64).reshape(-1, 3)
-        lo, hi = net.min(axis=0), net.max(axis=0)
-        self.centre = (lo + hi) / 2
-        self._centre = tuple(float(c) for c in self.centre)
-        reach = 10.0 * float(np.linalg.norm(hi - lo)) if reach is None else reach
-        if isinstance(reach, bool) or not isinstance(reach, numbers.Real):
-            raise TypeError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
-        if not reach > 0:
-            raise ValueError(f"reach: expected a number > 0 (math.inf: no limit), got {reach!r}")
-        self.reach = float(reach)
+        self._init_protocol(surface, reach, _checks.check_count(max_rollbacks, "max_rollbacks"))
         self.dtype = surface.ctrl.dtype
         self.grid, self.layers, self.substeps = (m, n), layers, int(substeps)
         self.dt = 1.0 / (physics_hz * substeps)
@@ -271,10 +260,6 @@ class SculptModel:
         self._compiled: set[bool] = set()
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
-        self._lock = threading.Lock()
-        self.ticks = self.dropped_poses = self.rollbacks = self._bad_ticks = 0
-        self.max_rollbacks = _checks.check_count(max_rollbacks, "max_rollbacks")
-        self._last_proxy = Proxy()  # what update returns until a first good tick
 
     # --- run-time tool ------------------------------------------------------------------------
     def set_tool(self, radius: float | None = None, axes=None) -> None:
@@ -418,63 +403,18 @@ class SculptModel:
         `set_tool` compiles the other kind, sphere or ellipsoid, when it first changes to it)."""
         self._compile(self._sphere())
 
-    def accepts(self, sample) -> bool:
-        """True when `sample`'s pose may be fed to the physics: a finite `(3,)` position within
-        `reach` of the body's centre and a `(4,)` orientation whose squared norm is finite.
-
-        Pure Python (about a microsecond): the servo thread asks it too, for every new sample, so
-        that a pose the physics refuses is not rendered either (`ServoLoop`)."""
-        try:
-            x, y, z = map(float, sample.position)
-            w, a, b, c = map(float, sample.orientation)
-        except (AttributeError, TypeError, ValueError):
-            return False
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            return False
-        if not math.isfinite(w * w + a * a + b * b + c * c):  # NaN, inf, or a norm that overflows
-            return False
-        cx, cy, cz = self._centre
-        return math.hypot(x - cx, y - cy, z - cz) <= self.reach
-
-    def update(self, sample: DeviceSample) -> Proxy:
-        """One physics tick with the tool at `sample`; returns the plane proxy for the servo.
-
-        A pose `accepts` refuses is dropped (`dropped_poses`), and a tick whose result is not
-        finite is rolled back (`rollbacks`); both return the last good proxy.
-        """
-        if not self.accepts(sample):
-            self.dropped_poses += 1
-            return self._last_proxy
+    def _advance(self, sample: DeviceSample) -> Proxy | None:
+        """One tick (`AbstractHapticModel.update` gates the pose and rolls a bad tick back)."""
         pressed = sample.pressed
-        with self._lock:
-            settle = self._was_pressed and not pressed  # released: set the shape first
-            inputs = self._inputs(sample.position, sample.orientation, pressed, settle)
-            try:
-                state, ctrl, out = self._tick(self._state, inputs, self._sphere())
-                out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
-            except Exception as err:  # a value check inside the tick fired (a non-finite state)
-                return self._rolled_back(err)
-            if not (out[-1] > 0 and np.all(np.isfinite(out))):
-                return self._rolled_back(None)
-            self._bad_ticks = 0
-            self._was_pressed = pressed
-            self._state, self.ctrl = state, ctrl
-            self.ticks += 1
-        self._last_proxy = self._proxy(sample, out)
-        return self._last_proxy
-
-    def _rolled_back(self, cause: Exception | None) -> Proxy:
-        """Keep the last good state (the tick's result is dropped) and return the last good proxy;
-        after `max_rollbacks` bad ticks in a row raise `FloatingPointError`, which stops the
-        servo's physics thread (its watchdog then ramps the force to zero)."""
-        self.rollbacks += 1
-        self._bad_ticks += 1
-        if self._bad_ticks > self.max_rollbacks:
-            raise FloatingPointError(
-                f"SculptModel.update: {self._bad_ticks} ticks in a row failed or went non-finite "
-                f"(max_rollbacks = {self.max_rollbacks}); the model cannot recover"
-            ) from cause
-        return self._last_proxy
+        settle = self._was_pressed and not pressed  # released: set the shape first
+        inputs = self._inputs(sample.position, sample.orientation, pressed, settle)
+        state, ctrl, out = self._tick(self._state, inputs, self._sphere())
+        out = np.asarray(out, dtype=np.float64)  # blocks here, with the GIL released
+        if not (out[-1] > 0 and np.all(np.isfinite(out))):
+            return None
+        self._was_pressed = pressed
+        self._state, self.ctrl = state, ctrl
+        return self._proxy(sample, out)
 
     def _proxy(self, sample: DeviceSample, out: np.ndarray) -> Proxy:
         """The plane proxy of one (finite) tick output."""
@@ -494,10 +434,7 @@ class SculptModel:
         # While sculpting, the surface yields under the tool; shifting the plane back by
         # reaction / k makes the servo render the nodes' reaction on top of the contact force.
         q = q - n * (self.reaction_gain * reaction / self.proxy_stiffness)
-        try:
-            return Proxy.plane(q, n, self.proxy_stiffness, self.proxy_damping, tool_radius=support)
-        except ValueError:  # a degenerate plane (zero normal): no contact model rather than a bad one
-            return Proxy()
+        return self._plane(q, n, self.proxy_stiffness, self.proxy_damping, support)
 
     def surface(self):
         """The current surface (refit of the lattice's outer layer)."""
