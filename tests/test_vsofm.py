@@ -318,3 +318,13 @@ def test_projection_gradient_matches_finite_differences():
     frame, coef = vsofm._patches(p, vsofm._neighbours(p, vsofm._NEAR)[0])
     y = jnp.asarray(1.03 * fibonacci_sphere(9))
     check_grad(lambda y: jnp.sum(vsofm._project(y, p, frame, coef) ** 2), y, eps=1e-7)
+
+
+def test_fit_under_vmap_matches_one_cloud_at_a_time():
+    """Under the caller's `vmap` the host searches (neighbours, snaps) run cloud by cloud: each
+    batched result is the same cloud's `jit` result."""
+    p = jnp.asarray(np.unique(fibonacci_sphere(200, 0.5), axis=0))
+    fit = lambda q: vsofm.fit(q, (4, 4, 4), cycles=10)
+    out = jax.vmap(fit)(jnp.stack([p, 0.5 * p]))
+    np.testing.assert_allclose(out[0], jax.jit(fit)(p), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(out[1], jax.jit(fit)(0.5 * p), rtol=0, atol=1e-13)
