@@ -581,17 +581,33 @@ class Implicit(AbstractTool):
 
 
 class TriangleMesh(AbstractTool):
-    """A closed triangle mesh as a solid tool (inside by the generalised winding number).
+    """A closed triangle mesh as a solid tool.
 
     **Fields:** `vertices (V, 3)` (differentiable), `faces (F, 3)` int, counter-clockwise seen
-    from outside. Depth: unsigned distance to the nearest face. Build from trimesh with
-    `TriangleMesh.from_trimesh(mesh)` or from a file with `TriangleMesh.load(path)`.
+    from outside; `tree`: the face hierarchy (`collide.mesh_bvh.FaceTree`), built on the host
+    when the mesh is constructed from concrete arrays (`None` when built from traced arrays
+    inside a `jit`: then every query tests every face). Depth: unsigned distance to the nearest
+    face. Build from trimesh with `TriangleMesh.from_trimesh(mesh)` or from a file with
+    `TriangleMesh.load(path)`.
+
+    Inside: for a closed, consistently oriented mesh (every edge in two faces, opposite
+    directions, positive volume — checked at construction) by the angle-weighted pseudo-normal
+    at the nearest face's closest feature (Bærentzen & Aanæs, *Signed distance computation
+    using the angle weighted pseudonormal*), which equals the winding number's answer there and
+    reuses the hierarchical nearest-face search; otherwise by the generalised winding number
+    over every face (Jacobson et al., *Robust inside-outside segmentation using generalized
+    winding numbers*). The tree stores topology only (boxes come from the current vertices on
+    every query), so `eqx.tree_at` on `vertices` keeps results exact; the pseudo-normal test
+    assumes the moved mesh still does not intersect itself.
     """
 
     vertices: Float[Array, "V 3"]
     faces: Int[Array, "F 3"]
+    tree: Any
 
     def __init__(self, vertices, faces):
+        from bsjax.collide.mesh_bvh import build_tree
+
         vertices = _float(vertices, "vertices")
         _checks.check_ndim(vertices, "vertices", 2, last=3)
         self.vertices = _checks.finite(vertices, "vertices")
@@ -609,6 +625,8 @@ class TriangleMesh(AbstractTool):
             "an index outside",
             lambda f: (int(f.min()), int(f.max())),
         )
+        concrete = not any(isinstance(a, jax.core.Tracer) for a in (self.vertices, self.faces))
+        self.tree = build_tree(np.asarray(self.vertices), np.asarray(self.faces)) if concrete else None
 
     @classmethod
     def from_trimesh(cls, mesh, dtype=None) -> "TriangleMesh":
@@ -634,29 +652,53 @@ class TriangleMesh(AbstractTool):
     def triangles(self) -> Float[Array, "F 3 3"]:
         return self.vertices[self.faces]
 
+    def _nearest(self, flat):
+        """Nearest face of each point `(N,)`, its closest point `(N, 3)` and barycentrics; the
+        search is not differentiated, the closest point on the chosen face is."""
+        from bsjax.collide.mesh_bvh import nearest_faces, nearest_faces_dense
+        from bsjax.collide.triangles import _closest_point_on_triangle
+
+        tris = self.triangles
+        if self.tree is not None:
+            face = nearest_faces(self.tree, self.vertices, self.faces, flat)
+        else:
+            face = nearest_faces_dense(tris, flat)
+        closest, bary = _closest_point_on_triangle(flat, tris[face])
+        return face, closest, bary
+
+    def _inside(self, flat, nearest=None):
+        """`(inside (N,), winding (N,))` of points `(N, 3)`: by the pseudo-normal where the mesh
+        is closed (winding 1, 0, or ½ on a face), else by the winding number."""
+        from bsjax.collide.mesh_bvh import pseudo_normal_inside
+
+        if self.tree is None or not self.tree.closed:
+            winding = _winding_number(flat, self.triangles)
+            return 0.5 - winding < 0, winding
+        face, closest, bary = self._nearest(flat) if nearest is None else nearest
+        v = jax.lax.stop_gradient(self.vertices)
+        c = jax.lax.stop_gradient(closest)
+        inside = pseudo_normal_inside(self.tree, v, self.faces, jax.lax.stop_gradient(flat), face, c, bary)
+        on_face = jnp.all(jax.lax.stop_gradient(flat) == c, -1)
+        winding = jnp.where(on_face, 0.5, jnp.where(inside, 1.0, 0.0)).astype(flat.dtype)
+        return inside & ~on_face, winding
+
     @compiled
     def value(self, x):
-        return 0.5 - _winding_number(x.reshape(-1, 3), self.triangles).reshape(x.shape[:-1])
+        """`½ − w`: `w` the winding number (1 inside, 0 outside, ½ on a face of a closed mesh)."""
+        x = _points(x, self.vertices.dtype)
+        return (0.5 - self._inside(x.reshape(-1, 3))[1]).reshape(x.shape[:-1])
 
     @compiled
     def push(self, x):
         """Inside by the winding number; depth the distance to the nearest face, pushed along
         `closest − x` (the face normal where `x` lies on the mesh)."""
-        from bsjax.collide.triangles import closest_point_on_triangle
-
         x = _points(x, self.vertices.dtype)
-        tris = self.triangles
         flat = x.reshape(-1, 3)
-        inside = self.value(flat) < 0
-
-        def one(p):
-            closest, _ = closest_point_on_triangle(p[None], tris)
-            d2 = jnp.sum((closest - p[None]) ** 2, -1)
-            j = jnp.argmin(d2)
-            t = tris[j]
-            return closest[j], _safe.unit(jnp.cross(t[1] - t[0], t[2] - t[0]))
-
-        closest, face_normal = jax.lax.map(one, flat, batch_size=256)
+        nearest = self._nearest(flat)
+        face, closest, _ = nearest
+        inside, _ = self._inside(flat, nearest)
+        t = self.triangles[face]
+        face_normal = _safe.unit(jnp.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
         toward, ok = _safe.unit_or_zero(closest - flat)
         normal = jnp.where(ok[:, None], jnp.where(inside[:, None], toward, -toward), face_normal)
         depth = jnp.where(inside, _safe.norm(closest - flat), 0)
@@ -664,19 +706,11 @@ class TriangleMesh(AbstractTool):
 
     @compiled
     def penetration(self, x, n):
-        from bsjax.collide.triangles import closest_point_on_triangle
-
-        tris = self.triangles
         flat = x.reshape(-1, 3)
-
-        def one(p):
-            closest, _ = closest_point_on_triangle(p[None], tris)
-            d2 = jnp.sum((closest - p[None]) ** 2, -1)
-            k = jnp.argmin(d2)
-            t = tris[k]
-            return _sqrt(d2[k]), _safe.unit(jnp.cross(t[1] - t[0], t[2] - t[0]))
-
-        depth, normal = jax.lax.map(one, flat, batch_size=256)
+        face, closest, _ = self._nearest(flat)
+        t = self.triangles[face]
+        depth = _sqrt(jnp.sum((closest - flat) ** 2, -1))
+        normal = _safe.unit(jnp.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
         return depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
 
     def bound(self):

@@ -1,0 +1,360 @@
+"""A face hierarchy for `TriangleMesh`: exact closest points and inside tests that visit only
+the faces near each query point.
+
+The tree is built once per mesh on the host (numpy): faces are split recursively at the median
+of their centroids along the longest axis into a complete binary tree of `2^depth` leaves of
+`leaf_size` faces (a short leaf repeats one of its own faces, which changes neither a box nor a
+minimum). Only this topology is stored; the leaf and node boxes are recomputed from the current
+vertices on every query (O(F), cheap), so a moved or deformed mesh stays exact.
+
+A query runs three stages, all with static shapes (Ericson, *Real-Time Collision Detection*,
+§6.3 "bounding volume hierarchy traversal", here level-synchronous so a batch of points runs as
+vector code):
+
+1. a greedy descent to the leaf of nearest box and that leaf's exact distances: an upper bound
+   `ub` of each point's squared distance to the mesh;
+2. a level-by-level traversal keeping, per point, up to `frontier` nodes whose box lies within
+   `ub` (a node farther than `ub` cannot hold the nearest face); the surviving leaves are then
+   compacted over the whole batch into a list of `(point, leaf)` pairs of static capacity and
+   their faces tested exactly (`_closest_point_on_triangle`);
+3. points whose frontier or share of the pair list overflowed are finished against every face,
+   in chunks (`lax.while_loop`), so the result is always exact — overflow costs time, never
+   correctness.
+
+The nearest face is the one of least squared distance, ties going to the lowest face index (as
+an `argmin` over all faces in order). The inside test uses the angle-weighted pseudo-normal of
+the nearest feature (Bærentzen & Aanæs, *Signed distance computation using the angle weighted
+pseudonormal*, 2005): for a closed, consistently oriented manifold mesh, `x` is inside exactly
+when `(x − c) · n < 0` with `c` the closest point and `n` the pseudo-normal of the face, edge or
+vertex `c` lies on — the same answer as the winding number (Jacobson et al. 2013), whose value
+is an integer on such meshes, at the cost of the nearest-face search.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from bsjax import _safe
+from bsjax.collide.triangles import _cross, _sdot, _sub
+
+LEAF_SIZE = 8  # faces per leaf (the target; a leaf holds ⌈F / 2^depth⌉)
+TILE = 16  # query points per tile in stage 2
+PAIRS_PER_STEP = 512  # (tile, leaf) pairs tested exactly per step of stage 2
+CHUNK = 32  # points a step of the dense reference
+TIE = 64  # faces within this many ulps of the least squared distance are tied
+
+
+class FaceTree(eqx.Module):
+    """The topology of a face hierarchy and of the mesh's edges (host-built, see module doc).
+
+    **Fields:** `leaf_faces (2^depth, leaf_size)` int: face indices of each leaf, in tree order;
+    `neighbours (F, 3)` int: the face across edge `(v_i, v_{i+1})` of each face (itself where
+    the mesh is open there); `depth` (static): levels below the root; `closed` (static): every
+    edge is shared by exactly two faces with opposite directions (the pseudo-normal sign test
+    is exact), and the mesh encloses a positive volume.
+    """
+
+    leaf_faces: Int[Array, "leaves size"]
+    neighbours: Int[Array, "F 3"]
+    depth: int = eqx.field(static=True)
+    closed: bool = eqx.field(static=True)
+
+
+def build_tree(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZE) -> FaceTree:
+    """The `FaceTree` of a mesh (numpy, host side; vertices `(V, 3)`, faces `(F, 3)` int)."""
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    n_faces = len(faces)
+    depth = max(0, int(np.ceil(np.log2(max(1.0, n_faces / leaf_size)))))
+    centroids = vertices[faces].mean(1)
+    groups = [np.arange(n_faces)]
+    for _ in range(depth):  # median split of every group along its longest centroid extent
+        nxt = []
+        for g in groups:
+            c = centroids[g]
+            axis = int(np.argmax(c.max(0) - c.min(0))) if len(g) else 0
+            g = g[np.argsort(c[:, axis], kind="stable")]
+            half = (len(g) + 1) // 2
+            nxt += [g[:half], g[half:]]
+        groups = nxt
+    size = max(len(g) for g in groups)
+    rows = []
+    for i, g in enumerate(groups):
+        if len(g) == 0:  # only when F < 2^depth: borrow the sibling's first face
+            g = groups[i ^ 1][:1]
+        rows.append(np.concatenate([g, np.full(size - len(g), g[0])]))
+    order = np.stack(rows).astype(np.int32)
+    neighbours, closed = _edge_topology(faces)
+    if closed:
+        tri = vertices[faces]
+        closed = bool(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() > 0)
+    return FaceTree(jnp.asarray(order), jnp.asarray(neighbours), depth, closed)
+
+
+def _edge_topology(faces: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Face across each directed edge `(v_i, v_{i+1})` and whether the mesh is closed and
+    consistently oriented (every directed edge once, its reverse once)."""
+    n = len(faces)
+    a = faces.reshape(-1)
+    b = np.roll(faces, -1, axis=1).reshape(-1)
+    owner = np.repeat(np.arange(n), 3)
+    key = a * (faces.max() + 1) + b
+    rev = b * (faces.max() + 1) + a
+    _, counts = np.unique(key, return_counts=True)
+    lookup = dict(zip(key.tolist(), owner.tolist()))
+    closed = bool(np.all(counts == 1)) and all(r in lookup for r in rev.tolist())
+    neighbours = np.array([lookup.get(r, o) for r, o in zip(rev.tolist(), owner.tolist())], np.int32)
+    return neighbours.reshape(n, 3), closed
+
+
+def _soa(a, axis=-1):
+    """`(..., 3, ...)` → a tuple of its three components along `axis`."""
+    return tuple(jnp.take(a, k, axis=axis) for k in range(3))
+
+
+def _boxes(leaf_tris):
+    """Heap-ordered node boxes `(lo, hi)`, each `(2 · leaves, 3)` (node 1 the root, 0 unused)."""
+    lo, hi = leaf_tris.min((1, 2)), leaf_tris.max((1, 2))
+    los, his = [lo], [hi]
+    while lo.shape[0] > 1:
+        lo = jnp.minimum(lo[0::2], lo[1::2])
+        hi = jnp.maximum(hi[0::2], hi[1::2])
+        los.append(lo)
+        his.append(hi)
+    pad = jnp.zeros((1, 3), lo.dtype)
+    return jnp.concatenate([pad] + los[::-1]), jnp.concatenate([pad] + his[::-1])
+
+
+def _box_d2(x, lo, hi, node):
+    """Squared distance of points `x` (3 arrays `(N, 1)` or `(N,)`) to the boxes `node` (same
+    batch shape) of the heap `lo, hi (nodes, 3)`; 0 inside. Component-wise (structure of
+    arrays: fused into one loop on the CPU)."""
+    lo, hi = jax.lax.optimization_barrier(
+        ([lo[:, k][node] for k in range(3)], [hi[:, k][node] for k in range(3)])
+    )
+    total = 0
+    for k in range(3):
+        e = jnp.maximum(jnp.maximum(lo[k] - x[k], x[k] - hi[k]), 0)
+        total = total + e * e
+    return total
+
+
+def _d2(x, a, b, c):
+    """Squared distance of points `x` to triangles `(a, b, c)`, all as 3-tuples of same-shape
+    arrays (structure of arrays). The formulas of `_closest_point_on_triangle` (projection when
+    it falls inside, else the nearest edge point), so the two agree to a few ulps; only the
+    search uses this one."""
+    ab, ac, ap = _sub(b, a), _sub(c, a), _sub(x, a)
+    n = _cross(ab, ac)
+    nn = _sdot(n, n)
+    ok = nn > 0
+    safe = jnp.where(ok, nn, 1)
+    v = jnp.where(ok, _sdot(_cross(ap, ac), n) / safe, 0)
+    w = jnp.where(ok, _sdot(_cross(ab, ap), n) / safe, 0)
+    inside = ok & (v >= 0) & (w >= 0) & (v + w <= 1)
+    on_face = _sub(ap, tuple(v * p + w * q for p, q in zip(ab, ac)))
+    best = _sdot(on_face, on_face)
+    edge = None
+    for p, q in ((a, b), (b, c), (c, a)):
+        d, xp = _sub(q, p), _sub(x, p)
+        dd = _sdot(d, d)
+        t = jnp.clip(jnp.where(dd != 0, _sdot(xp, d) / jnp.where(dd != 0, dd, 1), 0), 0, 1)
+        r = _sub(xp, tuple(t * di for di in d))
+        e2 = _sdot(r, r)
+        edge = e2 if edge is None else jnp.minimum(edge, e2)
+    return jnp.where(inside, best, edge)
+
+
+def _leaf_table(leaf_tris):
+    """Leaf triangles as rows `(leaves, 9, size)` (vertex-major components), gathered a leaf at
+    a time."""
+    leaves, size = leaf_tris.shape[:2]
+    return leaf_tris.reshape(leaves, size, 9).transpose(0, 2, 1)
+
+
+def _exact(x, table, leaf, valid):
+    """Squared distances `(M, size)` of points `x` (3 arrays `(M,)`) to the faces of leaves
+    `leaf (M,)` (rows of `_leaf_table`); invalid entries +inf."""
+    # the barrier keeps XLA from fusing the gather into every use in `_d2` (which recomputes
+    # it per use and compiles for minutes)
+    rows, x = jax.lax.optimization_barrier((table[leaf], x))  # (M, 9, size)
+    a, b, c = (tuple(rows[:, 3 * v + k] for k in range(3)) for v in range(3))
+    d2 = _d2(tuple(xk[:, None] for xk in x), a, b, c)
+    return jnp.where(valid[:, None], d2, jnp.inf)
+
+
+def _tol(dtype):
+    return TIE * jnp.finfo(dtype).eps
+
+
+def _merge(best, face, d2, ids, owner):
+    """Fold candidate faces `(d2, ids)` of points `owner` (all `(M,)`; owner `n` drops an entry)
+    into the running `(best, face)` of the points: the least squared distance, and among faces
+    within `TIE` ulps of it the lowest index (rounding must not decide between two faces at the
+    same distance, e.g. the two faces of an edge)."""
+    n = best.shape[0]
+    tol = _tol(best.dtype)
+    big = jnp.iinfo(jnp.int32).max
+    step = jax.ops.segment_min(d2, owner, num_segments=n + 1)
+    near = d2 <= step[owner] * (1 + tol)
+    step_face = jax.ops.segment_min(jnp.where(near, ids, big), owner, num_segments=n + 1)[:n]
+    step = step[:n]
+    better = step < best * (1 - tol)
+    tie = ~better & (step <= best * (1 + tol))
+    face = jnp.where(better, step_face, jnp.where(tie, jnp.minimum(face, step_face), face))
+    return jnp.minimum(best, step), face
+
+
+def nearest_faces(
+    tree: FaceTree, vertices: Float[Array, "V 3"], faces: Int[Array, "F 3"], x: Float[Array, "N 3"]
+) -> Int[Array, " N"]:
+    """Index of the face nearest to each point; not differentiable (module doc).
+
+    **Arguments:** the mesh's `tree`, `vertices (V, 3)`, `faces (F, 3)`; points `x (N, 3)`.
+    **Returns:** face indices `(N,)`: the least squared distance, ties (within `TIE` ulps) to the
+    lowest index — `nearest_faces_dense` over every face gives the same.
+    """
+    vertices, x = jax.lax.stop_gradient(vertices), jax.lax.stop_gradient(x)
+    n = x.shape[0]
+    leaves, size = tree.leaf_faces.shape
+    leaf_tris = vertices[faces[tree.leaf_faces]]  # (leaves, size, 3, 3)
+    table = _leaf_table(leaf_tris)
+    lo, hi = _boxes(leaf_tris)
+    xs = _soa(x)
+
+    # 1. greedy descent: an upper bound from the leaf of nearest box
+    # (a loop, not unrolled: XLA's CPU compile time grows exponentially with unrolled levels)
+    def descend(_, node):
+        left, right = 2 * node, 2 * node + 1
+        return jnp.where(_box_d2(xs, lo, hi, right) < _box_d2(xs, lo, hi, left), right, left)
+
+    first = jax.lax.fori_loop(0, tree.depth, descend, jnp.ones(n, jnp.int32)) - leaves
+    d2 = _exact(xs, table, first, jnp.ones(n, bool))
+    owner = jnp.repeat(jnp.arange(n), size)
+    best, face = _merge(
+        jnp.full(n, jnp.inf, x.dtype),
+        jnp.zeros(n, jnp.int32),
+        d2.reshape(-1),
+        tree.leaf_faces[first].reshape(-1),
+        owner,
+    )
+    # 2. the points in tiles of `TILE` (Morton order); every leaf whose box lies within a tile's
+    # bound is tested exactly against the tile's points, a chunk of (tile, leaf) pairs a step,
+    # the bounds tightening after every chunk
+    tiles = _tiles(x)
+    tx = x[tiles]  # (T, TILE, 3)
+    gap = _box_gap2(tx.min(1), tx.max(1), lo[leaves:], hi[leaves:]).reshape(-1)  # (T · leaves,)
+
+    def step(state):
+        todo, best, face = state
+        todo = todo & (gap <= jnp.repeat(jnp.max(_slack(best)[tiles], -1), leaves))
+        (slot,) = jnp.nonzero(todo, size=PAIRS_PER_STEP, fill_value=0)
+        used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
+        who = tiles[slot // leaves]  # (P, TILE)
+        leaf = slot % leaves
+        rows, px = jax.lax.optimization_barrier((table[leaf], x[who]))  # see `_exact`
+        a, b, c = (tuple(rows[:, None, 3 * v + k] for k in range(3)) for v in range(3))
+        d2 = _d2(tuple(px[..., k][..., None] for k in range(3)), a, b, c)  # (P, TILE, size)
+        d2 = jnp.where(used[:, None, None], d2, jnp.inf)
+        owner = jnp.broadcast_to(jnp.where(used[:, None], who, n)[..., None], d2.shape)
+        ids = jnp.broadcast_to(tree.leaf_faces[leaf][:, None], d2.shape)
+        best, face = _merge(best, face, d2.reshape(-1), ids.reshape(-1), owner.reshape(-1))
+        return todo & ~jnp.zeros_like(todo).at[slot].max(used), best, face
+
+    todo = jnp.ones(gap.shape, bool)
+    return jax.lax.while_loop(lambda s: jnp.any(s[0]), step, (todo, best, face))[2]
+
+
+def _slack(best):
+    """The pruning bound: a box this far may hold a face tied with `best` after rounding."""
+    return best * (1 + 1e-9) + jnp.finfo(best.dtype).tiny
+
+
+def _box_gap2(lo_a, hi_a, lo_b, hi_b):
+    """Squared distances `(A, B)` between boxes `[lo_a, hi_a] (A, 3)` and `[lo_b, hi_b] (B, 3)`."""
+    total = 0
+    for k in range(3):
+        e = jnp.maximum(
+            jnp.maximum(lo_b[None, :, k] - hi_a[:, None, k], lo_a[:, None, k] - hi_b[None, :, k]), 0
+        )
+        total = total + e * e
+    return total
+
+
+def _spread(v):
+    """The 10 low bits of `v` (uint32) spread to every third bit (one axis of a Morton code)."""
+    v = (v | (v << 16)) & 0x030000FF
+    v = (v | (v << 8)) & 0x0300F00F
+    v = (v | (v << 4)) & 0x030C30C3
+    return (v | (v << 2)) & 0x09249249
+
+
+def _tiles(x):
+    """Point indices `(⌈N / TILE⌉, TILE)` in Morton (Z-curve) order of their coordinates, so a
+    tile holds nearby points whatever the input order; the last tile repeats its last point."""
+    n = x.shape[0]
+    lo = x.min(0)
+    span = jnp.maximum(x.max(0) - lo, jnp.finfo(x.dtype).tiny)
+    q = jnp.clip((x - lo[None]) / span[None] * 1023, 0, 1023).astype(jnp.uint32)
+    code = _spread(q[:, 0]) | (_spread(q[:, 1]) << 1) | (_spread(q[:, 2]) << 2)
+    order = jnp.argsort(code).astype(jnp.int32)
+    order = jnp.concatenate([order, jnp.broadcast_to(order[-1:], (-n % TILE,))])
+    return order.reshape(-1, TILE)
+
+
+def _dense(tris, x):
+    """Nearest face of points `x (M, 3)` over every face `tris (F, 3, 3)` (`(M, F)` at once)."""
+    a, b, c = (tuple(tris[None, :, v, k] for k in range(3)) for v in range(3))
+    d2 = _d2(tuple(x[:, k][:, None] for k in range(3)), a, b, c)
+    ok = d2 <= jnp.min(d2, -1, keepdims=True) * (1 + _tol(d2.dtype))
+    return jnp.argmax(ok, -1).astype(jnp.int32)
+
+
+def nearest_faces_dense(tris: Float[Array, "F 3 3"], x: Float[Array, "N 3"]) -> Int[Array, " N"]:
+    """Nearest face of each point over every face `(F, 3, 3)`, with the tie rule of
+    `nearest_faces` (the reference; O(N F), `CHUNK` points at a time)."""
+    tris, x = jax.lax.stop_gradient(tris), jax.lax.stop_gradient(x)
+    n = x.shape[0]
+    pad = -n % CHUNK
+    xp = jnp.concatenate([x, jnp.zeros((pad, 3), x.dtype)]).reshape(-1, CHUNK, 3)
+    return jax.lax.map(lambda p: _dense(tris, p), xp).reshape(-1)[:n]
+
+
+def pseudo_normal_inside(tree: FaceTree, vertices, faces, x, face, closest, bary) -> Bool[Array, " N"]:
+    """Inside test by the angle-weighted pseudo-normal of the feature the closest point lies on
+    (Bærentzen & Aanæs 2005): face interior → face normal, edge → sum of its two faces'
+    normals, vertex → Σ incident angle × face normal. Needs `tree.closed`.
+
+    **Arguments:** `face (N,)` nearest faces, `closest (N, 3)` closest points, `bary (N, 3)`
+    their barycentrics in `face` (`_closest_point_on_triangle`).
+    """
+    tri = vertices[faces]
+    normal = _safe.unit(jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
+    e = [tri[:, (i + 1) % 3] - tri[:, i] for i in range(3)]
+    angle = jnp.stack(
+        [
+            jnp.arctan2(_safe.norm(jnp.cross(e[i], -e[i - 1])), jnp.sum(e[i] * -e[i - 1], -1))
+            for i in range(3)
+        ],
+        -1,
+    )  # corner i between edges to v_{i+1} and from v_{i-1}
+    vertex_normal = jax.ops.segment_sum(
+        (angle[..., None] * normal[:, None, :]).reshape(-1, 3),
+        faces.reshape(-1),
+        num_segments=vertices.shape[0],
+    )
+    zero = bary == 0
+    zeros = jnp.sum(zero, -1)
+    corner = jnp.argmax(bary, -1)  # the vertex, when two barycentrics are 0
+    # the edge opposite the zero barycentric i is (v_{i+1}, v_{i+2}): neighbour slot (i + 1) % 3
+    edge = (jnp.argmax(zero, -1) + 1) % 3
+    across = tree.neighbours[face, edge]
+    pn = jnp.where(
+        (zeros >= 2)[:, None],
+        vertex_normal[faces[face, corner]],
+        jnp.where((zeros == 1)[:, None], normal[face] + normal[across], normal[face]),
+    )
+    return jnp.sum((x - closest) * pn, -1) < 0
