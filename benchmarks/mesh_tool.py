@@ -24,7 +24,6 @@ import argparse
 import time
 
 import numpy as np
-
 from _timing import timed
 
 
@@ -132,13 +131,14 @@ def main(argv=None) -> int:
         med, p99 = timed(ours, args.calls, warmup=1)
         f_med, f_p99 = timed(fcl_query, args.calls, warmup=1)
         t_med, t_p99 = timed(trimesh_query, max(3, args.calls // 5), warmup=1)
-        inside, (closest, dist, _) = trimesh_query()
+        inside, (_, dist, _) = trimesh_query()
         agree = np.mean(np.asarray(c.mask).reshape(-1) == inside)
+        depth_err = float(np.max(np.abs(np.asarray(c.depth).reshape(-1) - np.where(inside, dist, 0))))
         print(
             f"{m}x{m}: bsjax contacts {med * 1e3:8.2f} / {p99 * 1e3:8.2f} (compile {compile_s:5.1f} s, "
             f"{int(np.sum(c.mask))} samples inside) | fcl tess+BVH+collide {f_med * 1e3:7.2f} / {f_p99 * 1e3:7.2f} "
             f"({f_med / med:5.2f}x) | trimesh contains+closest {t_med * 1e3:7.1f} / {t_p99 * 1e3:7.1f} "
-            f"({t_med / med:5.1f}x) | mask = trimesh contains on {agree:.2%}"
+            f"({t_med / med:5.1f}x) | mask = trimesh contains on {agree:.2%}, depth - trimesh distance {depth_err:.1e}"
         )
         if args.old:
             old = old_tool_class().from_trimesh(mesh)
