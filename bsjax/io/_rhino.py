@@ -257,15 +257,16 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
     """The face's loops as polylines in [0, 1]²: each trim's 3-D edge sampled and projected.
 
     On a closed direction a point on the seam projects to 0 or to 1 at random, so each trim's
-    piece is placed on its own (`_place`): a piece along the seam goes to the side its direction
-    says (the face lies left of its trims, "The NURBS Book" §12 and OpenNURBS's loop rule: going
+    piece is placed on its own (`_place`): a seam trim (its edge used twice by the face) goes to
+    the side its direction says (the face lies left of its trims, "The NURBS Book" §12 and OpenNURBS's loop rule: going
     up the u-seam is u = 1, down is u = 0), any other piece is unwrapped and moved by a whole
     period into [0, 1] (Rhino splits trims at the seam). A singular trim (a pole) has no edge:
     its uv segment is the gap the polyline closes."""
     closed = closed_directions(surface)
+    uses = Counter(trim.EdgeIndex for loop in face.Loops for trim in loop.Trims)
     loops, outer = [], []
     for loop in face.Loops:
-        pieces = []
+        pieces, seams = [], []
         for trim in loop.Trims:
             if trim.EdgeIndex < 0:
                 continue
@@ -273,25 +274,23 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
             ts = np.linspace(edge.Domain.T0, edge.Domain.T1, EDGE_SAMPLES)
             ts = ts[::-1] if trim.IsReversed else ts
             pieces.append(np.array([_xyz(edge.PointAt(float(t))) for t in ts]))
+            seams.append(uses[trim.EdgeIndex] > 1)  # an edge the face meets twice: its seam
         points = np.concatenate(pieces).astype(surface.ctrl.dtype)
         uv = np.asarray(closest_points(surface, points).params, dtype=np.float64)
         split = np.split(uv, np.cumsum([len(piece) for piece in pieces])[:-1])
-        loops.append(np.concatenate([_place(piece, closed) for piece in split]))
+        loops.append(np.concatenate([_place(piece, closed, seam) for piece, seam in zip(split, seams)]))
         outer.append(str(loop.LoopType).endswith("Outer"))
     return Trim.from_loops(loops, outer, closed)
 
 
-SEAM_TOL = 1e-6  # a projected piece this close to 0 or 1 (in [0, 1]) lies on the seam
-
-
-def _place(uv: np.ndarray, closed) -> np.ndarray:
+def _place(uv: np.ndarray, closed, seam: bool) -> np.ndarray:
     """One trim's projected points placed across the seam of the closed directions."""
     out = uv.copy()
     for axis in (0, 1):
         if not closed[axis]:
             continue
         x = np.unwrap(uv[:, axis], period=1.0)
-        if np.all(np.abs(x - np.round(x)) < SEAM_TOL):  # along the seam
+        if seam and np.ptp(x) < np.ptp(uv[:, 1 - axis]):  # along this direction's seam
             rising = uv[-1, 1 - axis] > uv[0, 1 - axis]
             out[:, axis] = float(rising) if axis == 0 else float(not rising)
         else:
