@@ -11,8 +11,11 @@ kernel), plus, for a body closed in v, a small edge-list `mss.Lattice` of the sp
 v seam. Each tick runs `substeps` times the chain `mss.coupled_step` (surface → contacts → forces
 on the lattice nodes → semi-implicit Euler step, thesis eqs. 5.14–5.16 → refit) inside one
 jitted call, with the surface layer mapped by `mss.SurfaceCoupling.on_nodes`; `mss.check_dt`
-refuses an unstable step once, at construction; the seam springs enter as `external_force`,
-plasticity (the plastic set on release) as `rest_length`.
+refuses an unstable step once, at construction; the seam springs (summed by dense slices) enter
+as `external_force`, plasticity (the plastic set on release) as `rest_length`. For speed the tick
+runs `mss.step`'s kernel without its per-call value checks (one check of every output instead)
+and the refit once, after the last substep; `tests/test_mss_haptic.py` holds it equal to the
+checked chain to 1e-12.
 
 Sculpting (002 §4.2): while the stylus button is held, every node inside the tool (a
 `collide.Sphere`, or a `collide.Ellipsoid` at the stylus pose) gets the penalty force
