@@ -203,7 +203,7 @@ def test_surface_contacts_direct_equals_one_program(case):
     else:  # two coplanar plates: every sphere intersects, the exact pass overflows
         plate = shapes.plate(6, 6)
         b, ca = plate.blending(16, 16), jnp.asarray(plate.ctrl)
-        cb, capacity = ca + jnp.array([0.3, 0.2, 0.0]), 64
+        cb, capacity = ca + jnp.array([0.3, 0.2, 0.0])[None, None], 64
     query = lambda x, y: surface_contacts(b, x, b, y, capacity=capacity)
     direct, jitted = query(ca, cb), jax.jit(query)(ca, cb)
     for field in direct.__dataclass_fields__:

@@ -282,7 +282,8 @@ def _unit_normal(t_u, t_v, mixed, params_u, params_v):
 
 def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
     points, normals = points_normals(blending, ctrl)
-    inside = tool.value(points) < 0
+    value, depth, tool_normals = tool.contact_query(points, normals)
+    inside = value < 0
     if use_window:
         window_mask, window = _sample_window(
             blending, jax.lax.stop_gradient(ctrl), jax.lax.stop_gradient(tool)
@@ -290,7 +291,6 @@ def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
         inside = inside & window_mask
     else:
         window = _parametric_window(jnp.ones(inside.shape, bool), blending.params_u, blending.params_v)
-    depth, tool_normals = tool.penetration(points, normals)
     depth = jnp.where(inside, depth, 0)
     return Contact(
         hit=jnp.any(inside),

@@ -119,6 +119,13 @@ class AbstractTool(eqx.Module):
         """
         raise TypeError(f"{type(self).__name__}: push needs a solid tool with a volume")
 
+    def contact_query(self, x, n) -> tuple[Array, Array, Array]:
+        """`(value (...), depth (...), tool_normal (..., 3))` of surface samples `x` with unit
+        normals `n`: `value(x)` and `penetration(x, n)` together, as `collide.contacts` needs
+        them (a tool whose two answers share work, such as a mesh's nearest-face search,
+        answers both from one pass)."""
+        return (self.value(x), *self.penetration(x, n))
+
     def bound(self) -> tuple[Array, Array] | None:
         """Bounding sphere `(center, radius)` of the tool, or `None` if unbounded/unknown."""
         return None
@@ -707,11 +714,23 @@ class TriangleMesh(AbstractTool):
     @compiled
     def penetration(self, x, n):
         flat = x.reshape(-1, 3)
-        face, closest, _ = self._nearest(flat)
+        depth, normal = self._depth(flat, self._nearest(flat))
+        return depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
+
+    def _depth(self, flat, nearest):
+        """Distance to the nearest face and that face's unit normal, `(N,)`, `(N, 3)`."""
+        face, closest, _ = nearest
         t = self.triangles[face]
         depth = _sqrt(jnp.sum((closest - flat) ** 2, -1))
-        normal = _safe.unit(jnp.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
-        return depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
+        return depth, _safe.unit(jnp.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
+
+    def contact_query(self, x, n):
+        """`value` and `penetration` from one nearest-face search (see `AbstractTool`)."""
+        flat = x.reshape(-1, 3)
+        nearest = self._nearest(flat)
+        winding = self._inside(flat, nearest)[1]
+        depth, normal = self._depth(flat, nearest)
+        return (0.5 - winding).reshape(x.shape[:-1]), depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
 
     def bound(self):
         center = 0.5 * (self.vertices.min(0) + self.vertices.max(0))
