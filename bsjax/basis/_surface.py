@@ -10,6 +10,8 @@ because each builds the other (`surface.blending(m, n)`, `blending.surface(ctrl)
 
 from __future__ import annotations
 
+from typing import cast
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -288,11 +290,12 @@ class Blending(eqx.Module):
         h = {(k, l): self._grid(k, net, l) for k in range(nu + 1) for l in range(nv + 1)}
         return _tensor.rational_derivatives(h, nu, nv)[(nu, nv)]
 
-    def _grid(self, nu: int, net, nv: int):
+    def _grid(self, nu: int, net, nv: int) -> Array:
         """`A_u^{(nu)} P A_v^{(nv)T}` through the band or the dense product (`banded`)."""
         if self.banded:
-            return _tensor.banded_grid(self.support_u, self.band_u[nu], net, self.a_v[nv])
-        return _tensor.grid(self.a_u[nu], net, self.a_v[nv])
+            assert self.support_u is not None and self.band_u is not None
+            return cast(Array, _tensor.banded_grid(self.support_u, self.band_u[nu], net, self.a_v[nv]))
+        return cast(Array, _tensor.grid(self.a_u[nu], net, self.a_v[nv]))
 
     @compiled
     def tangents(self, ctrl) -> tuple[Float[Array, "m n 3"], Float[Array, "m n 3"]]:

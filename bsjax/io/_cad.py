@@ -167,7 +167,7 @@ class Trim(eqx.Module):
         u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
         u, v = _checks.finite(u, "u"), _checks.finite(v, "v")
         crossings = sum(_crossings(self.segments, u, v - b, self.closed[0]) for b in _shifts(self.closed[1]))
-        inside = crossings % 2 == 1
+        inside = jnp.asarray(crossings % 2 == 1)
         if any(self.closed):  # loops may run past the seam: [0, 1]² bounds the face explicitly
             inside = inside & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
         return inside

@@ -663,7 +663,7 @@ def _polycurve_wire(obj: CadObject):
 
     maker = BRepBuilderAPI_MakeWire()
     domains = obj.domain or (None,) * len(obj.geometry)  # pyright: ignore[reportArgumentType]
-    for k, (curve, domain) in enumerate(zip(obj.geometry, domains)):  # pyright: ignore[reportArgumentType]
+    for k, (curve, domain) in enumerate(zip(obj.geometry, domains)):  # pyright: ignore
         edge = BRepBuilderAPI_MakeEdge(to_geom_curve(curve, None if domain is None else (domain,))).Edge()
         maker.Add(edge)
         if not maker.IsDone():

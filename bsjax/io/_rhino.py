@@ -258,10 +258,10 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
 
     On a closed direction a point on the seam projects to 0 or to 1 at random, so each trim's
     piece is placed on its own (`_place`): a seam trim (its edge used twice by the face) goes to
-    the side its direction says (the face lies left of its trims, "The NURBS Book" §12 and OpenNURBS's loop rule: going
-    up the u-seam is u = 1, down is u = 0), any other piece is unwrapped and moved by a whole
-    period into [0, 1] (Rhino splits trims at the seam). A singular trim (a pole) has no edge:
-    its uv segment is the gap the polyline closes."""
+    the side its direction says (the face lies left of its trims, "The NURBS Book" §12 and
+    OpenNURBS's loop rule: going up the u-seam is u = 1, down is u = 0), any other piece is
+    unwrapped and moved by a whole period into [0, 1] (Rhino splits trims at the seam). A
+    singular trim (a pole) has no edge: its uv segment is the gap the polyline closes."""
     closed = closed_directions(surface)
     uses = Counter(trim.EdgeIndex for loop in face.Loops for trim in loop.Trims)
     loops, outer = [], []
@@ -381,7 +381,7 @@ def _polycurve_to_rhino(obj: CadObject):
 
     out = rhino3dm.PolyCurve()
     domains = obj.domain or (None,) * len(obj.geometry)  # pyright: ignore[reportArgumentType]
-    for k, (curve, domain) in enumerate(zip(obj.geometry, domains)):  # pyright: ignore[reportArgumentType]
+    for k, (curve, domain) in enumerate(zip(obj.geometry, domains)):  # pyright: ignore
         if not out.AppendSegment(curve_to_rhino(curve, None if domain is None else (domain,))):
             _checks.fail(f"polycurve {obj.name!r} segment {k}", "a segment OpenNURBS can append", "refused")
     return out
