@@ -367,8 +367,10 @@ def test_kill_9_of_the_physics_process_zeroes_force_from_the_servo(physics_proce
     killed = time.perf_counter()
     os.kill(proc.pid, signal.SIGKILL)
     zero = wait_for(lambda: force_of(arr) == 0.0, timeout=2)
-    # the proxy stops arriving: the servo's watchdog ramps to zero (proxy_timeout + ramp_time)
-    assert zero - killed <= 0.05 + 0.02 + 0.02, zero - killed
+    # the proxy stops arriving: the servo's watchdog ramps to zero (proxy_timeout + ramp_time,
+    # plus a physics period and a tick); this observer polls at normal priority, and under the
+    # full suite its wake-up alone has lagged 26 ms, so the allowance is 50 ms on top
+    assert zero - killed <= 0.05 + 0.02 + 0.05, zero - killed
     wait_for(lambda: _gone(servo), timeout=5, step=0.01)  # and it notices its parent is gone
     assert force_of(arr) == 0.0
 
