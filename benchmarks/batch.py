@@ -65,6 +65,7 @@ def worker(config: dict) -> dict:
         times.append(time.perf_counter() - t0)
     found = {
         "devices": jax.device_count(),
+        "platform": jax.default_backend(),
         "processes": jax.process_count(),
         "designs": size,
         "first_s": compile_s,
@@ -126,13 +127,16 @@ def one_run(args) -> list[dict]:
     for name in ("spoon", "collide"):
         quick_setup = args.quick or name == "spoon"  # the spoon's 3³ jelly, 0.08 s of flight
         base = {"experiment": name, "grid": grids[name], "repeat": args.repeat, "quick_setup": quick_setup}
-        for devices in (1, 2, 4):
-            found = _collect(_spawn({**base, "loop": devices == 1}, devices))
+        for devices in args.devices:
+            found = _collect(_spawn({**base, "loop": devices == args.devices[0]}, devices))
             rows.append({"experiment": name, "config": f"{devices} device(s), 1 process", **found})
-        address = f"127.0.0.1:{_free_port()}"
-        procs = [_spawn({**base, "coordinator": address, "processes": 2, "process": i}, 1) for i in range(2)]
-        found = [_collect(p) for p in procs][0]
-        rows.append({"experiment": name, "config": "2 processes × 1 device", **found})
+        if args.processes:
+            address = f"127.0.0.1:{_free_port()}"
+            procs = [
+                _spawn({**base, "coordinator": address, "processes": 2, "process": i}, 1) for i in range(2)
+            ]
+            found = [_collect(p) for p in procs][0]
+            rows.append({"experiment": name, "config": "2 processes × 1 device", **found})
     return rows
 
 
@@ -140,7 +144,7 @@ def report(rows: list[dict]) -> None:
     for name in ("spoon", "collide"):
         mine = [r for r in rows if r["experiment"] == name]
         loop = next(r for r in mine if "loop_seconds" in r)
-        base = loop["designs"] / loop["seconds"]
+        base = loop["designs"] / loop["seconds"]  # the first configuration: `--devices`' first
         per_loop = loop["designs"] / loop["loop_seconds"]
         print(
             f"\n{name}: {loop['designs']} designs; plain Python loop of jitted per-design calls "
@@ -151,8 +155,9 @@ def report(rows: list[dict]) -> None:
         )
         for r in mine:
             rate = r["designs"] / r["seconds"]
+            config = f"{r['config']} [{r.get('platform', 'cpu')}]"
             print(
-                f"  {r['config']:<28} {rate:10.1f} {rate / base:11.2f} {rate / per_loop:8.2f} {r['first_s']:13.1f}"
+                f"  {config:<28} {rate:10.1f} {rate / base:11.2f} {rate / per_loop:8.2f} {r['first_s']:13.1f}"
             )
 
 
@@ -162,6 +167,15 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="small grids and the quick spoon")
     parser.add_argument("--repeat", type=int, default=3, help="timed evaluations per configuration")
     parser.add_argument("--runs", type=int, default=1, help="whole runs; the median run is reported")
+    parser.add_argument(
+        "--devices",
+        type=lambda text: [int(d) for d in text.split(",")],
+        default=[1, 2, 4],
+        help="comma-separated forced host device counts (CPU; on a GPU build each worker sees its GPUs)",
+    )
+    parser.add_argument(
+        "--no-processes", dest="processes", action="store_false", help="skip the 2-process configuration"
+    )
     args = parser.parse_args()
     if args.worker:
         print(MARK + json.dumps(worker(json.loads(args.worker))), flush=True)

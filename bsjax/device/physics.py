@@ -54,6 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks, _safe, collide, mss, shapes
+from bsjax._boundary import precise
 from bsjax.device._model import AbstractHapticModel
 from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
@@ -259,7 +260,7 @@ class SculptModel(AbstractHapticModel):
             self.set_tool(radius=positive_number(tool_radius, "tool_radius"))
         else:
             self.set_tool(axes=tool_axes)
-        self._tick = jax.jit(self._tick_impl, static_argnums=2)  # one program per tool kind
+        self._tick = jax.jit(precise(self._tick_impl), static_argnums=2)  # one program per tool kind
         self._compiled: set[bool] = set()
         self._side: float | None = None  # +1 tool outside the body, −1 inside; latched in contact
         self._was_pressed = False
