@@ -24,7 +24,7 @@ import argparse
 import time
 
 import numpy as np
-from _timing import timed
+from _timing import paired, timed
 
 
 def part():
@@ -49,37 +49,50 @@ def plate(dtype=np.float64):
     return BSplineSurface(ctrl, knots, knots, 3, 3)
 
 
-def old_tool_class():
-    """`TriangleMesh` as it was before the face hierarchy (every sample against every face),
-    from the commit named by `BSJAX_OLD_MESH` (default 026a021), for the before/after ratio."""
+def _load(commit: str, path: str, name: str, edit=lambda src: src):
+    """Module `path` as it was at `commit`, loaded under `name` (for before/after timings)."""
     import importlib.util
     import os
     import subprocess
     import sys
     import tempfile
 
-    commit = os.environ.get("BSJAX_OLD_MESH", "026a021")
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     src = subprocess.run(
-        ["git", "show", f"{commit}:bsjax/collide/tools.py"],
-        cwd=root,
-        capture_output=True,
-        text=True,
-        check=True,
+        ["git", "show", f"{commit}:{path}"], cwd=root, capture_output=True, text=True, check=True
     ).stdout
-    # the old classes derive from today's AbstractTool, so `contacts` accepts them
-    src = src.replace(
-        "class AbstractTool(eqx.Module):",
-        "from bsjax.collide.tools import AbstractTool  # noqa: E402\n\n\nclass _OldAbstractTool(eqx.Module):",
-    )
-    path = os.path.join(tempfile.mkdtemp(), "old_tools.py")
-    with open(path, "w") as f:
-        f.write(src)
-    spec = importlib.util.spec_from_file_location("bsjax.collide._old_tools", path)
+    file = os.path.join(tempfile.mkdtemp(), os.path.basename(path))
+    with open(file, "w") as f:
+        f.write(edit(src))
+    spec = importlib.util.spec_from_file_location(name, file)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
-    return module.TriangleMesh
+    return module
+
+
+def old_tool_class(commit=None):
+    """`TriangleMesh` as it was at `commit` — by default the one named by `BSJAX_OLD_MESH`
+    (026a021: before the face hierarchy, every sample against every face) — with the face
+    hierarchy of that commit where it had one, for the before/after ratio."""
+    import os
+
+    commit = commit or os.environ.get("BSJAX_OLD_MESH", "026a021")
+    tag = f"_old_{commit}".replace("~", "_").replace("^", "_")
+    try:
+        _load(commit, "bsjax/collide/mesh_bvh.py", f"bsjax.collide.{tag}_bvh")
+    except Exception:  # before the hierarchy
+        pass
+
+    def edit(src):
+        # the old classes derive from today's AbstractTool, so `contacts` accepts them
+        src = src.replace(
+            "class AbstractTool(eqx.Module):",
+            "from bsjax.collide.tools import AbstractTool  # noqa: E402\n\n\nclass _OldAbstractTool(eqx.Module):",
+        )
+        return src.replace("from bsjax.collide.mesh_bvh import", f"from bsjax.collide.{tag}_bvh import")
+
+    return _load(commit, "bsjax/collide/tools.py", f"bsjax.collide.{tag}_tools", edit).TriangleMesh
 
 
 def main(argv=None) -> int:
@@ -87,6 +100,11 @@ def main(argv=None) -> int:
     parser.add_argument("--calls", type=int, default=20)
     parser.add_argument("--sizes", default="28,82")
     parser.add_argument("--old", type=int, default=0, help="calls of the all-faces tool (0: skip)")
+    parser.add_argument(
+        "--prev",
+        default="",
+        help="a commit whose TriangleMesh to time interleaved with today's (e.g. c0b45dc)",
+    )
     args = parser.parse_args(argv)
     import jax
 
@@ -133,8 +151,7 @@ def main(argv=None) -> int:
             return mesh.contains(pts), trimesh.proximity.closest_point(mesh, pts)
 
         ours = lambda: jax.block_until_ready(collide.contacts(b, ctrl, tool))
-        med, p99 = timed(ours, args.calls, warmup=1)
-        f_med, f_p99 = timed(fcl_query, args.calls, warmup=1)
+        med, p99, f_med, f_p99 = paired(ours, fcl_query, args.calls)  # interleaved
         t_med, t_p99 = timed(trimesh_query, max(3, args.calls // 5), warmup=1)
         inside, (_, dist, _) = trimesh_query()
         agree = np.mean(np.asarray(c.mask).reshape(-1) == inside)
@@ -145,6 +162,22 @@ def main(argv=None) -> int:
             f"({f_med / med:5.2f}x) | trimesh contains+closest {t_med * 1e3:7.1f} / {t_p99 * 1e3:7.1f} "
             f"({t_med / med:5.1f}x) | mask = trimesh contains on {agree:.2%}, depth - trimesh distance {depth_err:.1e}"
         )
+        if args.prev:
+            prev = old_tool_class(args.prev).from_trimesh(mesh)
+            t0 = time.perf_counter()
+            ref = jax.block_until_ready(collide.contacts(b, ctrl, prev))
+            p_compile = time.perf_counter() - t0
+            run_prev = lambda: jax.block_until_ready(collide.contacts(b, ctrl, prev))
+            p_med, p_p99, n_med, n_p99 = paired(run_prev, ours, args.calls)
+            searched = np.any(np.asarray(c.tool_normals) != 0, -1)  # zero: outside the box, not searched
+            normal_err = np.abs(np.asarray(ref.tool_normals) - np.asarray(c.tool_normals))[searched].max()
+            print(
+                f"{m}x{m}: {args.prev} {p_med * 1e3:8.2f} / {p_p99 * 1e3:8.2f} (compile {p_compile:4.1f} s) vs now "
+                f"{n_med * 1e3:8.2f} / {n_p99 * 1e3:8.2f} interleaved -> {p_med / n_med:5.2f}x; masks identical "
+                f"{bool(np.array_equal(ref.mask, c.mask))}, depth max diff "
+                f"{float(np.max(np.abs(np.asarray(ref.depth) - np.asarray(c.depth)))):.1e}, tool normals (searched "
+                f"{int(searched.sum())}) {float(normal_err):.1e}"
+            )
         if args.old:
             old = old_tool_class().from_trimesh(mesh)
             t0 = time.perf_counter()

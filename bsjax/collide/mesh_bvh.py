@@ -44,6 +44,7 @@ from bsjax.collide.triangles import _cross, _sdot, _sub
 LEAF_SIZE = 8  # faces per leaf (the target; a leaf holds ⌈F / 2^depth⌉)
 TILE = 16  # query points per tile in stage 2
 PAIRS_PER_STEP = 512  # (tile, leaf) pairs tested exactly per step of stage 2
+RANKS_PER_STEP = 64  # at most this many leaves of one tile per step
 CHUNK = 32  # points a step of the dense reference
 TIE = 64  # faces within this many ulps of the least squared distance are tied
 
@@ -209,16 +210,24 @@ def _merge(best, face, d2, ids, owner):
 
 
 def nearest_faces(
-    tree: FaceTree, vertices: Float[Array, "V 3"], faces: Int[Array, "F 3"], x: Float[Array, "N 3"]
+    tree: FaceTree,
+    vertices: Float[Array, "V 3"],
+    faces: Int[Array, "F 3"],
+    x: Float[Array, "N 3"],
+    active: Bool[Array, " N"] | None = None,
 ) -> Int[Array, " N"]:
     """Index of the face nearest to each point; not differentiable (module doc).
 
-    **Arguments:** the mesh's `tree`, `vertices (V, 3)`, `faces (F, 3)`; points `x (N, 3)`.
+    **Arguments:** the mesh's `tree`, `vertices (V, 3)`, `faces (F, 3)`; points `x (N, 3)`;
+    optional `active (N,)` booleans: only these points are searched (an inactive point's face
+    is some face near it, not necessarily the nearest; it costs no search steps).
     **Returns:** face indices `(N,)`: the least squared distance, ties (within `TIE` ulps) to the
     lowest index — `nearest_faces_dense` over every face gives the same.
     """
     vertices, x = jax.lax.stop_gradient(vertices), jax.lax.stop_gradient(x)
     n = x.shape[0]
+    if active is None:
+        active = jnp.ones(n, bool)
     leaves, size = tree.leaf_faces.shape
     leaf_tris = vertices[faces[tree.leaf_faces]]  # (leaves, size, 3, 3)
     table = _leaf_table(leaf_tris)
@@ -241,20 +250,39 @@ def nearest_faces(
         tree.leaf_faces[first].reshape(-1),
         owner,
     )
-    # 2. the points in tiles of `TILE` (Morton order); every leaf whose box lies within a tile's
-    # bound is tested exactly against the tile's points, a chunk of (tile, leaf) pairs a step,
-    # the bounds tightening after every chunk
-    tiles = _tiles(x)
-    tx = x[tiles]  # (T, TILE, 3)
-    gap = _box_gap2(tx.min(1), tx.max(1), lo[leaves:], hi[leaves:]).reshape(-1)  # (T · leaves,)
+    # 2. the active points in tiles of `TILE` (Morton order, inactive ones last); each tile's
+    # leaves sorted by their box's distance to the tile's box and tested nearest first
+    # (best-first, Ericson §6.3.2), a chunk of (tile, rank) pairs a step: a tile is finished
+    # when its next leaf lies beyond the tile's bound, which tightens after every chunk
+    tiles = _tiles(x, active)
+    tile_active = active[tiles]  # (T, TILE)
+    tx = x[tiles]
+    tlo = jnp.min(jnp.where(tile_active[..., None], tx, jnp.inf), 1)
+    thi = jnp.max(jnp.where(tile_active[..., None], tx, -jnp.inf), 1)
+    gap = _box_gap2(tlo, thi, lo[leaves:], hi[leaves:])  # (T, leaves); +inf for an idle tile
+    order = jnp.argsort(gap, axis=1).astype(jnp.int32)
+    sgap = jnp.take_along_axis(gap, order, 1)
+    n_tiles = tiles.shape[0]
+    ranks = min(RANKS_PER_STEP, leaves)
+
+    def bound(best):
+        return jnp.max(jnp.where(tile_active, _slack(best)[tiles], -jnp.inf), -1)
+
+    def cond(state):
+        cursor, best, _ = state
+        nxt = jnp.take_along_axis(sgap, jnp.minimum(cursor, leaves - 1)[:, None], 1)[:, 0]
+        return jnp.any((cursor < leaves) & (nxt <= bound(best)))
 
     def step(state):
-        todo, best, face = state
-        todo = todo & (gap <= jnp.repeat(jnp.max(_slack(best)[tiles], -1), leaves))
-        (slot,) = jnp.nonzero(todo, size=PAIRS_PER_STEP, fill_value=0)
+        cursor, best, face = state
+        rank = cursor[None, :] + jnp.arange(ranks)[:, None]  # (ranks, T): rank-major
+        safe = jnp.minimum(rank, leaves - 1)
+        todo = (rank < leaves) & (sgap[jnp.arange(n_tiles)[None, :], safe] <= bound(best)[None, :])
+        (slot,) = jnp.nonzero(todo.reshape(-1), size=PAIRS_PER_STEP, fill_value=0)
         used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
-        who = tiles[slot // leaves]  # (P, TILE)
-        leaf = slot % leaves
+        tile = slot % n_tiles
+        leaf = order[tile, safe.reshape(-1)[slot]]
+        who = tiles[tile]  # (P, TILE)
         rows, px = jax.lax.optimization_barrier((table[leaf], x[who]))  # see `_exact`
         a, b, c = (tuple(rows[:, None, 3 * v + k] for k in range(3)) for v in range(3))
         d2 = _d2(tuple(px[..., k][..., None] for k in range(3)), a, b, c)  # (P, TILE, size)
@@ -262,10 +290,12 @@ def nearest_faces(
         owner = jnp.broadcast_to(jnp.where(used[:, None], who, n)[..., None], d2.shape)
         ids = jnp.broadcast_to(tree.leaf_faces[leaf][:, None], d2.shape)
         best, face = _merge(best, face, d2.reshape(-1), ids.reshape(-1), owner.reshape(-1))
-        return todo & ~jnp.zeros_like(todo).at[slot].max(used), best, face
+        # a tile's taken pairs are a prefix of its ranks (rank-major order)
+        cursor = cursor + jnp.zeros(n_tiles, jnp.int32).at[tile].add(used.astype(jnp.int32))
+        return cursor, best, face
 
-    todo = jnp.ones(gap.shape, bool)
-    return jax.lax.while_loop(lambda s: jnp.any(s[0]), step, (todo, best, face))[2]
+    cursor = jnp.zeros(n_tiles, jnp.int32)
+    return jax.lax.while_loop(cond, step, (cursor, best, face))[2]
 
 
 def _slack(best):
@@ -292,14 +322,18 @@ def _spread(v):
     return (v | (v << 2)) & 0x09249249
 
 
-def _tiles(x):
+def _tiles(x, active):
     """Point indices `(⌈N / TILE⌉, TILE)` in Morton (Z-curve) order of their coordinates, so a
-    tile holds nearby points whatever the input order; the last tile repeats its last point."""
+    tile holds nearby points whatever the input order, the inactive points last; the last tile
+    repeats its last point."""
     n = x.shape[0]
-    lo = x.min(0)
-    span = jnp.maximum(x.max(0) - lo, jnp.finfo(x.dtype).tiny)
+    lo = jnp.min(jnp.where(active[:, None], x, jnp.inf), 0)
+    hi = jnp.max(jnp.where(active[:, None], x, -jnp.inf), 0)
+    lo, hi = jnp.where(jnp.any(active), lo, 0), jnp.where(jnp.any(active), hi, 0)
+    span = jnp.maximum(hi - lo, jnp.finfo(x.dtype).tiny)
     q = jnp.clip((x - lo[None]) / span[None] * 1023, 0, 1023).astype(jnp.uint32)
     code = _spread(q[:, 0]) | (_spread(q[:, 1]) << 1) | (_spread(q[:, 2]) << 2)
+    code = jnp.where(active, code, jnp.uint32(1 << 30))  # Morton codes have 30 bits
     order = jnp.argsort(code).astype(jnp.int32)
     order = jnp.concatenate([order, jnp.broadcast_to(order[-1:], (-n % TILE,))])
     return order.reshape(-1, TILE)

@@ -659,15 +659,16 @@ class TriangleMesh(AbstractTool):
     def triangles(self) -> Float[Array, "F 3 3"]:
         return self.vertices[self.faces]
 
-    def _nearest(self, flat):
+    def _nearest(self, flat, active=None):
         """Nearest face of each point `(N,)`, its closest point `(N, 3)` and barycentrics; the
-        search is not differentiated, the closest point on the chosen face is."""
+        search is not differentiated, the closest point on the chosen face is. `active (N,)`:
+        only these points are searched (tree only; the others get some face)."""
         from bsjax.collide.mesh_bvh import nearest_faces, nearest_faces_dense
         from bsjax.collide.triangles import _closest_point_on_triangle
 
         tris = self.triangles
         if self.tree is not None:
-            face = nearest_faces(self.tree, self.vertices, self.faces, flat)
+            face = nearest_faces(self.tree, self.vertices, self.faces, flat, active)
         else:
             face = nearest_faces_dense(tris, flat)
         closest, bary = _closest_point_on_triangle(flat, tris[face])
@@ -693,7 +694,26 @@ class TriangleMesh(AbstractTool):
     def value(self, x):
         """`½ − w`: `w` the winding number (1 inside, 0 outside, ½ on a face of a closed mesh)."""
         x = _points(x, self.vertices.dtype)
-        return (0.5 - self._inside(x.reshape(-1, 3))[1]).reshape(x.shape[:-1])
+        flat = x.reshape(-1, 3)
+        if self._culls:
+            in_box = self._in_box(flat)
+            winding = jnp.where(in_box, self._inside(flat, self._nearest(flat, in_box))[1], 0)
+        else:
+            winding = self._inside(flat)[1]
+        return (0.5 - winding).reshape(x.shape[:-1])
+
+    @property
+    def _culls(self) -> bool:
+        """Whether a point outside the mesh's box may skip the search: the mesh is closed (its
+        winding number is exactly 0 there; not so for an open mesh) and has a tree."""
+        return self.tree is not None and self.tree.closed
+
+    def _in_box(self, flat):
+        """Points `(N, 3)` in the closed axis-aligned box of the vertices `(N,)`; the others
+        are outside a closed mesh (a decision: no gradient)."""
+        v = jax.lax.stop_gradient(self.vertices)
+        x = jax.lax.stop_gradient(flat)
+        return jnp.all((x >= v.min(0)[None]) & (x <= v.max(0)[None]), -1)
 
     @compiled
     def push(self, x):
@@ -725,11 +745,24 @@ class TriangleMesh(AbstractTool):
         return depth, _safe.unit(jnp.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
 
     def contact_query(self, x, n):
-        """`value` and `penetration` from one nearest-face search (see `AbstractTool`)."""
+        """`value` and `penetration` from one nearest-face search (see `AbstractTool`).
+
+        For a closed mesh only the samples inside the axis-aligned box of its vertices are
+        searched: a sample outside the box is outside the solid (`value` ½, winding number 0),
+        and gets `depth` 0 and a zero tool normal (as a sample of a broad-phase early exit in
+        `collide.contacts`); inside the box the answers are those of `value` and `penetration`.
+        """
         flat = x.reshape(-1, 3)
-        nearest = self._nearest(flat)
-        winding = self._inside(flat, nearest)[1]
-        depth, normal = self._depth(flat, nearest)
+        if self._culls:
+            in_box = self._in_box(flat)
+            nearest = self._nearest(flat, in_box)
+            winding = jnp.where(in_box, self._inside(flat, nearest)[1], 0)
+            depth, normal = self._depth(flat, nearest)
+            depth, normal = jnp.where(in_box, depth, 0), jnp.where(in_box[:, None], normal, 0)
+        else:
+            nearest = self._nearest(flat)
+            winding = self._inside(flat, nearest)[1]
+            depth, normal = self._depth(flat, nearest)
         return (0.5 - winding).reshape(x.shape[:-1]), depth.reshape(x.shape[:-1]), normal.reshape(x.shape)
 
     def bound(self):
