@@ -44,7 +44,7 @@ from bsjax.collide.triangles import _cross, _sdot, _sub
 LEAF_SIZE = 8  # faces per leaf (the target; a leaf holds ⌈F / 2^depth⌉)
 TILE = 16  # query points per tile in stage 2
 PAIRS_PER_STEP = 512  # (tile, leaf) pairs tested exactly per step of stage 2
-RANKS_PER_STEP = 64  # at most this many leaves of one tile per step
+NEAREST = 32  # leaves per tile taken best-first (the rest in index order)
 CHUNK = 32  # points a step of the dense reference
 TIE = 64  # faces within this many ulps of the least squared distance are tied
 
@@ -260,28 +260,19 @@ def nearest_faces(
     tlo = jnp.min(jnp.where(tile_active[..., None], tx, jnp.inf), 1)
     thi = jnp.max(jnp.where(tile_active[..., None], tx, -jnp.inf), 1)
     gap = _box_gap2(tlo, thi, lo[leaves:], hi[leaves:])  # (T, leaves); +inf for an idle tile
-    order = jnp.argsort(gap, axis=1).astype(jnp.int32)
-    sgap = jnp.take_along_axis(gap, order, 1)
     n_tiles = tiles.shape[0]
-    ranks = min(RANKS_PER_STEP, leaves)
+    rows_t = jnp.arange(n_tiles)
+    # each tile's `NEAREST` leaves of least gap (float32 keys: `top_k` is fast there; the order
+    # only steers the work, which leaves are needed is decided on the float64 gaps)
+    ranks = min(NEAREST, leaves)
+    order = jax.lax.top_k(-gap.astype(jnp.float32), ranks)[1].astype(jnp.int32)  # (T, ranks)
+    sgap = jnp.take_along_axis(gap, order, 1)
 
     def bound(best):
         return jnp.max(jnp.where(tile_active, _slack(best)[tiles], -jnp.inf), -1)
 
-    def cond(state):
-        cursor, best, _ = state
-        nxt = jnp.take_along_axis(sgap, jnp.minimum(cursor, leaves - 1)[:, None], 1)[:, 0]
-        return jnp.any((cursor < leaves) & (nxt <= bound(best)))
-
-    def step(state):
-        cursor, best, face = state
-        rank = cursor[None, :] + jnp.arange(ranks)[:, None]  # (ranks, T): rank-major
-        safe = jnp.minimum(rank, leaves - 1)
-        todo = (rank < leaves) & (sgap[jnp.arange(n_tiles)[None, :], safe] <= bound(best)[None, :])
-        (slot,) = jnp.nonzero(todo.reshape(-1), size=PAIRS_PER_STEP, fill_value=0)
-        used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
-        tile = slot % n_tiles
-        leaf = order[tile, safe.reshape(-1)[slot]]
+    def test(tile, leaf, used, best, face):
+        """Fold the faces of `(tile, leaf)` pairs `(P,)` (where `used`) into `(best, face)`."""
         who = tiles[tile]  # (P, TILE)
         rows, px = jax.lax.optimization_barrier((table[leaf], x[who]))  # see `_exact`
         a, b, c = (tuple(rows[:, None, 3 * v + k] for k in range(3)) for v in range(3))
@@ -289,13 +280,54 @@ def nearest_faces(
         d2 = jnp.where(used[:, None, None], d2, jnp.inf)
         owner = jnp.broadcast_to(jnp.where(used[:, None], who, n)[..., None], d2.shape)
         ids = jnp.broadcast_to(tree.leaf_faces[leaf][:, None], d2.shape)
-        best, face = _merge(best, face, d2.reshape(-1), ids.reshape(-1), owner.reshape(-1))
-        # a tile's taken pairs are a prefix of its ranks (rank-major order)
-        cursor = cursor + jnp.zeros(n_tiles, jnp.int32).at[tile].add(used.astype(jnp.int32))
+        return _merge(best, face, d2.reshape(-1), ids.reshape(-1), owner.reshape(-1))
+
+    # 2a. best-first over the nearest leaves: rank-major chunks (every tile's nearest leaf
+    # first), a tile's cursor passing the ranks taken or beyond its bound
+    def ranked(cursor, best):
+        rank = jnp.arange(ranks)[:, None]  # (ranks, T): rank-major
+        return (rank >= cursor[None, :]) & (sgap.T <= bound(best)[None, :])
+
+    def step_a(state):
+        cursor, best, face = state
+        todo = ranked(cursor, best)
+        (slot,) = jnp.nonzero(todo.reshape(-1), size=PAIRS_PER_STEP, fill_value=0)
+        used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
+        tile, rank = slot % n_tiles, slot // n_tiles
+        best, face = test(tile, order[tile, rank], used, best, face)
+        # every rank of a tile up to the last one taken is done (tested, or beyond the bound
+        # then and so for good: bounds only tighten)
+        cursor = jnp.maximum(
+            cursor, jnp.zeros(n_tiles, jnp.int32).at[tile].max(jnp.where(used, rank + 1, 0).astype(jnp.int32))
+        )
         return cursor, best, face
 
     cursor = jnp.zeros(n_tiles, jnp.int32)
-    return jax.lax.while_loop(cond, step, (cursor, best, face))[2]
+    state = (cursor, best, face)
+    cursor, best, face = jax.lax.while_loop(lambda s: jnp.any(ranked(s[0], s[1])), step_a, state)
+
+    # 2b. the rest: every (tile, leaf) pair not done whose box lies within the tile's bound,
+    # in index order (usually few or none: the bounds are nearly final after 2a)
+    done = (
+        jnp.zeros((n_tiles, leaves), bool)
+        .at[rows_t[:, None], order]
+        .set(jnp.arange(ranks)[None] < cursor[:, None])
+    )
+
+    def rest(done, best):
+        return ~done & (gap <= bound(best)[:, None])
+
+    def step_b(state):
+        done, best, face = state
+        todo = rest(done, best).reshape(-1)
+        (slot,) = jnp.nonzero(todo, size=PAIRS_PER_STEP, fill_value=0)
+        used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
+        tile, leaf = slot // leaves, slot % leaves
+        best, face = test(tile, leaf, used, best, face)
+        return done | jnp.zeros_like(done).at[tile, leaf].max(used), best, face
+
+    state = (done, best, face)
+    return jax.lax.while_loop(lambda s: jnp.any(rest(s[0], s[1])), step_b, state)[2]
 
 
 def _slack(best):
