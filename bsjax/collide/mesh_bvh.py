@@ -143,37 +143,56 @@ def _box_d2(x, lo, hi, node):
     return total
 
 
-def _d2(x, a, b, c):
-    """Squared distance of points `x` to triangles `(a, b, c)`, all as 3-tuples of same-shape
-    arrays (structure of arrays). The formulas of `_closest_point_on_triangle` (projection when
-    it falls inside, else the nearest edge point), so the two agree to a few ulps; only the
-    search uses this one."""
-    ab, ac, ap = _sub(b, a), _sub(c, a), _sub(x, a)
+ROWS = 32  # per-face quantities of `_prep`
+
+
+def _prep(a, b, c):
+    """Per-face quantities of `_d2` (each a 3-tuple of component arrays, or a scalar array):
+    `a, b, c`; the edges `ab, bc, ca`; `m = ac × n`, `k = n × ab` with `n = ab × ac`; `n`;
+    `1 / |n|²` (0 for a degenerate face); `|n|²`; `1 / |edge|²` (0 for a point edge) — 32
+    arrays, computed once per face so a point-face test does no division."""
+    ab, bc, ca = _sub(b, a), _sub(c, b), _sub(a, c)
+    ac = _sub(c, a)
     n = _cross(ab, ac)
     nn = _sdot(n, n)
-    ok = nn > 0
-    safe = jnp.where(ok, nn, 1)
-    v = jnp.where(ok, _sdot(_cross(ap, ac), n) / safe, 0)
-    w = jnp.where(ok, _sdot(_cross(ab, ap), n) / safe, 0)
-    inside = ok & (v >= 0) & (w >= 0) & (v + w <= 1)
-    on_face = _sub(ap, tuple(v * p + w * q for p, q in zip(ab, ac)))
-    best = _sdot(on_face, on_face)
+    inv = lambda v: jnp.where(v > 0, 1 / jnp.where(v > 0, v, 1), 0)
+    return (*a, *b, *c, *ab, *bc, *ca, *_cross(ac, n), *_cross(n, ab), *n, inv(nn), nn) + tuple(
+        inv(_sdot(e, e)) for e in (ab, bc, ca)
+    )
+
+
+def _d2(x, q):
+    """Squared distance of points `x` (3-tuple of arrays) to faces `q` (the 32 arrays of
+    `_prep`, broadcasting with `x`): the distance to the plane, `(ap · n)² / |n|²`, where the
+    projection falls inside the face (barycentrics `v = ap · (ac × n) / |n|²`,
+    `w = ap · (n × ab) / |n|²` in [0, 1] with `v + w ≤ 1`, tested without dividing), else the
+    least distance to the three edges (Ericson, *Real-Time Collision Detection*, §5.1.5). Only
+    the search uses it; `_closest_point_on_triangle` gives the exact point of the chosen face,
+    and the two agree to a few ulps."""
+    a, b, c, ab, bc, ca, m, k, n = (q[3 * i : 3 * i + 3] for i in range(9))
+    inv_nn, nn, inv_e = q[27], q[28], q[29:]
+    ap = _sub(x, a)
+    v, w = _sdot(ap, m), _sdot(ap, k)
+    inside = (nn > 0) & (v >= 0) & (w >= 0) & (v + w <= nn)
+    h = _sdot(ap, n)
     edge = None
-    for p, q in ((a, b), (b, c), (c, a)):
-        d, xp = _sub(q, p), _sub(x, p)
-        dd = _sdot(d, d)
-        t = jnp.clip(jnp.where(dd != 0, _sdot(xp, d) / jnp.where(dd != 0, dd, 1), 0), 0, 1)
+    for p, d, inv in ((a, ab, inv_e[0]), (b, bc, inv_e[1]), (c, ca, inv_e[2])):
+        xp = ap if p is a else _sub(x, p)
+        t = jnp.clip(_sdot(xp, d) * inv, 0, 1)
         r = _sub(xp, tuple(t * di for di in d))
         e2 = _sdot(r, r)
         edge = e2 if edge is None else jnp.minimum(edge, e2)
-    return jnp.where(inside, best, edge)
+    return jnp.where(inside, h * h * inv_nn, edge)
 
 
-def _leaf_table(leaf_tris):
-    """Leaf triangles as rows `(leaves, 9, size)` (vertex-major components), gathered a leaf at
-    a time."""
-    leaves, size = leaf_tris.shape[:2]
-    return leaf_tris.reshape(leaves, size, 9).transpose(0, 2, 1)
+def _face_table(tris):
+    """`_prep` of every face `tris (F, 3, 3)` as rows `(F, ROWS)`."""
+    return jnp.stack(_prep(*(tuple(tris[:, v, k] for k in range(3)) for v in range(3))), -1)
+
+
+def _leaf_table(table, leaf_faces):
+    """Face rows of each leaf `(leaves, ROWS, size)`, gathered a leaf at a time."""
+    return table[leaf_faces].transpose(0, 2, 1)
 
 
 def _exact(x, table, leaf, valid):
@@ -181,9 +200,8 @@ def _exact(x, table, leaf, valid):
     `leaf (M,)` (rows of `_leaf_table`); invalid entries +inf."""
     # the barrier keeps XLA from fusing the gather into every use in `_d2` (which recomputes
     # it per use and compiles for minutes)
-    rows, x = jax.lax.optimization_barrier((table[leaf], x))  # (M, 9, size)
-    a, b, c = (tuple(rows[:, 3 * v + k] for k in range(3)) for v in range(3))
-    d2 = _d2(tuple(xk[:, None] for xk in x), a, b, c)
+    rows, x = jax.lax.optimization_barrier((table[leaf], x))  # (M, ROWS, size)
+    d2 = _d2(tuple(xk[:, None] for xk in x), tuple(rows[:, i] for i in range(ROWS)))
     return jnp.where(valid[:, None], d2, jnp.inf)
 
 
@@ -192,16 +210,18 @@ def _tol(dtype):
 
 
 def _merge(best, face, d2, ids, owner):
-    """Fold candidate faces `(d2, ids)` of points `owner` (all `(M,)`; owner `n` drops an entry)
+    """Fold candidate faces `(d2, ids)` `(M, S)` of points `owner (M,)` (owner `n` drops a row)
     into the running `(best, face)` of the points: the least squared distance, and among faces
     within `TIE` ulps of it the lowest index (rounding must not decide between two faces at the
-    same distance, e.g. the two faces of an edge)."""
+    same distance, e.g. the two faces of an edge). Rows are reduced first, so the scatters run
+    over `M`, not `M · S`."""
     n = best.shape[0]
     tol = _tol(best.dtype)
     big = jnp.iinfo(jnp.int32).max
-    step = jax.ops.segment_min(d2, owner, num_segments=n + 1)
-    near = d2 <= step[owner] * (1 + tol)
-    step_face = jax.ops.segment_min(jnp.where(near, ids, big), owner, num_segments=n + 1)[:n]
+    step = jax.ops.segment_min(jnp.min(d2, -1), owner, num_segments=n + 1)
+    near = d2 <= step[owner][:, None] * (1 + tol)
+    row_face = jnp.min(jnp.where(near, ids, big), -1)
+    step_face = jax.ops.segment_min(row_face, owner, num_segments=n + 1)[:n]
     step = step[:n]
     better = step < best * (1 - tol)
     tie = ~better & (step <= best * (1 + tol))
@@ -229,8 +249,9 @@ def nearest_faces(
     if active is None:
         active = jnp.ones(n, bool)
     leaves, size = tree.leaf_faces.shape
-    leaf_tris = vertices[faces[tree.leaf_faces]]  # (leaves, size, 3, 3)
-    table = _leaf_table(leaf_tris)
+    tris = vertices[faces]
+    leaf_tris = tris[tree.leaf_faces]  # (leaves, size, 3, 3)
+    table = _leaf_table(_face_table(tris), tree.leaf_faces)
     lo, hi = _boxes(leaf_tris)
     xs = _soa(x)
 
@@ -242,13 +263,12 @@ def nearest_faces(
 
     first = jax.lax.fori_loop(0, tree.depth, descend, jnp.ones(n, jnp.int32)) - leaves
     d2 = _exact(xs, table, first, jnp.ones(n, bool))
-    owner = jnp.repeat(jnp.arange(n), size)
     best, face = _merge(
         jnp.full(n, jnp.inf, x.dtype),
         jnp.zeros(n, jnp.int32),
-        d2.reshape(-1),
-        tree.leaf_faces[first].reshape(-1),
-        owner,
+        d2,
+        tree.leaf_faces[first],
+        jnp.arange(n),
     )
     # 2. the active points in tiles of `TILE` (Morton order, inactive ones last); each tile's
     # leaves sorted by their box's distance to the tile's box and tested nearest first
@@ -275,12 +295,12 @@ def nearest_faces(
         """Fold the faces of `(tile, leaf)` pairs `(P,)` (where `used`) into `(best, face)`."""
         who = tiles[tile]  # (P, TILE)
         rows, px = jax.lax.optimization_barrier((table[leaf], x[who]))  # see `_exact`
-        a, b, c = (tuple(rows[:, None, 3 * v + k] for k in range(3)) for v in range(3))
-        d2 = _d2(tuple(px[..., k][..., None] for k in range(3)), a, b, c)  # (P, TILE, size)
+        q = tuple(rows[:, None, i] for i in range(ROWS))
+        d2 = _d2(tuple(px[..., k][..., None] for k in range(3)), q)  # (P, TILE, size)
         d2 = jnp.where(used[:, None, None], d2, jnp.inf)
-        owner = jnp.broadcast_to(jnp.where(used[:, None], who, n)[..., None], d2.shape)
-        ids = jnp.broadcast_to(tree.leaf_faces[leaf][:, None], d2.shape)
-        return _merge(best, face, d2.reshape(-1), ids.reshape(-1), owner.reshape(-1))
+        owner = jnp.where(used[:, None], who, n).reshape(-1)
+        ids = jnp.broadcast_to(tree.leaf_faces[leaf][:, None], d2.shape).reshape(-1, size)
+        return _merge(best, face, d2.reshape(-1, size), ids, owner)
 
     # 2a. best-first over the nearest leaves: rank-major chunks (every tile's nearest leaf
     # first), a tile's cursor passing the ranks taken or beyond its bound
@@ -371,10 +391,10 @@ def _tiles(x, active):
     return order.reshape(-1, TILE)
 
 
-def _dense(tris, x):
-    """Nearest face of points `x (M, 3)` over every face `tris (F, 3, 3)` (`(M, F)` at once)."""
-    a, b, c = (tuple(tris[None, :, v, k] for k in range(3)) for v in range(3))
-    d2 = _d2(tuple(x[:, k][:, None] for k in range(3)), a, b, c)
+def _dense(table, x):
+    """Nearest face of points `x (M, 3)` over every face (rows `(F, ROWS)` of `_face_table`),
+    `(M, F)` at once."""
+    d2 = _d2(tuple(x[:, k][:, None] for k in range(3)), tuple(table[None, :, i] for i in range(ROWS)))
     ok = d2 <= jnp.min(d2, -1, keepdims=True) * (1 + _tol(d2.dtype))
     return jnp.argmax(ok, -1).astype(jnp.int32)
 
@@ -386,7 +406,8 @@ def nearest_faces_dense(tris: Float[Array, "F 3 3"], x: Float[Array, "N 3"]) -> 
     n = x.shape[0]
     pad = -n % CHUNK
     xp = jnp.concatenate([x, jnp.zeros((pad, 3), x.dtype)]).reshape(-1, CHUNK, 3)
-    return jax.lax.map(lambda p: _dense(tris, p), xp).reshape(-1)[:n]
+    table = _face_table(tris)
+    return jax.lax.map(lambda p: _dense(table, p), xp).reshape(-1)[:n]
 
 
 def pseudo_normal_inside(tree: FaceTree, vertices, faces, x, face, closest, bary) -> Bool[Array, " N"]:
