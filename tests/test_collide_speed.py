@@ -2,8 +2,10 @@
 
 References are independent of the kernels under test: the basis's own `Blending.points` and
 `Blending.normals`, the tools' closed forms written with numpy, a fixed-step Frank–Wolfe loop
-in numpy for the hull test, and the one-program (`lax.cond`) path of `surface_contacts` inside
-the caller's `jit` for its two-program direct path.
+in numpy for the hull test, the one-program (`lax.cond`) path of `surface_contacts` inside
+the caller's `jit` for its two-program direct path, a brute-force nearest triangle for the
+point tool, the thesis's three-point spheres in numpy for the sphere hierarchy, and the
+every-pair triangle test for the gathered candidate pairs.
 """
 
 import jax
@@ -13,8 +15,23 @@ import pytest
 
 from bsjax import shapes
 from bsjax.basis import BSplineSurface, SplineDirection
-from bsjax.collide import Ellipsoid, Plane, Sphere, contacts, hulls_apart, sample_window, surface_contacts
+from bsjax.collide import (
+    Ellipsoid,
+    Plane,
+    Point,
+    Sphere,
+    closest_point_on_triangle,
+    contacts,
+    hulls_apart,
+    sample_window,
+    sphere_hierarchy,
+    surface_contacts,
+    tessellate,
+    triangles_intersect,
+)
 from bsjax.collide.contact import points_normals
+from bsjax.collide.hierarchy import block_order, levels_for
+from bsjax.collide.triangles import candidate_pairs_intersect
 from tests.helpers import check_grad, raises_both, random_surface
 
 
@@ -223,3 +240,128 @@ def test_bad_values_raise_eagerly_and_under_jit():
     raises_both(lambda p: contacts(b, p, TOOLS["sphere"]), bad, match="ctrl")
     raises_both(lambda p: surface_contacts(b, ctrl, b, p, capacity=64), bad, match="ctrl_b")
     raises_both(lambda a: hulls_apart(a, jnp.ones((2, 3))), jnp.full((3, 3), jnp.inf), match="a")
+
+
+def _nearest_reference(points, x):
+    """Every triangle of the tessellated grid, the nearest to `x` by brute force (numpy):
+    `(faces within 1e-12 of the smallest distance, their closest points, barycentrics, faces)`."""
+    verts, faces = (np.asarray(a) for a in tessellate(jnp.asarray(points)))
+    closest, bary = (np.asarray(a) for a in closest_point_on_triangle(x, jnp.asarray(verts[faces])))
+    dist = np.linalg.norm(closest - x, axis=-1)
+    best = np.flatnonzero(dist <= dist.min() + 1e-12)
+    return best, closest, bary, faces, verts
+
+
+@pytest.mark.parametrize("name", ["clamped 3x2", "degrees 1x5", "periodic", "rational", "pole"])
+def test_point_contact_is_the_nearest_of_every_triangle(name):
+    """The point tool's 5 × 5-cell search with its corner-ball certificate (and the full search
+    it falls back to) finds a nearest triangle of the whole tessellation: mask, depth split by
+    barycentrics, and probe normal as that triangle gives them (inside, outside, far away)."""
+    _, b, ctrl = _surface(name, seed=3)
+    points, normals = np.asarray(b.points(ctrl)), np.asarray(b.normals(ctrl))
+    m, n = points.shape[:2]
+    positions = [
+        points[m // 2, n // 3] - 0.03 * normals[m // 2, n // 3],  # just behind: in contact
+        points[2, n - 3] + 0.05 * normals[2, n - 3],  # in front: no contact
+        points[m - 2, 1] - 0.02 * normals[m - 2, 1],
+        points.reshape(-1, 3).mean(0) + np.array([0.0, 0.0, 3.0]),  # far: the certificate fails
+    ]
+    seen = set()
+    for x in positions:
+        got = contacts(b, ctrl, Point(x))
+        best, closest, bary, faces, verts = _nearest_reference(points, x)
+        matches = []
+        for k in best:
+            tri = verts[faces[k]]
+            normal = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+            offset = x - closest[k]
+            inside = np.dot(offset, normal) < 0
+            depth = np.zeros(m * n)
+            depth[faces[k]] += bary[k] * np.linalg.norm(offset) if inside else 0
+            mask = np.zeros(m * n, bool)
+            mask[faces[k]] = inside
+            matches.append(
+                np.array_equal(np.asarray(got.mask).reshape(-1), mask)
+                and np.allclose(np.asarray(got.depth).reshape(-1), depth, rtol=0, atol=1e-12)
+                and bool(got.hit) == inside
+            )
+            if inside:
+                probe = np.asarray(got.tool_normals).reshape(-1, 3)[faces[k]]
+                matches[-1] &= np.allclose(probe, offset / np.linalg.norm(offset), rtol=0, atol=1e-12)
+            seen.add(bool(inside))
+        assert any(matches), (name, x)
+    assert seen == {True, False}
+
+
+def _sphere_hierarchy_reference(points, levels):
+    """The thesis's three-point spheres of every level, written with numpy (`(N, 3)` vectors)."""
+
+    def three_point(p00, p10, p01, p11):
+        long_main = np.sum((p11 - p00) ** 2, -1) >= np.sum((p10 - p01) ** 2, -1)
+        a = np.where(long_main[..., None], p00, p10)
+        b = np.where(long_main[..., None], p11, p01)
+        c = np.where(long_main[..., None], p10, p00)
+        u, v = b - a, c - a
+        w = np.cross(u, v)
+        ww, uu, vv = np.sum(w * w, -1), np.sum(u * u, -1), np.sum(v * v, -1)
+        ok = ww > np.finfo(float).eps * uu * vv
+        off = (uu[..., None] * np.cross(v, w) + vv[..., None] * np.cross(w, u)) / (2 * np.where(ok, ww, 1))[
+            ..., None
+        ]
+        return np.where(ok[..., None], a + off, 0.5 * (a + b))
+
+    m, n = points.shape[:2]
+    out, centers, radii = [], None, None
+    for level in range(levels + 1):
+        step, count = 3**level, 3 ** (levels - level)
+        iu = np.minimum(np.arange(count + 1) * step, m - 1)
+        iv = np.minimum(np.arange(count + 1) * step, n - 1)
+        q = points[iu][:, iv]
+        corners = [q[:-1, :-1], q[1:, :-1], q[:-1, 1:], q[1:, 1:]]
+        rows, cols = block_order(levels - level)
+        c = three_point(*corners)[rows, cols]
+        if level == 0:
+            radius = np.max([np.linalg.norm(p[rows, cols] - c, axis=-1) for p in corners], 0)
+        else:
+            child_c, child_r = centers.reshape(-1, 9, 3), radii.reshape(-1, 9)
+            radius = np.max(np.linalg.norm(child_c - c[:, None], axis=-1) + child_r, 1)
+        valid = (rows * step < m - 1) & (cols * step < n - 1)
+        centers, radii = c, np.where(valid, radius, -np.inf)
+        out.append((c, radii))
+    return out
+
+
+@pytest.mark.parametrize("grid", [(16, 16), (13, 11), (2, 5), (30, 10)])
+def test_sphere_hierarchy_matches_the_three_point_spheres(grid):
+    surf = random_surface(np.random.default_rng(sum(grid)), 6, 5, 3, 2)
+    points = np.asarray(surf.blending(*grid).points(jnp.asarray(surf.ctrl)))
+    levels = levels_for(max(grid) - 1)
+    got = sphere_hierarchy(points, levels)
+    for (c, r), (c_ref, r_ref) in zip(got, _sphere_hierarchy_reference(points, levels), strict=True):
+        np.testing.assert_allclose(np.asarray(c).T, c_ref, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(np.isinf(np.asarray(r)), np.isinf(r_ref))
+        finite = np.isfinite(r_ref)
+        np.testing.assert_allclose(np.asarray(r)[finite], r_ref[finite], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("share", [0.0, 0.1, 0.6])
+def test_candidate_pairs_gathered_after_the_plane_tests_equal_every_pair(share):
+    """Pairs that survive the plane tests are finished a quarter of the batch at a time (one
+    round when few survive, several when many do); the answer is `triangles_intersect` of every
+    pair, also under `vmap`."""
+    rng = np.random.default_rng(int(share * 10))
+    n = 1024
+    t1 = rng.normal(size=(n, 3, 3))
+    t2 = rng.normal(size=(n, 3, 3)) + rng.choice([0.0, 8.0], p=[share, 1 - share], size=(n, 1, 1))
+    t2[:40, :2] = t1[:40, :2]  # a shared edge
+    t1[40:80, :, 2] = t2[40:80, :, 2] = 0.5  # coplanar
+    active = rng.uniform(size=n) < 0.8
+    expect = np.asarray(triangles_intersect(jnp.asarray(t1), jnp.asarray(t2))) & active
+    got = jax.jit(candidate_pairs_intersect)(jnp.asarray(t1), jnp.asarray(t2), jnp.asarray(active))
+    np.testing.assert_array_equal(np.asarray(got), expect)
+    halves = jax.vmap(candidate_pairs_intersect)(
+        jnp.asarray(t1).reshape(2, -1, 3, 3),
+        jnp.asarray(t2).reshape(2, -1, 3, 3),
+        jnp.asarray(active).reshape(2, -1),
+    )
+    np.testing.assert_array_equal(np.asarray(halves).reshape(-1), expect)

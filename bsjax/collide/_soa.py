@@ -55,3 +55,8 @@ def unit(a):
     ok = n > 0
     safe = jnp.where(ok, n, 1)
     return tuple(jnp.where(ok, c / safe, 0) for c in a)
+
+
+def where(cond, a, b):
+    """`a` where `cond`, else `b`, per component."""
+    return tuple(jnp.where(cond, x, y) for x, y in zip(a, b))

@@ -321,13 +321,11 @@ def _nearest_on_grid(x, points):
 
     The 5 × 5 cells around the nearest sample are searched first; the result is certified when
     no other cell's corner ball (centre: corner mean, radius: farthest corner) comes closer, and
-    otherwise every triangle is searched (`lax.cond`, rarely taken).
+    otherwise every triangle is searched (`lax.cond`, rarely taken). The nearest sample and the
+    corner balls over the whole grid are decisions (no gradient), computed one component at a
+    time (`collide._soa`) so that XLA fuses them into one loop over the cells.
     """
     m, n = points.shape[:2]
-    corners = jnp.stack([points[:-1, :-1], points[1:, :-1], points[:-1, 1:], points[1:, 1:]], -2)
-    centre = corners.mean(-2)
-    radius = jnp.max(_safe.norm(corners - centre[..., None, :]), -1)
-    bound = jax.lax.stop_gradient(_safe.norm(x[None, None] - centre) - radius)
 
     def search(block):
         tris, faces = _cell_triangles(block)
@@ -336,8 +334,9 @@ def _nearest_on_grid(x, points):
 
     if m <= _BLOCK and n <= _BLOCK:
         return _cast_face(search(points))
+    p, y = _soa.split(jax.lax.stop_gradient(points)), jax.lax.stop_gradient(x)
     bu, bv = min(_BLOCK, m), min(_BLOCK, n)
-    near = jnp.argmin(jax.lax.stop_gradient(jnp.sum((points - x[None, None]) ** 2, -1)).reshape(-1))
+    near = jnp.argmin(_soa.dot(_soa.sub(p, y), _soa.sub(p, y)).reshape(-1))
     i0 = jnp.clip(near // n - bu // 2, 0, m - bu).astype(jnp.int32)
     j0 = jnp.clip(near % n - bv // 2, 0, n - bv).astype(jnp.int32)
     block = jax.lax.dynamic_slice(points, (i0, j0, jnp.zeros((), jnp.int32)), (bu, bv, 3))
@@ -345,11 +344,21 @@ def _nearest_on_grid(x, points):
     face = face.astype(jnp.int32)
     rows, cols = face // bv + i0, face % bv + j0
     face = rows * n + cols
+    corners = [tuple(c[a, b] for c in p) for a, b in _CORNERS]
+    centre = tuple(0.25 * (c0 + c1 + c2 + c3) for c0, c1, c2, c3 in zip(*corners))
+    spread = [_soa.sub(c, centre) for c in corners]
+    radius2 = functools.reduce(jnp.maximum, [_soa.dot(d, d) for d in spread])
+    to_centre = _soa.sub(centre, y)
+    bound = jnp.sqrt(_soa.dot(to_centre, to_centre)) - jnp.sqrt(radius2)
     r, c = jnp.arange(m - 1, dtype=jnp.int32)[:, None], jnp.arange(n - 1, dtype=jnp.int32)[None, :]
     inside = (r >= i0) & (r < i0 + bu - 1) & (c >= j0) & (c < j0 + bv - 1)
     outside_bound = jnp.min(jnp.where(inside, jnp.inf, bound))
     certain = _safe.norm(x - closest) <= outside_bound
     return jax.lax.cond(certain, lambda: (face, closest, bary), lambda: _cast_face(search(points)))
+
+
+_HEAD, _TAIL = slice(None, -1), slice(1, None)
+_CORNERS = ((_HEAD, _HEAD), (_TAIL, _HEAD), (_HEAD, _TAIL), (_TAIL, _TAIL))  # p00, p10, p01, p11
 
 
 def _cast_face(result):

@@ -19,14 +19,17 @@ and reports overflow when more than `capacity` pairs intersect.
 
 from __future__ import annotations
 
+import functools
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from bsjax import _checks, _safe
+from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax.collide import _soa
 
 BRANCH = 3
 
@@ -103,31 +106,66 @@ def sphere_hierarchy(points: Float[Array, "m n 3"], levels: int) -> list[tuple[A
 
 
 def _sphere_hierarchy(points, levels: int):
-    """The kernel of `sphere_hierarchy` (no checks)."""
+    """The kernel of `sphere_hierarchy` (no checks).
+
+    Each level first gathers its blocks' corner samples in block-major order (static indices
+    into the flattened grid), then computes centres and radii one coordinate at a time
+    (`collide._soa`), so XLA fuses a whole level into one loop over its blocks; the arithmetic
+    is `three_point_sphere`'s and `bsjax._safe.norm`'s.
+    """
     m, n = points.shape[:2]
     dtype = points.dtype
     neg = jnp.array(-jnp.inf, dtype)
+    flat = tuple(c.reshape(-1) for c in _soa.split(points))
     out = []
     centers = radii = None
     for level in range(levels + 1):
         step = BRANCH**level
         count = BRANCH ** (levels - level)
-        iu = np.minimum(np.arange(count + 1) * step, m - 1)
+        iu = np.minimum(np.arange(count + 1) * step, m - 1)  # intermittent rows and columns
         iv = np.minimum(np.arange(count + 1) * step, n - 1)
-        coarse = points[iu][:, iv]  # intermittent rows and columns of the blending matrices
-        corners = _corners(coarse)
         rows, cols = block_order(levels - level)
-        c = three_point_sphere(*corners)[rows, cols]  # (N_l, 3)
+        corners = [  # p00, p10, p01, p11 of every block, block-major
+            tuple(c[jnp.asarray((iu[rows + a] * n + iv[cols + b]).astype(np.int32))] for c in flat)
+            for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))
+        ]
+        c = _three_point_sphere(*corners)  # 3 × (N_l,)
         valid = jnp.asarray((rows * step < m - 1) & (cols * step < n - 1))
         if level == 0:
-            radius = jnp.max(jnp.stack([_safe.norm(p[rows, cols] - c) for p in corners]), 0)
+            radius = functools.reduce(jnp.maximum, [_soa.norm(_soa.sub(p, c)) for p in corners])
         else:
-            child_c = centers.T.reshape(-1, BRANCH * BRANCH, 3)
+            child_c = tuple(x.reshape(-1, BRANCH * BRANCH) for x in centers)
             child_r = radii.reshape(-1, BRANCH * BRANCH)
-            radius = jnp.max(_safe.norm(child_c - c[:, None]) + child_r, axis=1)
-        centers, radii = c.T, jnp.where(valid, radius, neg)
-        out.append((centers, radii))
+            to_child = _soa.sub(child_c, tuple(x[:, None] for x in c))
+            radius = jnp.max(_soa.norm(to_child) + child_r, axis=1)
+        centers, radii = c, jnp.where(valid, radius, neg)
+        out.append((jnp.stack(centers), radii))
     return out
+
+
+def _three_point_sphere(p00, p10, p01, p11):
+    """`three_point_sphere` of corners given as `collide._soa` component tuples (same arithmetic).
+
+    The terms every component shares are computed once (`lax.optimization_barrier`): fused
+    freely, XLA on CPU would recompute them in the loop of each component.
+    """
+    d_main, d_anti = _soa.sub(p11, p00), _soa.sub(p10, p01)
+    long_main = _soa.dot(d_main, d_main) >= _soa.dot(d_anti, d_anti)
+    a = _soa.where(long_main, p00, p10)
+    b = _soa.where(long_main, p11, p01)
+    c = _soa.where(long_main, p10, p00)
+    u, v = _soa.sub(b, a), _soa.sub(c, a)
+    w = _soa.cross(u, v)
+    ww, uu, vv = _soa.dot(w, w), _soa.dot(u, u), _soa.dot(v, v)
+    ok = ww > jnp.finfo(ww.dtype).eps * uu * vv
+    den = 2 * jnp.where(ok, ww, 1)
+    a, b, u, v, w, uu, vv, den, ok = jax.lax.optimization_barrier((a, b, u, v, w, uu, vv, den, ok))
+    vw, wu = _soa.cross(v, w), _soa.cross(w, u)
+    centre = tuple(
+        jnp.where(ok, ai + (uu * vwi + vv * wui) / den, 0.5 * (ai + bi))
+        for ai, bi, vwi, wui in zip(a, b, vw, wu)
+    )
+    return jax.lax.optimization_barrier(centre)
 
 
 @compiled

@@ -108,16 +108,33 @@ def _snap(dists, n, offsets):
     return [jnp.where(jnp.abs(d) <= eps * nn * jnp.sqrt(_sdot(o, o)), 0, d) for d, o in zip(dists, offsets)]
 
 
-def _guigue_devillers(t1, t2):
-    """Fast overlap test for `(N, 3, 3)` pairs; returns (overlap, needs_robust_test)."""
+def _plane_tests(t1, t2):
+    """First step of Guigue–Devillers for `(N, 3, 3)` pairs: the snapped signed distances of each
+    triangle's vertices to the other's plane, `(d1 (3 × (N,)), d2 (3 × (N,)))`, and whether a
+    plane normal is exactly zero (a degenerate triangle: the robust test decides)."""
     p1, q1, r1 = _v(t1, 0), _v(t1, 1), _v(t1, 2)
     p2, q2, r2 = _v(t2, 0), _v(t2, 1), _v(t2, 2)
     n2 = _cross(_sub(p2, r2), _sub(q2, r2))
     d1 = _snap([_sdot(_sub(x, r2), n2) for x in (p1, q1, r1)], n2, [_sub(x, r2) for x in (p1, q1, r1)])
     n1 = _cross(_sub(q1, p1), _sub(r1, p1))
     d2 = _snap([_sdot(_sub(x, r1), n1) for x in (p2, q2, r2)], n1, [_sub(x, r1) for x in (p2, q2, r2)])
-    sep1 = (d1[0] * d1[1] > 0) & (d1[0] * d1[2] > 0)
-    sep2 = (d2[0] * d2[1] > 0) & (d2[0] * d2[2] > 0)
+    zero = lambda n: (n[0] == 0) & (n[1] == 0) & (n[2] == 0)
+    return d1, d2, zero(n1) | zero(n2)
+
+
+def _separated(d):
+    """All three distances strictly on one side of the plane."""
+    return (d[0] * d[1] > 0) & (d[0] * d[2] > 0)
+
+
+def _guigue_devillers(t1, t2, planes=None):
+    """Fast overlap test for `(N, 3, 3)` pairs; returns (overlap, needs_robust_test).
+
+    `planes`: the pairs' `_plane_tests`, when the caller has them already."""
+    d1, d2, degenerate = _plane_tests(t1, t2) if planes is None else planes
+    p1, q1, r1 = _v(t1, 0), _v(t1, 1), _v(t1, 2)
+    p2, q2, r2 = _v(t2, 0), _v(t2, 1), _v(t2, 2)
+    sep1, sep2 = _separated(d1), _separated(d2)
     rot1, swap1, cop1 = _canonical(*d1)
     a1 = _rotate(rot1, p1, q1, r1)
     s1 = swap1 == 1
@@ -130,8 +147,7 @@ def _guigue_devillers(t1, t2):
     fail1 = _sdot(_sub(b2[1], b1[1]), _cross(_sub(b2[0], b1[1]), _sub(b1[0], b1[1]))) > 0
     fail2 = _sdot(_sub(b2[2], b1[0]), _cross(_sub(b2[0], b1[0]), _sub(b1[2], b1[0]))) > 0
     overlap = ~sep1 & ~sep2 & ~fail1 & ~fail2
-    zero = lambda n: (n[0] == 0) & (n[1] == 0) & (n[2] == 0)
-    robust = ~sep1 & ~sep2 & (cop1 | cop2 | zero(n1) | zero(n2))
+    robust = ~sep1 & ~sep2 & (cop1 | cop2 | degenerate)
     return overlap & ~robust, robust
 
 
@@ -249,24 +265,58 @@ def _broadcast(a, b, name: str) -> tuple[int, ...]:
         raise ValueError(_checks.message(name, "batch shapes that broadcast", f"{a} and {b}")) from None
 
 
-def _intersect_flat(f1, f2, active=None):
+def _intersect_flat(f1, f2, active=None, planes=None):
     """`triangles_intersect` of flat batches; `active (N,)`: the pairs that matter — the others
-    give False and never trigger the exact test."""
-    fast, robust = _guigue_devillers(f1, f2)
+    give False and never trigger the exact test; `planes`: their `_plane_tests`, if known."""
+    fast, robust = _guigue_devillers(f1, f2, planes)
     if active is not None:
         fast, robust = fast & active, robust & active
     exact = jax.lax.cond(jnp.any(robust), lambda: _robust(f1, f2), lambda: jnp.zeros(f1.shape[:1], bool))
     return jnp.where(robust, exact, fast)
 
 
+_LIVE_SHARE = 4  # pairs that survive the plane tests are finished N / 4 at a time
+
+
 def candidate_pairs_intersect(t1, t2, active):
     """`triangles_intersect(t1, t2) & active` for `(..., 3, 3)` batches that broadcast, where
-    inactive pairs (padding of a fixed-capacity candidate list) cost no exact test."""
-    t1, t2, active = jnp.broadcast_arrays(t1, t2, active[..., None, None])
-    batch = t1.shape[:-2]
-    return _intersect_flat(t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3), active[..., 0, 0].reshape(-1)).reshape(
-        batch
-    )
+    inactive pairs (padding of a fixed-capacity candidate list) cost no exact test.
+
+    Most candidate pairs of two sampled surfaces are separated by one triangle's plane (the
+    first test of Guigue & Devillers): the plane tests run on every pair, and the rest of the
+    test only on the pairs that survive them, gathered `N / 4` at a time (`jnp.nonzero(size=…)`
+    in a `lax.while_loop` that runs once in the usual case). The gathered pairs reuse the plane
+    distances computed for all, so the answer is the one of the test on every pair.
+    """
+    batch = jnp.broadcast_shapes(t1.shape[:-2], t2.shape[:-2], active.shape)
+    size1, size2 = int(np.prod(t1.shape[:-2])), int(np.prod(t2.shape[:-2]))
+    # each pair's row in the flattened t1 and t2 (static), so that only gathered pairs are copied
+    row1 = np.broadcast_to(np.arange(size1, dtype=np.int32).reshape(t1.shape[:-2]), batch).reshape(-1)
+    row2 = np.broadcast_to(np.arange(size2, dtype=np.int32).reshape(t2.shape[:-2]), batch).reshape(-1)
+    t1, t2 = t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3)
+    active = jnp.broadcast_to(active, batch).reshape(-1)
+    f1, f2 = t1[row1], t2[row2]
+    planes = _plane_tests(f1, f2)
+    live = active & ~_separated(planes[0]) & ~_separated(planes[1])
+    n = live.shape[0]
+    slots = n // _LIVE_SHARE
+    if slots < 64:
+        return _intersect_flat(f1, f2, live, planes).reshape(batch)
+    chunk = (jnp.cumsum(live, dtype=jnp.int32) - 1) // slots  # which round finishes each live pair
+    rounds = (jnp.sum(live, dtype=jnp.int32) + slots - 1) // slots
+    row1, row2 = jnp.asarray(row1), jnp.asarray(row2)
+
+    def finish(carry):
+        c, hits = carry
+        (k,) = jnp.nonzero(live & (chunk == c), size=slots, fill_value=n)
+        ok = k < n
+        k = jnp.minimum(k, n - 1)
+        sub_planes = jax.tree_util.tree_map(lambda x: x[k], planes)
+        hit = _intersect_flat(t1[row1[k]], t2[row2[k]], ok, sub_planes)
+        return c + 1, hits.at[k].max(hit & ok)
+
+    _, hits = jax.lax.while_loop(lambda carry: carry[0] < rounds, finish, (0, jnp.zeros(n, bool)))
+    return hits.reshape(batch)
 
 
 @compiled
