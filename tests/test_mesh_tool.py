@@ -117,26 +117,94 @@ def test_push_matches_trimesh_signed_distance_on_the_part():
     )
 
 
-def test_contacts_equal_the_every_face_tool_and_trimesh():
+def _plate(n=6, half=0.67, amp=0.02):
     from bsjax.basis import BSplineSurface, clamped_knots
 
-    mesh = stepped_part()
-    tool = collide.TriangleMesh.from_trimesh(mesh)
-    g = np.linspace(-0.7, 0.7, 6)
+    g = np.linspace(-half, half, n)
     xx, yy = np.meshgrid(g, g, indexing="ij")
-    ctrl = jnp.asarray(np.stack([xx, yy, 0.02 * np.cos(3 * xx) * np.sin(2 * yy)], -1))
-    knots = clamped_knots(6, 3, np.float64)
-    b = BSplineSurface(ctrl, knots, knots, 3, 3).blending(17, 13)
+    ctrl = jnp.asarray(np.stack([xx, yy, amp * np.cos(3 * xx) * np.sin(2 * yy)], -1))
+    knots = clamped_knots(n, 3, np.float64)
+    return BSplineSurface(ctrl, knots, knots, 3, 3), ctrl
+
+
+CONTACT_MESHES = {
+    **MESHES,
+    # partly off the plate: most samples lie outside its box and are not searched
+    "shifted icosphere": lambda: trimesh.creation.icosphere(subdivisions=2, radius=0.3).apply_translation(
+        [0.55, -0.5, 0.1]
+    ),
+    "open": lambda: trimesh.Trimesh(
+        MESHES["icosphere"]().vertices, MESHES["icosphere"]().faces[1:], process=False
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(CONTACT_MESHES))
+def test_contacts_equal_the_every_face_tool_and_trimesh(name):
+    mesh = CONTACT_MESHES[name]()
+    tool = collide.TriangleMesh.from_trimesh(mesh)
+    surf, ctrl = _plate()
+    b = surf.blending(17, 13)
     new, old = collide.contacts(b, ctrl, tool), collide.contacts(b, ctrl, without_tree(tool))
     np.testing.assert_array_equal(new.mask, old.mask)
-    assert 10 < int(new.mask.sum()) < 17 * 13
-    for field in ("depth", "tool_normals"):
-        np.testing.assert_allclose(getattr(new, field), getattr(old, field), atol=1e-12)
-    np.testing.assert_array_equal(
-        new.mask, mesh.contains(np.asarray(new.points).reshape(-1, 3)).reshape(17, 13)
+    assert 3 < int(new.mask.sum()) < 17 * 13
+    np.testing.assert_allclose(new.depth, old.depth, atol=1e-12)
+    # the samples outside a closed mesh's box are not searched: zero tool normal there
+    pts = np.asarray(new.points)
+    in_box = np.all((pts >= mesh.bounds[0]) & (pts <= mesh.bounds[1]), -1)
+    searched = in_box if tool.tree.closed else np.ones_like(in_box)
+    assert 0 < searched.sum() and (name != "shifted icosphere" or searched.mean() < 0.2)
+    np.testing.assert_allclose(
+        np.asarray(new.tool_normals)[searched], np.asarray(old.tool_normals)[searched], atol=1e-12
     )
-    _, dist, _ = trimesh.proximity.closest_point(mesh, np.asarray(new.points).reshape(-1, 3))
+    np.testing.assert_array_equal(np.asarray(new.tool_normals)[~searched], 0)
+    if not tool.tree.closed:
+        return  # trimesh's `contains` needs a watertight mesh
+    np.testing.assert_array_equal(new.mask, mesh.contains(pts.reshape(-1, 3)).reshape(17, 13))
+    _, dist, _ = trimesh.proximity.closest_point(mesh, pts.reshape(-1, 3))
     np.testing.assert_allclose(new.depth, np.where(new.mask, dist.reshape(17, 13), 0), atol=1e-12)
+
+
+def test_contacts_under_jit_and_vmap():
+    tool = collide.TriangleMesh.from_trimesh(stepped_part())
+    surf, ctrl = _plate()
+    b = surf.blending(9, 11)
+    ref = collide.contacts(b, ctrl, tool)
+    jitted = jax.jit(lambda c, t: collide.contacts(b, c, t))(ctrl, tool)
+    np.testing.assert_array_equal(jitted.mask, ref.mask)
+    np.testing.assert_allclose(jitted.depth, ref.depth, atol=1e-15)
+    lifted = ctrl + jnp.array([0.0, 0.0, 0.2])[None, None]
+    both = jax.vmap(lambda c: collide.contacts(b, c, tool))(jnp.stack([ctrl, lifted]))
+    np.testing.assert_array_equal(both.mask[0], ref.mask)
+    np.testing.assert_allclose(both.depth[0], ref.depth, atol=1e-15)
+    np.testing.assert_array_equal(both.mask[1], collide.contacts(b, lifted, tool).mask)
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_nearest_faces_of_active_points_only(name):
+    tool = collide.TriangleMesh.from_trimesh(MESHES[name]())
+    x = points(160, seed=11, half=1.2)
+    active = jnp.asarray(np.random.default_rng(4).random(160) < 0.4)
+    got = mesh_bvh.nearest_faces(tool.tree, tool.vertices, tool.faces, x, active)
+    dense = mesh_bvh.nearest_faces_dense(tool.triangles, x)
+    np.testing.assert_array_equal(np.asarray(got)[np.asarray(active)], np.asarray(dense)[np.asarray(active)])
+    # none active: no search, any face
+    assert mesh_bvh.nearest_faces(tool.tree, tool.vertices, tool.faces, x, jnp.zeros(160, bool)).shape == (
+        160,
+    )
+
+
+def test_value_outside_the_box_is_one_half():
+    mesh = MESHES["part"]()
+    tool = collide.TriangleMesh.from_trimesh(mesh)
+    x = points(120, seed=12, half=0.7)
+    value = np.asarray(tool.value(x))
+    in_box = np.all((np.asarray(x) >= mesh.bounds[0]) & (np.asarray(x) <= mesh.bounds[1]), -1)
+    assert 10 < in_box.sum() < 110
+    np.testing.assert_array_equal(value[~in_box], 0.5)
+    _, dist, _ = trimesh.proximity.closest_point(mesh, np.asarray(x))
+    off = dist > 1e-9  # on the surface the winding number is ½ ± rounding
+    np.testing.assert_allclose(value[off], np.asarray(without_tree(tool).value(x))[off], atol=1e-12)
 
 
 def test_jit_vmap_and_a_moved_mesh():

@@ -4,22 +4,22 @@ the faces near each query point.
 The tree is built once per mesh on the host (numpy): faces are split recursively at the median
 of their centroids along the longest axis into a complete binary tree of `2^depth` leaves of
 `leaf_size` faces (a short leaf repeats one of its own faces, which changes neither a box nor a
-minimum). Only this topology is stored; the leaf and node boxes are recomputed from the current
+minimum). Only this topology is stored; the leaf boxes are recomputed from the current
 vertices on every query (O(F), cheap), so a moved or deformed mesh stays exact.
 
-A query runs three stages, all with static shapes (Ericson, *Real-Time Collision Detection*,
-§6.3 "bounding volume hierarchy traversal", here level-synchronous so a batch of points runs as
-vector code):
+A query (Ericson, *Real-Time Collision Detection*, §6.3 "bounding volume hierarchy traversal",
+here best-first over the leaves and batched so it runs as vector code, all shapes static):
 
-1. a greedy descent to the leaf of nearest box and that leaf's exact distances: an upper bound
-   `ub` of each point's squared distance to the mesh;
-2. a level-by-level traversal keeping, per point, up to `frontier` nodes whose box lies within
-   `ub` (a node farther than `ub` cannot hold the nearest face); the surviving leaves are then
-   compacted over the whole batch into a list of `(point, leaf)` pairs of static capacity and
-   their faces tested exactly (`_closest_point_on_triangle`);
-3. points whose frontier or share of the pair list overflowed are finished against every face,
-   in chunks (`lax.while_loop`), so the result is always exact — overflow costs time, never
-   correctness.
+1. the points to search (all, or those marked `active`) in Morton-ordered tiles of `TILE`;
+   the squared gap between each tile's box and each leaf box; each tile's `NEAREST` leaves of
+   least gap (`top_k`);
+2. best-first: chunks of `PAIRS_PER_STEP` (tile, leaf) pairs in rank-major order (every
+   tile's nearest leaf first) have their faces tested exactly against the tile's points
+   (`_d2`, with per-face quantities computed once), each point keeping its least squared
+   distance; a tile is finished when its next leaf lies beyond its bound (the largest of its
+   points' distances so far), which only tightens;
+3. every remaining (tile, leaf) pair within the tile's bound, in index order (few or none), so
+   the result is always exact — no capacity to overflow, pruning costs time, never correctness.
 
 The nearest face is the one of least squared distance, ties going to the lowest face index (as
 an `argmin` over all faces in order). The inside test uses the angle-weighted pseudo-normal of
@@ -42,8 +42,8 @@ from bsjax import _safe
 from bsjax.collide.triangles import _cross, _sdot, _sub
 
 LEAF_SIZE = 8  # faces per leaf (the target; a leaf holds ⌈F / 2^depth⌉)
-TILE = 16  # query points per tile in stage 2
-PAIRS_PER_STEP = 512  # (tile, leaf) pairs tested exactly per step of stage 2
+TILE = 16  # query points per tile
+PAIRS_PER_STEP = 512  # (tile, leaf) pairs tested exactly per step
 NEAREST = 32  # leaves per tile taken best-first (the rest in index order)
 CHUNK = 32  # points a step of the dense reference
 TIE = 64  # faces within this many ulps of the least squared distance are tied
@@ -111,38 +111,6 @@ def _edge_topology(faces: np.ndarray) -> tuple[np.ndarray, bool]:
     return neighbours.reshape(n, 3), closed
 
 
-def _soa(a, axis=-1):
-    """`(..., 3, ...)` → a tuple of its three components along `axis`."""
-    return tuple(jnp.take(a, k, axis=axis) for k in range(3))
-
-
-def _boxes(leaf_tris):
-    """Heap-ordered node boxes `(lo, hi)`, each `(2 · leaves, 3)` (node 1 the root, 0 unused)."""
-    lo, hi = leaf_tris.min((1, 2)), leaf_tris.max((1, 2))
-    los, his = [lo], [hi]
-    while lo.shape[0] > 1:
-        lo = jnp.minimum(lo[0::2], lo[1::2])
-        hi = jnp.maximum(hi[0::2], hi[1::2])
-        los.append(lo)
-        his.append(hi)
-    pad = jnp.zeros((1, 3), lo.dtype)
-    return jnp.concatenate([pad] + los[::-1]), jnp.concatenate([pad] + his[::-1])
-
-
-def _box_d2(x, lo, hi, node):
-    """Squared distance of points `x` (3 arrays `(N, 1)` or `(N,)`) to the boxes `node` (same
-    batch shape) of the heap `lo, hi (nodes, 3)`; 0 inside. Component-wise (structure of
-    arrays: fused into one loop on the CPU)."""
-    lo, hi = jax.lax.optimization_barrier(
-        ([lo[:, k][node] for k in range(3)], [hi[:, k][node] for k in range(3)])
-    )
-    total = 0
-    for k in range(3):
-        e = jnp.maximum(jnp.maximum(lo[k] - x[k], x[k] - hi[k]), 0)
-        total = total + e * e
-    return total
-
-
 ROWS = 32  # per-face quantities of `_prep`
 
 
@@ -195,16 +163,6 @@ def _leaf_table(table, leaf_faces):
     return table[leaf_faces].transpose(0, 2, 1)
 
 
-def _exact(x, table, leaf, valid):
-    """Squared distances `(M, size)` of points `x` (3 arrays `(M,)`) to the faces of leaves
-    `leaf (M,)` (rows of `_leaf_table`); invalid entries +inf."""
-    # the barrier keeps XLA from fusing the gather into every use in `_d2` (which recomputes
-    # it per use and compiles for minutes)
-    rows, x = jax.lax.optimization_barrier((table[leaf], x))  # (M, ROWS, size)
-    d2 = _d2(tuple(xk[:, None] for xk in x), tuple(rows[:, i] for i in range(ROWS)))
-    return jnp.where(valid[:, None], d2, jnp.inf)
-
-
 def _tol(dtype):
     return TIE * jnp.finfo(dtype).eps
 
@@ -252,34 +210,17 @@ def nearest_faces(
     tris = vertices[faces]
     leaf_tris = tris[tree.leaf_faces]  # (leaves, size, 3, 3)
     table = _leaf_table(_face_table(tris), tree.leaf_faces)
-    lo, hi = _boxes(leaf_tris)
-    xs = _soa(x)
+    lo, hi = leaf_tris.min((1, 2)), leaf_tris.max((1, 2))  # leaf boxes (leaves, 3)
 
-    # 1. greedy descent: an upper bound from the leaf of nearest box
-    # (a loop, not unrolled: XLA's CPU compile time grows exponentially with unrolled levels)
-    def descend(_, node):
-        left, right = 2 * node, 2 * node + 1
-        return jnp.where(_box_d2(xs, lo, hi, right) < _box_d2(xs, lo, hi, left), right, left)
-
-    first = jax.lax.fori_loop(0, tree.depth, descend, jnp.ones(n, jnp.int32)) - leaves
-    d2 = _exact(xs, table, first, jnp.ones(n, bool))
-    best, face = _merge(
-        jnp.full(n, jnp.inf, x.dtype),
-        jnp.zeros(n, jnp.int32),
-        d2,
-        tree.leaf_faces[first],
-        jnp.arange(n),
-    )
-    # 2. the active points in tiles of `TILE` (Morton order, inactive ones last); each tile's
-    # leaves sorted by their box's distance to the tile's box and tested nearest first
-    # (best-first, Ericson §6.3.2), a chunk of (tile, rank) pairs a step: a tile is finished
-    # when its next leaf lies beyond the tile's bound, which tightens after every chunk
+    best, face = jnp.full(n, jnp.inf, x.dtype), jnp.zeros(n, jnp.int32)
+    # 1. the active points in tiles of `TILE` (Morton order, inactive ones last); each tile's
+    # leaves ranked by the gap between their box and the tile's box
     tiles = _tiles(x, active)
     tile_active = active[tiles]  # (T, TILE)
     tx = x[tiles]
     tlo = jnp.min(jnp.where(tile_active[..., None], tx, jnp.inf), 1)
     thi = jnp.max(jnp.where(tile_active[..., None], tx, -jnp.inf), 1)
-    gap = _box_gap2(tlo, thi, lo[leaves:], hi[leaves:])  # (T, leaves); +inf for an idle tile
+    gap = _box_gap2(tlo, thi, lo, hi)  # (T, leaves); +inf for an idle tile
     n_tiles = tiles.shape[0]
     rows_t = jnp.arange(n_tiles)
     # each tile's `NEAREST` leaves of least gap (float32 keys: `top_k` is fast there; the order
@@ -294,7 +235,9 @@ def nearest_faces(
     def test(tile, leaf, used, best, face):
         """Fold the faces of `(tile, leaf)` pairs `(P,)` (where `used`) into `(best, face)`."""
         who = tiles[tile]  # (P, TILE)
-        rows, px = jax.lax.optimization_barrier((table[leaf], x[who]))  # see `_exact`
+        # the barrier keeps XLA from fusing the gather into every use in `_d2` (which recomputes
+        # it per use and compiles for minutes)
+        rows, px = jax.lax.optimization_barrier((table[leaf], x[who]))
         q = tuple(rows[:, None, i] for i in range(ROWS))
         d2 = _d2(tuple(px[..., k][..., None] for k in range(3)), q)  # (P, TILE, size)
         d2 = jnp.where(used[:, None, None], d2, jnp.inf)
@@ -302,10 +245,10 @@ def nearest_faces(
         ids = jnp.broadcast_to(tree.leaf_faces[leaf][:, None], d2.shape).reshape(-1, size)
         return _merge(best, face, d2.reshape(-1, size), ids, owner)
 
-    # 2a. best-first over the nearest leaves: rank-major chunks (every tile's nearest leaf
+    # 2. best-first over the nearest leaves: rank-major chunks (every tile's nearest leaf
     # first), a tile's cursor passing the ranks taken or beyond its bound
     def ranked(cursor, best):
-        rank = jnp.arange(ranks)[:, None]  # (ranks, T): rank-major
+        rank = jnp.arange(ranks, dtype=jnp.int32)[:, None]  # (ranks, T): rank-major
         return (rank >= cursor[None, :]) & (sgap.T <= bound(best)[None, :])
 
     def step_a(state):
@@ -326,12 +269,12 @@ def nearest_faces(
     state = (cursor, best, face)
     cursor, best, face = jax.lax.while_loop(lambda s: jnp.any(ranked(s[0], s[1])), step_a, state)
 
-    # 2b. the rest: every (tile, leaf) pair not done whose box lies within the tile's bound,
+    # 3. the rest: every (tile, leaf) pair not done whose box lies within the tile's bound,
     # in index order (usually few or none: the bounds are nearly final after 2a)
     done = (
         jnp.zeros((n_tiles, leaves), bool)
         .at[rows_t[:, None], order]
-        .set(jnp.arange(ranks)[None] < cursor[:, None])
+        .set(jnp.arange(ranks, dtype=jnp.int32)[None] < cursor[:, None])
     )
 
     def rest(done, best):
