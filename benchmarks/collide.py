@@ -9,6 +9,8 @@ query: bsjax returns the per-sample mask, depth and normals; fcl all contacts.
     .venv/bin/python benchmarks/collide.py --quick    # fewer sizes
     .venv/bin/python benchmarks/collide.py --x64      # float64
     .venv/bin/python benchmarks/collide.py --x64 --tables issue   # only issue #11's two rows
+    .venv/bin/python benchmarks/collide.py --x64 --tables issue --prev HEAD~1   # and a commit's
+                                      # bsjax.collide timed interleaved with today's, same results
 
 The last lines print issue #11's rows (sphere/ellipsoid/plane/point vs a bumped 20×20 plate at
 82×82 with `contacts`; two 20×20 surfaces at 82×82 with `surface_contacts`) against their goals.
@@ -43,6 +45,56 @@ def timeit(fn, n, warm=2):
         times.append(time.perf_counter() - t)
     t = np.array(times) * 1e3
     return float(np.median(t)), float(np.percentile(t, 99))
+
+
+def previous_collide(commit: str):
+    """`bsjax.collide` as it was at `commit` (git), importable beside today's: its files are
+    written to a temporary package whose imports of `bsjax.collide` point to itself (the rest of
+    bsjax is today's)."""
+    import importlib
+    import pathlib
+    import subprocess
+    import tempfile
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    name = "collide_" + "".join(c if c.isalnum() else "_" for c in commit)
+    folder = pathlib.Path(tempfile.mkdtemp()) / name
+    folder.mkdir()
+    files = subprocess.run(
+        ["git", "ls-tree", "--name-only", commit, "bsjax/collide/"],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
+    for path in files:
+        text = subprocess.run(
+            ["git", "show", f"{commit}:{path}"], cwd=root, capture_output=True, text=True, check=True
+        )
+        (folder / pathlib.Path(path).name).write_text(text.stdout.replace("bsjax.collide", name))
+    sys.path.insert(0, str(folder.parent))
+    return importlib.import_module(name)
+
+
+def paired(run_a, run_b, n):
+    """Median and p99 (ms) of two callables timed in alternation (load drift hits both alike)."""
+    ta, tb = [], []
+    for _ in range(n):
+        for run, times in ((run_a, ta), (run_b, tb)):
+            t = time.perf_counter()
+            run()
+            times.append(time.perf_counter() - t)
+    stats = lambda t: (float(np.median(t) * 1e3), float(np.percentile(t, 99) * 1e3))
+    return stats(ta), stats(tb)
+
+
+def same(old, new, name):
+    """Masks identical and floats to 1e-12 between two results of one query."""
+    for field in old.__dataclass_fields__:
+        a, b = np.asarray(getattr(old, field)), np.asarray(getattr(new, field))
+        ok = np.array_equal(a, b) if a.dtype.kind in "bi" else np.allclose(a, b, rtol=0, atol=1e-12)
+        if not ok:
+            raise AssertionError(f"{name}: {field} differs from the previous commit's")
 
 
 def bumpy(size: int, seed: int, dtype):
@@ -84,6 +136,11 @@ def main(argv=None) -> int:
         help="which experiments: 1, 2, s (surface vs surface), f (flat contact), issue (issue #11's rows)",
     )
     parser.add_argument("--capacity", type=int, default=2048, help="surface_contacts capacity")
+    parser.add_argument(
+        "--prev",
+        default=None,
+        help="a git commit: with --tables issue, time its bsjax.collide interleaved with today's",
+    )
     args = parser.parse_args(argv)
     import jax
 
@@ -236,6 +293,8 @@ def main(argv=None) -> int:
         surface_row(
             "20x20 vs 20x20, 82x82", bl, jnp.asarray(a.ctrl), bl, jnp.asarray(ctrl_b), THESIS_SURF[20]
         )
+    if args.prev and "issue" in tables:
+        compare_previous(args, dtype, tools)
     if issue_rows:
         import os
 
@@ -254,6 +313,77 @@ def main(argv=None) -> int:
                 f"fcl+rebuild {f_med:.3f} ms = {f_med / med:.1f}x | fcl static {g_med:.3f} ms = {g_med / med:.2f}x | {goal}"
             )
     return 0
+
+
+def compare_previous(args, dtype, tools):
+    """Issue #11's rows with `--prev`'s `bsjax.collide` and today's, interleaved in one process."""
+    import os
+
+    import jax
+    import jax.numpy as jnp
+
+    from bsjax import collide
+
+    old = previous_collide(args.prev)
+    print(f"\nIssue #11 rows, {args.prev} vs now (interleaved, as called; ms median / p99):")
+    surf = bumpy(20, 0, dtype)
+    b = surf.blending(82, 82)
+    ctrl = jnp.asarray(surf.ctrl)
+    rows = []
+    for kind, (tool, _) in tools.items():
+        old_tool = getattr(old, type(tool).__name__)(*[np.asarray(a) for a in _tool_args(tool)])
+        rows.append(
+            (kind, lambda t=old_tool: old.contacts(b, ctrl, t), lambda t=tool: collide.contacts(b, ctrl, t))
+        )
+    a = bumpy(20, 1, dtype)
+    ctrl_b = np.asarray(bumpy(20, 2, dtype).ctrl).copy()
+    ctrl_b[..., 2] = (ctrl_b[..., 0] - 0.5) * 0.8 + ctrl_b[..., 2]
+    ctrl_b[..., 0] = 0.1 + 0.8 * ctrl_b[..., 0]
+    ca, cb = jnp.asarray(a.ctrl), jnp.asarray(ctrl_b)
+    rows.append(
+        (
+            "surface_contacts",
+            lambda: old.surface_contacts(b, ca, b, cb, capacity=args.capacity),
+            lambda: collide.surface_contacts(b, ca, b, cb, capacity=args.capacity),
+        )
+    )
+    from bsjax._boundary import clear_caches
+
+    for kind, run_old, run_new in rows:
+        clear_caches()  # both compile here, timed apart
+        jax.clear_caches()
+        compile_s = []
+        results = []
+        for run in (run_old, run_new):
+            t = time.perf_counter()
+            results.append(jax.block_until_ready(run()))
+            compile_s.append(time.perf_counter() - t)
+        same(*results, kind)
+        calls = args.calls // 2 if kind == "surface_contacts" else args.calls
+        (o_med, o_p99), (n_med, n_p99) = paired(
+            lambda r=run_old: jax.block_until_ready(r()), lambda r=run_new: jax.block_until_ready(r()), calls
+        )
+        print(
+            f"  {kind:<17} {args.prev} {o_med:7.3f} / {o_p99:7.3f} (compile {compile_s[0]:5.1f} s) | now "
+            f"{n_med:7.3f} / {n_p99:7.3f} (compile {compile_s[1]:5.1f} s) | {o_med / n_med:4.2f}x, same results"
+            f" | load {os.getloadavg()[0]:.2f}",
+            flush=True,
+        )
+
+
+def _tool_args(tool):
+    """The constructor arguments of a benchmark tool (to build the previous commit's twin)."""
+    from bsjax.collide import Ellipsoid, Plane, Point, Sphere
+
+    if isinstance(tool, Point):
+        return (tool.position,)
+    if isinstance(tool, Sphere):
+        return tool.center, tool.radius
+    if isinstance(tool, Ellipsoid):
+        return tool.center, tool.radii, tool.rotation
+    if isinstance(tool, Plane):
+        return tool.point, tool.normal
+    raise TypeError(type(tool).__name__)
 
 
 if __name__ == "__main__":

@@ -284,8 +284,8 @@ def candidate_pairs_intersect(t1, t2, active):
 
     Most candidate pairs of two sampled surfaces are separated by one triangle's plane (the
     first test of Guigue & Devillers): the plane tests run on every pair, and the rest of the
-    test only on the pairs that survive them, gathered `N / 4` at a time (`jnp.nonzero(size=…)`
-    in a `lax.while_loop` that runs once in the usual case). The gathered pairs reuse the plane
+    test only on the pairs that survive them, gathered `N / 4` at a time (slots from a running
+    count, in a `lax.while_loop` that runs once in the usual case). The gathered pairs reuse the plane
     distances computed for all, so the answer is the one of the test on every pair.
     """
     batch = jnp.broadcast_shapes(t1.shape[:-2], t2.shape[:-2], active.shape)
@@ -302,18 +302,24 @@ def candidate_pairs_intersect(t1, t2, active):
     slots = n // _LIVE_SHARE
     if slots < 64:
         return _intersect_flat(f1, f2, live, planes).reshape(batch)
-    chunk = (jnp.cumsum(live, dtype=jnp.int32) - 1) // slots  # which round finishes each live pair
-    rounds = (jnp.sum(live, dtype=jnp.int32) + slots - 1) // slots
+    position = jnp.cumsum(live, dtype=jnp.int32) - 1  # rank of each live pair
+    chunk = position // slots  # the round that finishes it
+    rounds = (position[-1] + slots) // slots
     row1, row2 = jnp.asarray(row1), jnp.asarray(row2)
+    pair = jnp.arange(n, dtype=jnp.int32)
 
     def finish(carry):
         c, hits = carry
-        (k,) = jnp.nonzero(live & (chunk == c), size=slots, fill_value=n)
+        mine = live & (chunk == c)
+        slot = position - c * slots
+        # this round's pairs into their slots (unused slots: n), and each pair's answer back
+        # from its slot by a gather
+        k = jnp.full(slots, n, jnp.int32).at[jnp.where(mine, slot, slots)].set(pair, mode="drop")
         ok = k < n
         k = jnp.minimum(k, n - 1)
         sub_planes = jax.tree_util.tree_map(lambda x: x[k], planes)
         hit = _intersect_flat(t1[row1[k]], t2[row2[k]], ok, sub_planes)
-        return c + 1, hits.at[k].max(hit & ok)
+        return c + 1, jnp.where(mine, hit[jnp.clip(slot, 0, slots - 1)], hits)
 
     _, hits = jax.lax.while_loop(lambda carry: carry[0] < rounds, finish, (0, jnp.zeros(n, bool)))
     return hits.reshape(batch)
