@@ -365,3 +365,23 @@ def test_candidate_pairs_gathered_after_the_plane_tests_equal_every_pair(share):
         jnp.asarray(active).reshape(2, -1),
     )
     np.testing.assert_array_equal(np.asarray(halves).reshape(-1), expect)
+
+
+def test_point_contact_jit_vmap_and_gradient():
+    _, b, ctrl = _surface("clamped 3x2", seed=4)
+    points, normals = np.asarray(b.points(ctrl)), np.asarray(b.normals(ctrl))
+    positions = jnp.asarray(
+        [
+            points[6, 4] - 0.03 * normals[6, 4],
+            points[3, 7] + 0.05 * normals[3, 7],
+            points[10, 2] - 0.02 * normals[10, 2],
+        ]
+    )
+    depth = lambda x: contacts(b, ctrl, Point(x)).depth
+    direct = [np.asarray(depth(x)) for x in positions]
+    np.testing.assert_array_equal(np.asarray(jax.jit(depth)(positions[0])), direct[0])
+    batched = np.asarray(jax.vmap(depth)(positions))
+    for k in range(3):
+        np.testing.assert_allclose(batched[k], direct[k], rtol=0, atol=1e-14)
+    assert direct[0].sum() > 0 and direct[1].sum() == 0
+    check_grad(jax.jit(lambda p: contacts(b, p, Point(positions[0])).depth.sum()), ctrl, rtol=1e-4)
