@@ -26,9 +26,9 @@ test: $(PY)
 	$(VENV)/bin/pyright
 	# XLA's CPU compiler has twice killed a test worker mid-compile (a segfault, then an abort; the
 	# test passes when run again): a larger main-thread stack, and a test whose *worker crashed* runs
-	# once more (pytest-rerunfailures' xdist crash hook). Ordinary failures are never rerun: the
+	# up to twice more (pytest-rerunfailures' xdist crash hook). Ordinary failures are never rerun: the
 	# --only-rerun pattern matches no assertion message.
-	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --reruns 1 \
+	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --reruns 2 \
 		--only-rerun '^bsjax: rerun only a crashed worker$$'
 
 bench: $(PY)

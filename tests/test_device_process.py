@@ -154,8 +154,13 @@ READS: list[int] = []
 
 
 def test_seqlock_reader_gets_records_while_hammered(hammered):
-    got = sum(hammered.read() is not None for _ in range(2000))
-    assert got > 100  # the reader is not starved by a writer that never pauses
+    # the reader is not starved by a writer that never pauses: 100 consistent records within 2 s
+    # of wall time (2 000 back-to-back reads got none once, in the full suite, with the writer
+    # and the other test worker holding both cores for the whole burst)
+    got, end = 0, time.monotonic() + 2.0
+    while got < 100 and time.monotonic() < end:
+        got += hammered.read() is not None
+    assert got >= 100
 
 
 def test_seqlock_reader_gives_up_on_a_write_in_progress():
