@@ -35,20 +35,11 @@ BRANCH = 3
 
 
 def three_point_sphere(p00, p10, p01, p11):
-    """Centre of the circle through the longer diagonal's ends and one more corner (thesis §3.3.3.4)."""
-    long_main = jnp.sum((p11 - p00) ** 2, -1) >= jnp.sum((p10 - p01) ** 2, -1)
-    a = jnp.where(long_main[..., None], p00, p10)
-    b = jnp.where(long_main[..., None], p11, p01)
-    c = jnp.where(long_main[..., None], p10, p00)
-    u, v = b - a, c - a
-    w = jnp.cross(u, v)
-    ww = jnp.sum(w * w, -1)
-    uu, vv = jnp.sum(u * u, -1), jnp.sum(v * v, -1)
-    ok = ww > jnp.finfo(ww.dtype).eps * uu * vv
-    off = (uu[..., None] * jnp.cross(v, w) + vv[..., None] * jnp.cross(w, u)) / (2 * jnp.where(ok, ww, 1))[
-        ..., None
-    ]
-    return jnp.where(ok[..., None], a + off, 0.5 * (a + b))
+    """Centre of the circle through the longer diagonal's ends and one more corner (thesis §3.3.3.4).
+
+    Corners `(..., 3)` each; returns `(..., 3)`. The arithmetic is `_three_point_sphere`'s (one
+    implementation, per component)."""
+    return _soa.stack(_three_point_sphere(*(_soa.split(p) for p in (p00, p10, p01, p11))))
 
 
 def _corners(points):

@@ -695,11 +695,7 @@ class TriangleMesh(AbstractTool):
         """`½ − w`: `w` the winding number (1 inside, 0 outside, ½ on a face of a closed mesh)."""
         x = _points(x, self.vertices.dtype)
         flat = x.reshape(-1, 3)
-        if self._culls:
-            in_box = self._in_box(flat)
-            winding = jnp.where(in_box, self._inside(flat, self._nearest(flat, in_box))[1], 0)
-        else:
-            winding = self._inside(flat)[1]
+        winding = self._culled_search(flat)[2] if self._culls else self._inside(flat)[1]
         return (0.5 - winding).reshape(x.shape[:-1])
 
     @property
@@ -707,6 +703,13 @@ class TriangleMesh(AbstractTool):
         """Whether a point outside the mesh's box may skip the search: the mesh is closed (its
         winding number is exactly 0 there; not so for an open mesh) and has a tree."""
         return self.tree is not None and self.tree.closed
+
+    def _culled_search(self, flat):
+        """`(in_box (N,), nearest, winding (N,))` of a culling mesh: the nearest-face search only
+        for the points inside the box, winding number 0 outside it."""
+        in_box = self._in_box(flat)
+        nearest = self._nearest(flat, in_box)
+        return in_box, nearest, jnp.where(in_box, self._inside(flat, nearest)[1], 0)
 
     def _in_box(self, flat):
         """Points `(N, 3)` in the closed axis-aligned box of the vertices `(N,)`; the others
@@ -754,9 +757,7 @@ class TriangleMesh(AbstractTool):
         """
         flat = x.reshape(-1, 3)
         if self._culls:
-            in_box = self._in_box(flat)
-            nearest = self._nearest(flat, in_box)
-            winding = jnp.where(in_box, self._inside(flat, nearest)[1], 0)
+            in_box, nearest, winding = self._culled_search(flat)
             depth, normal = self._depth(flat, nearest)
             depth, normal = jnp.where(in_box, depth, 0), jnp.where(in_box[:, None], normal, 0)
         else:
