@@ -58,9 +58,8 @@ from bsjax._boundary import precise
 from bsjax.device._model import AbstractHapticModel
 from bsjax.device.protocol import DeviceSample, positive_number
 from bsjax.device.proxy import Proxy
-from bsjax.mss._forces import _pair_force
-from bsjax.mss._integrators import _explicit
-from bsjax.mss._lattice import _slices
+from bsjax.mss._forces import _grid_sum, _pair_force
+from bsjax.mss._integrators import _position_step, _velocity_step
 
 
 @runtime_checkable
@@ -287,43 +286,49 @@ class SculptModel(AbstractHapticModel):
         (the cheaper exact push), else a `collide.Ellipsoid` aligned with the stylus."""
         return collide.Sphere(centre, axes[0]) if sphere else collide.Ellipsoid(centre, axes, rot)
 
-    def _substep(self, carry, tools, contact):
-        """One semi-implicit Euler step of the lattice (`mss.step`'s kernel, thesis eqs.
-        5.14–5.16) with the seam springs as external force.
+    def _substeps(self, state, rest, rest_seam, tools, contact):
+        """`substeps` semi-implicit Euler steps of the lattice (`mss.step`'s kernel, thesis eqs.
+        5.14–5.16) with the seam springs as external force; returns the new `State`.
 
         The unchecked kernel: `mss.step` would check the state, forces and `dt` on every
         substep (a host callback each); the tick checks its outputs once instead (`ok`), and
-        `dt` once at construction (`check_step`)."""
-        state, rest, rest_seam = carry
-        seam = None
-        if self.seam is not None:
-            seam = self._seam_forces(state.position, state.velocity, rest_seam)
-        state = _explicit(self.lattice, state, self.dt, seam, None, tools, contact, rest)
-        return state, rest, rest_seam
+        `dt` once at construction (`check_step`). The loop carries the position one step behind
+        (`x_k = x_{k−1} + Δt v_k` at the start of step k, the same operations as `mss.step`):
+        a step's spring sum then has one consumer, the velocity, and XLA computes it once."""
+        lattice, dt = self.lattice, self.dt
+
+        def step(k, carry):
+            x, v = carry
+            x = jnp.where(k > 0, _position_step(lattice, x, v, dt), x)
+            seam = self._seam_forces(x, v, rest_seam) if self.seam is not None else None
+            return x, _velocity_step(lattice, mss.State(x, v), dt, seam, None, tools, contact, rest)
+
+        x, v = jax.lax.fori_loop(0, self.substeps, step, (state.position, state.velocity))
+        return mss.State(_position_step(lattice, x, v, dt), v)
 
     def _seam_forces(self, x, v, rest_seam):
-        """`mss.spring_forces` of the seam lattice, `(N, 3)`, by dense slices: the springs of
-        direction `(da, db, dc)` join column `n − 1` to column 0 (db = 1) or 0 to `n − 1`
-        (db = −1), in the order of `seam_edges` (C order of the first node's `(a, c)`), so no
-        gather or scatter."""
+        """`mss.spring_forces` of the seam lattice, `(N, 3)`, by `mss`'s grid kernel: columns
+        `n − 1` and `0` side by side form an `(m, 2, layers)` grid whose springs across its two
+        columns (`db ≠ 0`) are exactly the seam's, in the order of `seam_edges`; its springs
+        within a column get zero parameters (they belong to the main lattice). No gather or
+        scatter over the whole lattice."""
         m, n, layers = self.lattice.grid_shape
-        grids = [a.T.reshape(3, m, n, layers) for a in (x, v)]
-        out = jnp.zeros_like(grids[0])
-        start = 0
+        sub = (m, 2, layers)
+
+        def columns(a):  # (N, 3) -> (m·2·layers, 3): column n − 1, then column 0
+            grid = a.reshape(m, n, layers, 3)
+            return jnp.stack([grid[:, n - 1], grid[:, 0]], axis=1).reshape(-1, 3)
+
+        params, start = [[], [], []], 0
         for da, db, dc in mss.HEX_DIRECTIONS:
-            if db == 0:
-                continue
-            c0, c1 = _slices(dc, layers)
-            sub = (m - da, c0.stop - c0.start)
-            seg = slice(start, start + sub[0] * sub[1])
-            start = seg.stop
-            b0, b1 = (n - 1, 0) if db == 1 else (0, n - 1)
-            i0 = (slice(None), slice(0, m - da), b0, c0)
-            i1 = (slice(None), slice(da, m), b1, c1)
-            edge = (p[seg].reshape(sub) for p in (rest_seam, self.seam.stiffness, self.seam.damping))
-            f = _pair_force(*(g[i0] - g[i1] for g in grids), *edge)
-            out = out.at[i0].add(f).at[i1].add(-f)
-        return out.reshape(3, -1).T
+            count = (m - da) * (2 - abs(db)) * (layers - abs(dc))
+            for out, p in zip(params, (rest_seam, self.seam.stiffness, self.seam.damping)):
+                out.append(jnp.zeros((count,), x.dtype) if db == 0 else p[start : start + count])
+            start += 0 if db == 0 else count
+        f = _grid_sum(sub, _pair_force, (columns(x), columns(v)), [jnp.concatenate(p) for p in params])
+        f = f.reshape(m, 2, layers, 3)
+        out = jnp.zeros((m, n, layers, 3), x.dtype).at[:, n - 1].add(f[:, 0]).at[:, 0].add(f[:, 1])
+        return out.reshape(-1, 3)
 
     def _tick_impl(self, carry, inputs, sphere):
         """One physics tick: `substeps` steps of `mss.coupled_step`'s chain (the refit once, after
@@ -339,10 +344,10 @@ class SculptModel(AbstractHapticModel):
 
         def substeps(tools):
             def run(carry):
-                carry = jax.lax.fori_loop(
-                    0, self.substeps, lambda _, c: self._substep(c, tools, contact), carry
-                )
-                x = carry[0].position
+                state, rest, rest_seam = carry
+                state = self._substeps(state, rest, rest_seam, tools, contact)
+                carry = state, rest, rest_seam
+                x = state.position
                 # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
                 f = mss.tool_forces(tools, x, jnp.zeros_like(x), contact.stiffness) if tools else x * 0
                 return carry, _safe.norm(jnp.sum(f, axis=0))
@@ -438,7 +443,7 @@ class SculptModel(AbstractHapticModel):
         # While sculpting, the surface yields under the tool; shifting the plane back by
         # reaction / k makes the servo render the nodes' reaction on top of the contact force.
         q = q - n * (self.reaction_gain * reaction / self.proxy_stiffness)
-        return self._plane(q, n, self.proxy_stiffness, self.proxy_damping, support)
+        return self._plane(q.tolist(), n.tolist(), self.proxy_stiffness, self.proxy_damping, support)
 
     def surface(self):
         """The current surface (refit of the lattice's outer layer)."""

@@ -132,6 +132,8 @@ class Proxy:
 
 def _real(x, name: str) -> float:
     """A real number (Python or numpy scalar; not bool, complex or str) as a float."""
+    if type(x) is float:  # the common case, without the ABC check (the physics rate builds many)
+        return x
     if isinstance(x, bool) or not isinstance(x, numbers.Real):
         raise TypeError(f"{name}: expected a real number, got {type(x).__name__} {x!r}")
     return float(x)

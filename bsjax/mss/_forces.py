@@ -6,13 +6,15 @@ Every kernel returns the net force *on* each node, `(N, 3)`, in newtons.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from bsjax import _checks, _safe, collide
-from bsjax._boundary import compiled
+from bsjax._boundary import compiled, host_cache
 from bsjax.mss._lattice import HEX_DIRECTIONS, Lattice, _slices
 
 
@@ -31,15 +33,15 @@ def _inv_length(d):
 
 
 def _pair_force(d, dv, rest, k, c):
-    """Force on node i of a spring with `d = x_i − x_j`, `dv = v_i − v_j` (component-first, `(3, ...)`).
+    """Coefficients of a spring's force on node i, for `d = x_i − x_j`, `dv = v_i − v_j`
+    (component-first, `(3, ...)`): `(a, None)` with the force `a d` (`edge_sum`'s form).
 
     Hooke `−K (l − L) ê` (eq. 5.11 with `K` in N/m) plus Voigt damping `−D ((v_i − v_j)·ê) ê`
     (eq. 5.2 along the spring), written `−[K (1 − L/l) + D (dv·d)/l²] d` so a zero-length spring
     (L = 0, l = 0, e.g. at a pole) is a finite linear spring with finite gradients.
     """
     inv, _ = _inv_length(d)
-    coef = k * (1.0 - rest * inv) + c * _dot3(dv, d) * inv * inv
-    return -coef[None] * d
+    return -(k * (1.0 - rest * inv) + c * _dot3(dv, d) * inv * inv), None
 
 
 @compiled
@@ -59,17 +61,23 @@ def spring_forces(
 
 
 def edge_sum(lattice: Lattice, pair, node_arrays, edge_arrays) -> Float[Array, "N 3"]:
-    """`Σ_j pair(a_i − a_j, …, p_ij, …)` at every node i (and the opposite at j).
+    """`Σ_j f_ij` at every node i (and `−f_ij` at j): the net spring force of a pairwise law.
 
     `pair` gets the component-first differences `(3, ...)` across each spring of every `(N, 3)`
     array in `node_arrays` and the spring's entries of every `(E,)` array in `edge_arrays`, and
-    returns the `(3, ...)` force on the spring's first node. Dense slices on a hexahedral grid
-    (structure-of-arrays, no scatter), `segment_sum` over the edge list otherwise.
+    returns one coefficient array `(...)` (or `None`, meaning zero) per node array: the force on
+    the spring's first node is `f = Σ_a coef_a d_a`. (Every pairwise law of a spring lattice is of
+    this form — forces and tangent products are combinations of the springs' difference vectors;
+    the form lets the kernel compute each spring's scalars once and the vectors at the nodes.)
+    Dense stencil kernel on a hexahedral grid (`_grid_sum`, no scatter), `segment_sum` over the
+    edge list otherwise.
     """
     if lattice.grid_shape is not None:
         return _grid_sum(lattice.grid_shape, pair, node_arrays, edge_arrays)
     i, j = lattice.edges[:, 0], lattice.edges[:, 1]
-    f = pair(*((a[i] - a[j]).T for a in node_arrays), *edge_arrays).T
+    diffs = [(a[i] - a[j]).T for a in node_arrays]
+    coefs = pair(*diffs, *edge_arrays)
+    f = sum(c[None] * d for c, d in zip(coefs, diffs) if c is not None).T
     n = node_arrays[0].shape[0]
     return jax.ops.segment_sum(f, i, n) - jax.ops.segment_sum(f, j, n)
 
@@ -99,23 +107,67 @@ def edge_lengths(lattice: Lattice, x: Float[Array, "N 3"]) -> Float[Array, " E"]
     return jnp.concatenate(parts)
 
 
-def _grid_sum(shape, pair, node_arrays, edge_arrays):
-    """Dense-slice `edge_sum` for a C-ordered grid with edges in `hex_edges` order."""
-    grids = [a.T.reshape((3,) + shape) for a in node_arrays]  # structure of arrays: xyz leading
-    out = jnp.zeros_like(grids[0])
-    start = 0
+class _Stencil(NamedTuple):
+    """Static plan of the grid kernel: springs as flat-index offsets of a C-ordered grid.
+
+    Direction `d` of `HEX_DIRECTIONS` joins node `s` to `s + offsets[d]` (flat index). On the
+    node arrays padded by `pad` zero rows at both ends (node `i` at row `pad + i`), row `d` of
+    `partner (D, N + pad)` holds the padded row of the partner of a spring starting at padded row
+    `s` and `edge (D, N + pad)` that spring's index in `hex_edges` order, or `E` (a zero
+    parameter, so no force) where no spring of direction `d` starts.
+    """
+
+    offsets: tuple[int, ...]
+    pad: int
+    partner: np.ndarray
+    edge: np.ndarray
+
+
+@host_cache(maxsize=64)
+def _stencil(shape: tuple[int, int, int]) -> _Stencil:
+    n = int(np.prod(shape))
+    ids = np.arange(n).reshape(shape)
+    strides = (shape[1] * shape[2], shape[2], 1)
+    rows, start = [], 0
     for direction in HEX_DIRECTIONS:
-        s0, s1 = zip(*(_slices(o, n) for o, n in zip(direction, shape)))
-        sub = tuple(sl.stop - sl.start for sl in s0)
-        count = sub[0] * sub[1] * sub[2]
-        if count == 0:
+        s0, _ = zip(*(_slices(o, m) for o, m in zip(direction, shape)))
+        first = ids[s0].ravel()
+        rows.append((int(np.dot(direction, strides)), first, start))
+        start += first.size
+    rows = [r for r in rows if r[1].size]  # a direction with no spring in this grid
+    pad = max(r[0] for r in rows)
+    partner = np.stack([np.arange(n + pad, dtype=np.int32) + o for o, _, _ in rows])
+    edge = np.full((len(rows), n + pad), start, np.int32)
+    for d, (_, first, begin) in enumerate(rows):
+        edge[d, first + pad] = np.arange(begin, begin + first.size)
+    return _Stencil(tuple(r[0] for r in rows), pad, partner, edge)
+
+
+def _grid_sum(shape, pair, node_arrays, edge_arrays):
+    """`edge_sum` on a C-ordered grid with edges in `hex_edges` order, without a scatter.
+
+    Every direction's springs start at every padded node (`_Stencil`): the coefficients of all
+    springs come from one gathered `(D, N + pad)` evaluation of `pair` (each spring once); the
+    force at node i is then `Σ_d coef_d[i] d_d[i] − coef_d[i − o_d] d_d[i − o_d]` from static
+    slices — one elementwise loop. XLA on CPU runs this ~3× faster than per-direction slices
+    with scattered updates (whose pair forces it fused into both updates).
+    """
+    plan = _stencil(shape)
+    n, pad = int(np.prod(shape)), plan.pad
+    padded = [jnp.pad(a.T, ((0, 0), (pad, pad))) for a in node_arrays]  # (3, N + 2 pad)
+    diffs = [p[:, None, : n + pad] - p[:, plan.partner] for p in padded]  # (3, D, N + pad)
+    params = [jnp.append(e, jnp.zeros((1,), e.dtype))[plan.edge] for e in edge_arrays]
+    coefs = pair(*diffs, *params)
+    out = jnp.zeros((3, n), padded[0].dtype)
+    for p, coef in zip(padded, coefs):
+        if coef is None:
             continue
-        seg = slice(start, start + count)
-        start += count
-        a0, a1 = (slice(None),) + s0, (slice(None),) + s1
-        f = pair(*(g[a0] - g[a1] for g in grids), *(p[seg].reshape(sub) for p in edge_arrays))
-        out = out.at[a0].add(f).at[a1].add(-f)
-    return out.reshape(3, -1).T
+        here = p[:, pad : pad + n]
+        for d, o in enumerate(plan.offsets):
+            first = coef[None, d, pad : pad + n] * (here - p[:, pad + o : pad + o + n])
+            second = coef[None, d, pad - o : pad - o + n] * (p[:, pad - o : pad - o + n] - here)
+            out = out + first - second
+    return out.T
 
 
 # --- penalty contact with rigid tools --------------------------------------------------------------

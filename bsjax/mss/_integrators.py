@@ -243,12 +243,27 @@ def _explicit(
     lattice, state, dt, external_force=None, gravity=None, tools=(), contact=None, rest_length=None
 ):
     """The semi-implicit Euler kernel (no checks)."""
+    v = _velocity_step(lattice, state, dt, external_force, gravity, tools, contact, rest_length)
+    return State(_position_step(lattice, state.position, v, dt), v)
+
+
+def _velocity_step(
+    lattice, state, dt, external_force=None, gravity=None, tools=(), contact=None, rest_length=None
+):
+    """`v ← v + Δt a` (eqs. 5.14–5.15), zero at fixed nodes: the first half of `_explicit`.
+
+    A loop of steps that carries the position one step behind (`_position_step` at the start of
+    the next step) computes the spring sum once per step; XLA on CPU fuses it into both the
+    velocity and the position update of `_explicit` (computed twice).
+    """
     f = _net_force(lattice, state, external_force, gravity, tools, contact, rest_length)
     a = f / lattice.mass[:, None]
-    free = ~lattice.fixed[:, None]
-    v = jnp.where(free, state.velocity + dt * a, 0.0)
-    x = jnp.where(free, state.position + dt * v, state.position)
-    return State(x, v)
+    return jnp.where(~lattice.fixed[:, None], state.velocity + dt * a, 0.0)
+
+
+def _position_step(lattice, x, v, dt):
+    """`x ← x + Δt v` (eq. 5.16) at the free nodes: the second half of `_explicit`."""
+    return jnp.where(~lattice.fixed[:, None], x + dt * v, x)
 
 
 @compiled
@@ -280,7 +295,8 @@ def step(
 
 
 def _tangent_pair(h, damped=True):
-    """Spring block of `(hC + h²K_t) w` at node i for `dw = w_i − w_j` (component-first).
+    """Spring block of `(hC + h²K_t) w` at node i for `dw = w_i − w_j` (component-first), as
+    `edge_sum` coefficients of `(dx, dw)`.
 
     `K_t = k [ê êᵀ + max(0, 1 − L/l)(I − ê êᵀ)]` is the spring's stiffness matrix with the
     compressive (negative) geometric term dropped, so the system stays positive definite.
@@ -291,7 +307,7 @@ def _tangent_pair(h, damped=True):
         lam = _transverse(rest, inv)
         along = _dot3(dx, dw) * inv * inv  # (ê·dw)/l, so along·dx = (ê·dw) ê
         axial = (h * c + h * h * k) if damped else h * h * k
-        return ((axial - h * h * k * lam) * along)[None] * dx + (h * h * k * lam)[None] * dw
+        return (axial - h * h * k * lam) * along, h * h * k * lam
 
     return pair
 
