@@ -283,15 +283,30 @@ class Ellipsoid(AbstractTool):
     def _local(self, x):
         return ((x - _bc(self.center, x)) @ self.rotation) / _bc(self.radii, x)
 
-    def _to_local(self, d):
-        """Components of `Rᵀ d / radii` for component arrays `d` (a direction or an offset)."""
-        r = self.rotation
-        return tuple((d[0] * r[0, i] + d[1] * r[1, i] + d[2] * r[2, i]) / self.radii[i] for i in range(3))
+    def _quadric(self):
+        """`Q = R D⁻² Rᵀ` (symmetric 3 × 3): `value(x) = (x − c)ᵀ Q (x − c) − 1`."""
+        r = self.rotation / self.radii[None, :]
+        return r @ r.T
+
+    def _query(self, x, n):
+        """`(value, |t|, tool normal)` of component arrays `x`, `n`: with `d = x − c` and
+        `e = Q n` the ray `x + t n` meets the surface where `(nᵀe) t² + 2 (dᵀe) t + dᵀQd − 1 = 0`
+        (the closer root, Gao & Gibson §3.2.2) and the outward normal there is `unit(Qd + t e)`,
+        the gradient `Q (d + t n)` — no division per component, one matrix for all three."""
+        q = self._quadric()
+        d = _soa.sub(x, self.center)
+        qd = tuple(q[i, 0] * d[0] + q[i, 1] * d[1] + q[i, 2] * d[2] for i in range(3))
+        value = _soa.dot(d, qd) - 1
+        if n is None:
+            return value
+        e = tuple(q[i, 0] * n[0] + q[i, 1] * n[1] + q[i, 2] * n[2] for i in range(3))
+        t = _closer_root(_soa.dot(n, e), _soa.dot(d, e), value)
+        grad = tuple(qd[i] + t * e[i] for i in range(3))
+        return value, jnp.abs(t), _soa.unit(grad)
 
     @compiled
     def value(self, x):
-        y = self._to_local(_soa.sub(_soa.split(x), self.center))
-        return _soa.dot(y, y) - 1
+        return self._query(_soa.split(x), None)
 
     @compiled
     def push(self, x):
@@ -310,13 +325,12 @@ class Ellipsoid(AbstractTool):
 
     @compiled
     def penetration(self, x, n):
-        y = self._to_local(_soa.sub(_soa.split(x), self.center))
-        m = self._to_local(_soa.split(n))
-        t = _closer_root(_soa.dot(m, m), _soa.dot(y, m), _soa.dot(y, y) - 1)
-        g = [(y[i] + t * m[i]) / self.radii[i] for i in range(3)]  # the gradient at the hit point
-        r = self.rotation
-        grad = tuple(g[0] * r[j, 0] + g[1] * r[j, 1] + g[2] * r[j, 2] for j in range(3))
-        return jnp.abs(t), _soa.stack(_soa.unit(grad))
+        _, depth, normal = self._query(_soa.split(x), _soa.split(n))
+        return depth, _soa.stack(normal)
+
+    def contact_query(self, x, n):
+        value, depth, normal = self._query(_soa.split(x), _soa.split(n))
+        return value, depth, _soa.stack(normal)
 
     def bound(self):
         return self.center, jnp.max(self.radii)
@@ -326,16 +340,18 @@ class Ellipsoid(AbstractTool):
         return hulls_apart(self._local(points), jnp.zeros((1, 3), points.dtype), jnp.ones((), points.dtype))
 
     def box_overlap(self, lo, hi):
-        # the 8 box corners in the unit-sphere frame bound the box's image (a parallelepiped)
-        corners = jnp.stack(
-            [
-                jnp.stack([jnp.where(bit, hi[..., k], lo[..., k]) for k, bit in enumerate(bits)], -1)
-                for bits in np.ndindex(2, 2, 2)
-            ],
-            -2,
-        )
-        local = self._local(corners)
-        return _sphere_box(jnp.zeros(3, lo.dtype), jnp.ones((), lo.dtype), local.min(-2), local.max(-2))
+        # The box's image in the unit-sphere frame `y = D⁻¹ Rᵀ (x − c)` is a parallelepiped; its
+        # bounding box (that of the 8 corners' images) is `M (mid − c) ± |M| half` with
+        # `M = D⁻¹ Rᵀ`. Written per component, it fuses into one loop over the boxes.
+        m = self.rotation.T / self.radii[:, None]
+        mid = [(lo[..., k] + hi[..., k]) * 0.5 - self.center[k] for k in range(3)]
+        half = [(hi[..., k] - lo[..., k]) * 0.5 for k in range(3)]
+        gap = []
+        for i in range(3):
+            centre = m[i, 0] * mid[0] + m[i, 1] * mid[1] + m[i, 2] * mid[2]
+            extent = jnp.abs(m[i, 0]) * half[0] + jnp.abs(m[i, 1]) * half[1] + jnp.abs(m[i, 2]) * half[2]
+            gap.append(jnp.maximum(jnp.abs(centre) - extent, 0))  # the box's distance to 0 along i
+        return _soa.dot(gap, gap) <= 1
 
 
 def _ellipsoid_closest(y, a, iterations: int = 16):
