@@ -156,10 +156,18 @@ def test_closed_trim_round_trips_through_json_and_3dm(tmp_path):
     s, t = np.meshgrid(np.linspace(0, 1, 31), np.linspace(0, 1, 31), indexing="ij")
     expected = np.asarray(trim.mask(s, t))
     assert not expected[-1, 15] and not expected[0, 15] and expected[15, 15]
-    for ext in (".json", ".3dm"):
-        back = io.load_all(io.save(obj, tmp_path / f"c{ext}"), trims=True)[0]
-        assert back.trim.closed == (True, False)
-        np.testing.assert_array_equal(np.asarray(back.mask(s, t)), expected)
+    back = io.load_all(io.save(obj, tmp_path / "c.json"), trims=True).objects[0]
+    assert back.trim.closed == (True, False)
+    np.testing.assert_array_equal(np.asarray(back.mask(s, t)), expected)
+    # .3dm: the seam is moved off the hole before writing (a trim must lie in the surface's
+    # domain), so the file's parametrisation differs: compare at the same 3-D points
+    back = io.load_all(io.save(obj, tmp_path / "c.3dm"), trims=True).objects[0]
+    assert back.trim.closed == (True, False)
+    points = np.asarray(surface.evaluate(s.ravel(), t.ravel())).reshape(-1, 3)
+    uv = np.asarray(closest_points(back.geometry, points).params)
+    clear = _off_loops(trim, s.ravel(), t.ravel(), 1e-6)
+    got = np.asarray(back.mask(uv[:, 0], uv[:, 1]))
+    np.testing.assert_array_equal(got[clear], expected.ravel()[clear])
 
 
 def test_mask_on_a_torus_wraps_both_directions():
@@ -180,3 +188,122 @@ def test_mask_on_a_torus_wraps_both_directions():
     )
     flat = io.Trim.from_loops([wall, hole], [True, False])  # not closed: three corners lost
     assert np.any(np.asarray(flat.mask(u, v))[clear] != (r > 0.15)[clear])
+
+
+def _seam_hole_object():
+    """A Rhino cylinder (closed in u) with a round hole given as one loop across its seam (half
+    of it below u = 0) and a second hole inside the face."""
+    cylinder = rhino3dm.Cylinder(rhino3dm.Circle(rhino3dm.Point3d(0, 0, 0), 1.0), 2.0)
+    surface, domain = _rhino.surface_from_rhino(cylinder.ToNurbsSurface())
+    a = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    across = np.c_[0.08 * np.cos(a), 0.5 + 0.2 * np.sin(a)][::-1]
+    inside = np.c_[0.4 + 0.05 * np.cos(a), 0.3 + 0.1 * np.sin(a)][::-1]
+    wall = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    trim = io.Trim.from_loops([wall, across, inside], [True, False, False], (True, False))
+    u = np.asarray(trim.segments)[..., 0]
+    assert u.min() < 0 or u.max() > 1  # the loop runs past the seam
+    return io.CadObject(surface, domain=domain, trim=trim)
+
+
+def _occt_file_faces(path):
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from tests.test_io_cad import _occt_faces
+
+    if path.suffix == ".step":
+        return _occt_faces(path)
+    reader = IGESControl_Reader()
+    reader.ReadFile(str(path))
+    reader.TransferRoots()
+    explorer, faces = TopExp_Explorer(reader.OneShape(), TopAbs_FACE), []
+    while explorer.More():
+        faces.append(TopoDS.Face(explorer.Current()))
+        explorer.Next()
+    return faces
+
+
+def _classify(face, points):
+    """OCCT's classifier on `face` at each 3-D point (projected onto the face's surface):
+    `(inside, decided)`."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepClass import BRepClass_FaceClassifier
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt, gp_Pnt2d
+    from OCP.TopAbs import TopAbs_IN, TopAbs_ON
+
+    geom = BRep_Tool.Surface_s(face)
+    inside, decided = [], []
+    for x, y, z in points:
+        u, v = GeomAPI_ProjectPointOnSurf(
+            gp_Pnt(float(x), float(y), float(z)), geom
+        ).LowerDistanceParameters()
+        state = BRepClass_FaceClassifier(face, gp_Pnt2d(u, v), 1e-9).State()
+        inside.append(state == TopAbs_IN)
+        decided.append(state != TopAbs_ON)
+    return np.array(inside), np.array(decided)
+
+
+@pytest.mark.parametrize("ext", [".step", ".iges"])
+def test_a_loop_across_the_seam_is_written_inside_the_surface(tmp_path, ext):
+    """STEP/IGES: the seam is moved off the loops (knot insertion, same geometry), so the written
+    face is valid for OCCT's `BRepCheck_Analyzer` and its classifier agrees with the original
+    trim's mask at points compared in 3-D (the parametrisation moved)."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    obj = _seam_hole_object()
+    path = io.save(obj, tmp_path / f"seam{ext}", units="mm")  # OCCT reads in mm: numbers unchanged
+    (face,) = _occt_file_faces(path)
+    assert BRepCheck_Analyzer(face).IsValid()
+    u, v = np.random.default_rng(5).uniform(0.0, 1.0, (2, 400))
+    u = np.concatenate([u, np.linspace(0.0, 0.05, 20), np.linspace(0.95, 1.0, 20)])
+    v = np.concatenate([v, np.full(40, 0.5)])
+    points = np.asarray(obj.geometry.evaluate(u, v)).reshape(-1, 3)
+    expected = np.asarray(obj.trim.mask(u, v))
+    assert not expected[-40:].any()  # the seam hole is sampled on both sides of the seam
+    occt, decided = _classify(face, points)
+    clear = decided & _off_loops(obj.trim, u, v, 2e-3)
+    assert clear.sum() > 350 and (~expected[clear]).sum() > 30
+    np.testing.assert_array_equal(occt[clear], expected[clear])
+
+
+def _off_loops(trim, u, v, gap: float):
+    """Samples farther than `gap` (in [0, 1]², over the period) from every loop edge."""
+    seg = np.asarray(trim.segments)
+    a, d = seg[:, 0], seg[:, 1] - seg[:, 0]
+    best = np.full(u.shape, np.inf)
+    for shift in (-1.0, 0.0, 1.0):
+        p = np.c_[u - shift, v][:, None, :]
+        t = np.clip(np.sum((p - a) * d, -1) / np.maximum(np.sum(d * d, -1), 1e-300), 0, 1)
+        best = np.minimum(best, np.linalg.norm(p - (a + t[..., None] * d), axis=-1).min(axis=1))
+    return best > gap
+
+
+def test_seam_moved_keeps_geometry_and_mask():
+    """`seam_moved`: the moved surface is the same point set (every old point lies on it) and the
+    moved trim's mask at its parameters equals the old mask; a band loop stays the band."""
+    from bsjax.io._cad import seam_moved
+
+    obj = _seam_hole_object()
+    moved = seam_moved(obj)
+    loops = moved.trim.loops()
+    assert all(loop.min() >= 0 and loop.max() <= 1 for loop in loops)
+    np.testing.assert_allclose(loops[0][:, 0].min(), 0.0) and np.testing.assert_allclose(
+        loops[0][:, 0].max(), 1.0
+    )
+    u, v = np.random.default_rng(1).uniform(0.0, 1.0, (2, 300))
+    points = np.asarray(obj.geometry.evaluate(u, v)).reshape(-1, 3)
+    uv = np.asarray(closest_points(moved.geometry, points).params)
+    again = np.asarray(moved.geometry.evaluate(uv[:, 0], uv[:, 1])).reshape(-1, 3)
+    np.testing.assert_allclose(again, points, atol=1e-9)
+    np.testing.assert_array_equal(
+        np.asarray(moved.trim.mask(uv[:, 0], uv[:, 1])), np.asarray(obj.trim.mask(u, v))
+    )
+    # a loop around the whole band (every seam position crossed): unchanged
+    band = io.Trim.from_loops(
+        [np.array([[-0.2, 0.1], [1.0, 0.1], [1.0, 0.9], [-0.2, 0.9]])], [True], (True, False)
+    )
+    wide = io.CadObject(obj.geometry, trim=band)
+    assert seam_moved(wide) is wide

@@ -149,6 +149,10 @@ def trimmed_brep(srf, loops, outer, reversed_: bool, closed=(False, False), tol:
     seam_edges = {}  # (side, other coordinate span) → edge index, to pair the seam trims
     for li, (loop, is_outer) in enumerate(zip(loops, outer)):
         loop = np.asarray(loop, dtype=np.float64)
+        x, y = loop[:-1, 0], loop[:-1, 1]
+        area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+        if (area > 0) != bool(is_outer):  # outer loops counter-clockwise, holes clockwise
+            loop = loop[::-1]
         ti_list = []
         for a, b in itertools.pairwise(loop):
             if np.allclose(a, b, atol=tol, rtol=0):

@@ -302,3 +302,127 @@ class CadList(list):
     def holding(self) -> str:
         """'2 Brep faces, 1 Mesh' — what the file held, for error messages."""
         return ", ".join(f"{n} {kind}" for kind, n in sorted(self.held.items())) or "nothing"
+
+
+def seam_moved(obj: CadObject, tol: float = 1e-9) -> CadObject:
+    """The face `obj` with the seam of each closed direction moved to a parameter no trim loop
+    crosses, so that every loop lies in [0, 1]² (what STEP, IGES and `.3dm` trims need).
+
+    A closed direction whose loops all lie in [0, 1] already is left as it is. Otherwise the
+    seam goes to the middle of the widest gap between the loops' extents on the circle (a loop
+    that is an axis-aligned band around the whole period — an outer loop along the old seam —
+    stays the band around the new one): the knot `s` is inserted to multiplicity `p` (Boehm's
+    insertion, "The NURBS Book" §5.2, Eq. 5.15; the geometry is unchanged), the two pieces
+    `[0, s]`, `[s, 1]` swap places (`u' = (u − s) mod 1`) and each loop moves by `−s` and a whole
+    period into [0, 1]. When every seam position is crossed, `obj` comes back unchanged.
+
+    **Arguments:** `obj`: a surface `CadObject`; `tol`: how far past [0, 1] a loop may reach.
+    **Returns:** the `CadObject` (same name, layer, domain and orientation).
+    """
+    trim = obj.trim
+    if trim is None or not any(trim.closed) or obj.is_curve:
+        return obj
+    surface, loops = obj.surface, trim.loops()
+    for axis in (0, 1):
+        if not trim.closed[axis]:
+            continue
+        ends = [(float(loop[:, axis].min()), float(loop[:, axis].max())) for loop in loops]
+        if all(lo >= -tol and hi <= 1 + tol for lo, hi in ends):
+            continue
+        band = [_is_band(loop, axis, tol) for loop in loops]
+        seam = _gap_middle([e for e, b in zip(ends, band) if not b], tol)
+        if seam is None:
+            return obj
+        surface = _rotated(surface, axis, seam)
+        loops = [loop if is_band else _shifted(loop, axis, seam) for loop, is_band in zip(loops, band)]
+    if surface is obj.surface:
+        return obj
+    new_trim = Trim.from_loops(loops, trim.outer, trim.closed)
+    return CadObject(surface, obj.name, obj.layer, obj.domain, obj.reversed, new_trim)
+
+
+def _is_band(loop: np.ndarray, axis: int, tol: float) -> bool:
+    """A loop that spans the whole period along `axis` with its every edge on an iso line."""
+    x = loop[:, axis]
+    if abs(x.min()) > tol or abs(x.max() - 1.0) > tol:
+        return False
+    d = np.diff(loop, axis=0)
+    return bool(np.all((np.abs(d[:, 0]) <= tol) | (np.abs(d[:, 1]) <= tol)))
+
+
+def _gap_middle(ends, tol: float) -> float | None:
+    """The middle of the widest arc of the unit circle no interval `(lo, hi)` covers, or `None`."""
+    if not ends:
+        return 0.5
+    if any(hi - lo >= 1 - tol for lo, hi in ends):
+        return None
+    arcs = sorted(((lo % 1.0), (lo % 1.0) + (hi - lo)) for lo, hi in ends)
+    best = None
+    reach = arcs[0][1]
+    for a, b in arcs[1:]:
+        if a > reach and (best is None or a - reach > best[1] - best[0]):
+            best = (reach, a)
+        reach = max(reach, b)
+    wrap = (reach, arcs[0][0] + 1.0)  # the gap after the last arc, around to the first
+    if wrap[1] > wrap[0] and (best is None or wrap[1] - wrap[0] > best[1] - best[0]):
+        best = wrap
+    if best is None or best[1] - best[0] <= 2 * tol:
+        return None
+    middle = 0.5 * (best[0] + best[1]) % 1.0
+    return middle if tol < middle < 1 - tol else None
+
+
+def _shifted(loop: np.ndarray, axis: int, seam: float) -> np.ndarray:
+    out = loop.copy()
+    out[:, axis] = out[:, axis] - seam
+    out[:, axis] -= np.floor(out[:, axis].min())
+    return out
+
+
+def _rotated(surface: BSplineSurface, axis: int, seam: float) -> BSplineSurface:
+    """`surface` re-parametrised along `axis` by `u' = (u − seam) mod 1` (clamped result)."""
+    from bsjax.basis import periodic_knots
+    from bsjax.io import _knots
+
+    d = "uv"[axis]
+    p = getattr(surface, f"degree_{d}")
+    ctrl = np.asarray(surface.ctrl, dtype=np.float64)
+    w = np.ones(ctrl.shape[:2]) if surface.weights is None else np.asarray(surface.weights, dtype=np.float64)
+    hom = np.moveaxis(np.concatenate([ctrl * w[..., None], w[..., None]], axis=-1), axis, 0)
+    if getattr(surface, f"periodic_{d}"):
+        n = hom.shape[0]
+        hom = hom[np.arange(n + p) % n]
+        hom, knots, _ = _knots.clamp(hom, np.asarray(periodic_knots(n, p), dtype=np.float64), p)
+    else:
+        knots = np.asarray(getattr(surface, f"knots_{d}"), dtype=np.float64)
+    while np.sum(knots == seam) < p:
+        hom, knots = _knots._insert(hom, knots, p, seam)
+    n = hom.shape[0]
+    j = int(np.flatnonzero(knots == seam)[0])  # P[j - 1] is the surface at the seam
+    hom = np.concatenate([hom[j - 1 :], hom[1:j]])
+    knots = np.concatenate(
+        [
+            np.zeros(p + 1),
+            knots[j + p : n] - seam,
+            np.full(p, 1.0 - seam),
+            knots[p + 1 : j] + 1.0 - seam,
+            np.ones(p + 1),
+        ]
+    )
+    hom = np.moveaxis(hom, 0, axis)
+    ctrl, weights = hom[..., :3] / hom[..., 3:], hom[..., 3]
+    other = "vu"[axis]
+    k = {
+        d: knots,
+        other: None if getattr(surface, f"periodic_{other}") else getattr(surface, f"knots_{other}"),
+    }
+    return BSplineSurface(
+        ctrl,
+        k["u"],
+        k["v"],
+        surface.degree_u,
+        surface.degree_v,
+        False if axis == 0 else surface.periodic_u,
+        False if axis == 1 else surface.periodic_v,
+        None if surface.weights is None else weights,
+    )

@@ -33,7 +33,7 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
-from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, unit_scale
+from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, seam_moved, unit_scale
 
 EDGE_SAMPLES = 33
 IGES_BREP_MODE = "BRep"
@@ -576,13 +576,17 @@ def _face_shape(obj: CadObject):
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
     from OCP.BRepLib import BRepLib
 
+    if obj.trim is not None:  # loops past the seam of a closed direction: move the seam off them
+        obj = seam_moved(obj)
     geom = to_geom_surface(obj.geometry, obj.domain)  # pyright: ignore[reportArgumentType]
     if obj.trim is None:
         face = BRepBuilderAPI_MakeFace(geom, 1e-9).Face()
     else:
         loops = obj.trim.loops()
         order = sorted(range(len(loops)), key=lambda k: not obj.trim.outer[k])  # pyright: ignore
-        maker = None
+        maker = _band_face(obj, loops[order[0]], geom)
+        if maker is not None:
+            order = order[1:]
         for k in order:
             wire = _wire(loops[k], geom, obj.domain, hole=not obj.trim.outer[k])
             if maker is None:
@@ -592,6 +596,30 @@ def _face_shape(obj: CadObject):
         face = maker.Face()  # pyright: ignore[reportOptionalMemberAccess]
         BRepLib.BuildCurves3d_s(face)
     return face.Reversed() if obj.reversed else face
+
+
+def _band_face(obj: CadObject, loop01, geom):
+    """A face maker over the rectangle of `loop01` when it is the outer loop of a closed surface
+    running around its whole period (`(0, 0) → (1, 0) → (1, 1) → (0, 1)` on a u-closed cylinder):
+    OCCT's own rectangle face (`BRepBuilderAPI_MakeFace(surface, u0, u1, v0, v1)`), whose sides
+    along the seam are one seam edge, as OCCT expects; `None` for any other loop."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+
+    trim, tol = obj.trim, 1e-9
+    loop01 = np.asarray(loop01)
+    lo, hi = loop01.min(axis=0), loop01.max(axis=0)
+    on_sides = np.all(
+        (np.abs(loop01 - lo) <= tol) | (np.abs(loop01 - hi) <= tol), axis=1
+    )  # every point a corner or on a side
+    steps = np.abs(np.diff(loop01, axis=0))
+    rectangle = bool(on_sides.all() and np.all((steps[:, 0] <= tol) | (steps[:, 1] <= tol)))
+    full = [bool(trim.closed[a]) and lo[a] <= tol and hi[a] >= 1 - tol for a in (0, 1)]  # pyright: ignore
+    if not (rectangle and any(full)):
+        return None
+    dom = obj.domain or ((0.0, 1.0), (0.0, 1.0))
+    bounds = [dom[a][0] + (dom[a][1] - dom[a][0]) * x for a in (0, 1) for x in (lo[a], hi[a])]
+    face = BRepBuilderAPI_MakeFace(geom, *(float(b) for b in bounds), 1e-9).Face()
+    return BRepBuilderAPI_MakeFace(face)
 
 
 def _quiet() -> None:

@@ -37,7 +37,8 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
-from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, unit_scale
+from bsjax.io._3dm_archive import trimmed_brep
+from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, seam_moved, unit_scale
 
 _RHINO_UNITS = {  # bsjax unit name → rhino3dm.UnitSystem member
     "nm": "Nanometers",
@@ -53,6 +54,7 @@ _RHINO_UNITS = {  # bsjax unit name → rhino3dm.UnitSystem member
     "mi": "Miles",
 }
 _TRIM_KEY = "bsjax.trim"
+_INSIDE = 1e-9  # how far past [0, 1] a loop written as a trim may reach (rounding)
 EDGE_SAMPLES = 33  # points per trim edge projected onto the face's surface
 
 
@@ -276,7 +278,9 @@ def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
             pieces.append(np.array([_xyz(edge.PointAt(float(t))) for t in ts]))
             seams.append(uses[trim.EdgeIndex] > 1)  # an edge the face meets twice: its seam
         points = np.concatenate(pieces).astype(surface.ctrl.dtype)
-        uv = np.asarray(closest_points(surface, points).params, dtype=np.float64)
+        size = 1 << max(6, (len(points) - 1).bit_length())  # padded: one compile per size class
+        padded = np.concatenate([points, np.repeat(points[-1:], size - len(points), axis=0)])
+        uv = np.asarray(closest_points(surface, padded).params, dtype=np.float64)[: len(points)]
         split = np.split(uv, np.cumsum([len(piece) for piece in pieces])[:-1])
         loops.append(np.concatenate([_place(piece, closed, seam) for piece, seam in zip(split, seams)]))
         outer.append(str(loop.LoopType).endswith("Outer"))
@@ -364,14 +368,36 @@ def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
         elif obj.trim is None and not obj.reversed:
             model.Objects.AddSurface(surface_to_rhino(obj.geometry, obj.domain), attributes)
         else:
-            brep = rhino3dm.Brep.CreateFromSurface(surface_to_rhino(obj.geometry, obj.domain))
-            if obj.reversed:
-                brep.Flip()
-            if obj.trim is not None:
-                brep.SetUserString(_TRIM_KEY, json.dumps(obj.trim.to_dict()))
-            model.Objects.AddBrep(brep, attributes)
+            model.Objects.AddBrep(_brep(obj), attributes)
     if not model.Write(str(path), 7):
         raise OSError(f"{path}: rhino3dm could not write the file")
+
+
+def _brep(obj: CadObject):
+    """A face `CadObject` → a one-face rhino3dm `Brep`: trimmed by its loops (an OpenNURBS archive
+    encoded by `_3dm_archive.trimmed_brep`, the seam of a closed direction moved off the loops
+    first, `seam_moved`), with the exact loops also in the user string `bsjax.trim`; the
+    untrimmed surface with that user string when the loops cannot be written (a loop crossing
+    every seam position) or OpenNURBS finds the Brep invalid."""
+    import rhino3dm
+
+    if obj.trim is not None:
+        obj = seam_moved(obj)
+    srf = surface_to_rhino(obj.geometry, obj.domain)  # pyright: ignore[reportArgumentType]
+    brep = None
+    if obj.trim is not None:
+        loops = obj.trim.loops()
+        if all(loop.min() >= -_INSIDE and loop.max() <= 1 + _INSIDE for loop in loops):
+            loops = [np.clip(loop, 0.0, 1.0) for loop in loops]
+            brep = trimmed_brep(srf, loops, obj.trim.outer, obj.reversed, obj.trim.closed)
+            brep = brep if brep is not None and brep.IsValid else None
+    if brep is None:
+        brep = rhino3dm.Brep.CreateFromSurface(srf)
+        if obj.reversed:
+            brep.Flip()
+    if obj.trim is not None:
+        brep.SetUserString(_TRIM_KEY, json.dumps(obj.trim.to_dict()))
+    return brep
 
 
 def _polycurve_to_rhino(obj: CadObject):
