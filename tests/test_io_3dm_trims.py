@@ -189,3 +189,23 @@ def test_several_trimmed_faces_in_one_file(tmp_path, ext):
 
 def _xyz(p):
     return (p.X, p.Y, p.Z)
+
+
+def test_sphere_face_has_singular_and_seam_trims(tmp_path):
+    """A Rhino sphere (closed in u, both v sides collapsed to poles) with a hole: the outer loop
+    is two singular trims (no edge) and one seam edge used twice; valid for OpenNURBS, and the
+    mask read from the Brep's edges equals the written one."""
+    sphere = rhino3dm.Sphere(rhino3dm.Point3d(1, 2, 3), 1.5)
+    surface, domain = _rhino.surface_from_rhino(sphere.ToNurbsSurface())
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    hole = np.c_[0.3 + 0.05 * np.cos(a), 0.5 + 0.1 * np.sin(a)]
+    trim = io.Trim.from_loops([SQUARE, hole], [True, False], (True, False))
+    path = io.save(io.CadObject(surface, domain=domain, trim=trim), tmp_path / "ball.3dm")
+    brep = _written_brep(path)
+    assert brep.IsValid and not brep.IsSurface
+    edges = [t.EdgeIndex for t in brep.Faces[0].Loops[0].Trims]
+    assert sorted(edges) == [-1, -1, 0, 0]
+    bare = io.load_all(_without_user_string(path, tmp_path / "bare.3dm"), trims=True).objects[0]
+    u, v = np.random.default_rng(6).uniform(0.02, 0.98, (2, 600))
+    clear = _off_loops(trim, u, v, 2e-3)
+    np.testing.assert_array_equal(np.asarray(bare.mask(u, v))[clear], np.asarray(trim.mask(u, v))[clear])
