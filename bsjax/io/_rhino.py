@@ -11,15 +11,15 @@ extrusions with caps, block instances, curves, units, names and layers.
   (`bsjax.basis.closest_points`, point inversion, "The NURBS Book" §6.1) as polylines in [0, 1]².
   On a closed surface a seam point projects to 0 or 1 at random: the loops are unwrapped across
   the seam and the `Trim` knows the surface is closed (`Trim.closed`).
-* Writing trims: rhino3dm (8.35) cannot build a trimmed Brep. Its `BrepFaceList`, `BrepLoopList`,
-  `BrepTrimList`, `BrepEdgeList`, `BrepVertexList` and `BrepSurfaceList` have no `Add`;
-  `BrepLoop`/`BrepTrim` are read-only views (rhino3dm PR #713 exposed them for reading); the only
-  trimmed constructor, `Brep.CreateTrimmedPlane(plane, curve)`, makes a plane surface with one
-  outer loop (no hole, not the face's NURBS); `Brep.Decode` reads OpenNURBS's binary archive
-  (chunked, CRC-checked `ON_Brep` records), which would have to be written byte by byte. So a
-  trimmed face is written as its surface (a Brep, flipped when reversed) with its loops in the
-  user string `bsjax.trim`, which bsjax reads back exactly; Rhino itself shows the untrimmed
-  surface.
+* Writing trims: rhino3dm (8.35) has no API that builds loops and trims, but
+  `CommonObject.Decode` reads an OpenNURBS binary archive of one object. bsjax encodes that
+  archive itself (`_3dm_archive.trimmed_brep`: chunked, CRC-32-checked `ON_Brep` records — 2-D
+  and 3-D degree-1 curves, vertices, edges, boundary/seam/singular trims with iso flags, outer
+  and inner loops, the face), checks it with OpenNURBS's `IsValid`, and adds the decoded Brep.
+  A closed direction's seam is first moved off the loops (`seam_moved`), since a trim must lie in
+  the surface's domain. The exact loops also go in the user string `bsjax.trim` (bsjax reads them
+  back exactly); when the loops cannot be written as trims (a loop around every seam position)
+  the face is its untrimmed surface with that user string, as before.
 * Polycurves: a `PolyCurve` loads as a tuple of `BSplineCurve`s (`CadObject.geometry`; a list in
   `load_all`'s result), one per segment in order (nested polycurves flattened), each on its own
   domain; `save` writes a tuple or list of curves back as a `PolyCurve` (`AppendSegment`).
