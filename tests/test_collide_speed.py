@@ -134,14 +134,20 @@ def test_tool_kernels_match_closed_forms(tool):
 
 @pytest.mark.parametrize(
     "name, tool",
-    [(name, "sphere") for name in SHAPES] + [("clamped 3x2", "ellipsoid"), ("periodic", "plane")],
+    [(name, "sphere") for name in SHAPES]
+    + [(name, "ellipsoid") for name in ("clamped 3x2", "degrees 1x5", "rational", "pole", "periodic")]
+    + [("periodic", "plane")],
 )
 def test_contacts_match_a_dense_reference(name, tool):
     """Masks identical, depths and normals to 1e-12 against the basis's samples and normals and
     the tools' closed forms (inside the window of `sample_window`)."""
     _, b, ctrl = _surface(name)
     if name == "periodic":  # the band around the origin: a tool near its wall
-        tool_obj = {"sphere": Sphere([1.0, 0.0, 0.5], 0.3), "plane": Plane([0.9, 0, 0], [1.0, 0.1, 0])}[tool]
+        tool_obj = {
+            "sphere": Sphere([1.0, 0.0, 0.5], 0.3),
+            "plane": Plane([0.9, 0, 0], [1.0, 0.1, 0]),
+            "ellipsoid": Ellipsoid([1.0, 0.0, 0.5], [0.35, 0.2, 0.25], _rotation(5)),
+        }[tool]
     else:
         tool_obj = TOOLS[tool]
     got = contacts(b, ctrl, tool_obj)
@@ -156,6 +162,24 @@ def test_contacts_match_a_dense_reference(name, tool):
     np.testing.assert_allclose(np.asarray(got.normals), n, rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(got.tool_normals)[inside], tool_normal[inside], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(got.window), np.asarray(window))
+
+
+def test_ellipsoid_box_overlap_is_the_bounding_box_of_the_eight_corners():
+    """`Ellipsoid.box_overlap` (the parallelepiped's bounding box `M (mid − c) ± |M| half`) against
+    the 8 box corners mapped into the unit-sphere frame one by one, their bounding box tested
+    against the unit ball (numpy)."""
+    tool = TOOLS["ellipsoid"]
+    c, radii, rot = (np.asarray(a) for a in (tool.center, tool.radii, tool.rotation))
+    rng = np.random.default_rng(4)
+    lo = rng.uniform(-0.4, 1.2, (40, 30, 3))
+    hi = lo + rng.uniform(0, 0.3, lo.shape)
+    corners = np.stack([np.where(np.array(bits, bool), hi, lo) for bits in np.ndindex(2, 2, 2)], -2)
+    local = ((corners - c) @ rot) / radii
+    near = np.clip(0.0, local.min(-2), local.max(-2))
+    expected = np.sum(near**2, -1) <= 1
+    got = np.asarray(tool.box_overlap(jnp.asarray(lo), jnp.asarray(hi)))
+    assert 0 < expected.sum() < expected.size
+    np.testing.assert_array_equal(got, expected)
 
 
 def test_contacts_jit_vmap_and_gradient():

@@ -162,7 +162,12 @@ def _sample_window(blending, ctrl, tool):
     sv = support_start(blending.a_v[0], blending.degree_v, blending.periodic_v)
     lo, hi = _blocks(ctrl, blending.degree_u, blending.degree_v, blending.periodic_u, blending.periodic_v)
     block_hit = tool.box_overlap(lo, hi)
-    mask = block_hit[su[:, None], sv[None, :]]
+    # mask[i, j] = block_hit[su_i, sv_j] as 0/1 products with one-hot rows: each block is tested
+    # once (a gather would repeat the block's test for every sample it covers)
+    dtype = lo.dtype
+    rows = (su[:, None] == jnp.arange(block_hit.shape[0])[None, :]).astype(dtype)
+    cols = (sv[:, None] == jnp.arange(block_hit.shape[1])[None, :]).astype(dtype)
+    mask = (rows @ block_hit.astype(dtype) @ cols.T) > 0.5
     return mask, _parametric_window(mask, blending.params_u, blending.params_v)
 
 
@@ -262,10 +267,14 @@ def _unit_normal(t_u, t_v, mixed, params_u, params_v):
     replaces the cross product; `mixed()` gives `T_uv` and runs only when such a sample exists.
     """
     n = _soa.cross(t_u, t_v)
-    uu, vv = _soa.dot(t_u, t_u), _soa.dot(t_v, t_v)
-    degenerate = _soa.norm(n) <= jnp.sqrt(jnp.finfo(uu.dtype).eps) * (uu + vv)
+    eps = jnp.finfo(n[0].dtype).eps
+    # whether the branch runs: a cheap test without divisions that holds wherever the exact
+    # one does (a factor 4 over rounding; overflow and underflow also make it hold)
+    maybe = _soa.dot(n, n) <= 4 * eps * (_soa.dot(t_u, t_u) + _soa.dot(t_v, t_v)) ** 2
 
     def with_limit(n):
+        uu, vv = _soa.dot(t_u, t_u), _soa.dot(t_v, t_v)
+        degenerate = _soa.norm(n) <= jnp.sqrt(eps) * (uu + vv)
         t_uv = mixed()
         pole_in_v = vv <= uu
         sign_u = jnp.where(params_u < 0.5, 1.0, -1.0).astype(uu.dtype)[:, None]
@@ -276,7 +285,7 @@ def _unit_normal(t_u, t_v, mixed, params_u, params_v):
             for c, lu, lv in zip(n, along_u, along_v)
         )
 
-    n = jax.lax.cond(jnp.any(degenerate), with_limit, lambda n: n, n)
+    n = jax.lax.cond(jnp.any(maybe), with_limit, lambda n: n, n)
     return _soa.unit(n)
 
 
