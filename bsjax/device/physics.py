@@ -286,7 +286,7 @@ class SculptModel(AbstractHapticModel):
         (the cheaper exact push), else a `collide.Ellipsoid` aligned with the stylus."""
         return collide.Sphere(centre, axes[0]) if sphere else collide.Ellipsoid(centre, axes, rot)
 
-    def _substeps(self, state, rest, rest_seam, tools, contact):
+    def _substeps(self, state, rest, rest_seam, tools, contact, count):
         """`substeps` semi-implicit Euler steps of the lattice (`mss.step`'s kernel, thesis eqs.
         5.14–5.16) with the seam springs as external force; returns the new `State`.
 
@@ -294,7 +294,9 @@ class SculptModel(AbstractHapticModel):
         substep (a host callback each); the tick checks its outputs once instead (`ok`), and
         `dt` once at construction (`check_step`). The loop carries the position one step behind
         (`x_k = x_{k−1} + Δt v_k` at the start of step k, the same operations as `mss.step`):
-        a step's spring sum then has one consumer, the velocity, and XLA computes it once."""
+        a step's spring sum then has one consumer, the velocity, and XLA computes it once. The
+        step `count` (= `substeps`) comes in as a traced input: XLA inlines a loop it can prove
+        runs once, and the position update after it would compute the sum a second time."""
         lattice, dt = self.lattice, self.dt
 
         def step(k, carry):
@@ -303,7 +305,7 @@ class SculptModel(AbstractHapticModel):
             seam = self._seam_forces(x, v, rest_seam) if self.seam is not None else None
             return x, _velocity_step(lattice, mss.State(x, v), dt, seam, None, tools, contact, rest)
 
-        x, v = jax.lax.fori_loop(0, self.substeps, step, (state.position, state.velocity))
+        x, v = jax.lax.fori_loop(0, count, step, (state.position, state.velocity))
         return mss.State(_position_step(lattice, x, v, dt), v)
 
     def _seam_forces(self, x, v, rest_seam):
@@ -334,10 +336,11 @@ class SculptModel(AbstractHapticModel):
         """One physics tick: `substeps` steps of `mss.coupled_step`'s chain (the refit once, after
         the last one: the earlier refits are not used), then the proxy data from the new surface.
 
-        `inputs (17,)`: tool centre (3), semi-axes (3), rotation (9, row-major), pressing (1:
-        held, 0: not) and settle (1: set the shape first); one host → device transfer a tick."""
+        `inputs (18,)`: tool centre (3), semi-axes (3), rotation (9, row-major), pressing (1:
+        held, 0: not), settle (1: set the shape first) and the number of substeps; one host →
+        device transfer a tick."""
         centre, axes, rot = inputs[0:3], inputs[3:6], inputs[6:15].reshape(3, 3)
-        pressing, settle = inputs[15], inputs[16] > 0
+        pressing, settle, count = inputs[15], inputs[16] > 0, inputs[17].astype(jnp.int32)
         tool = self._tool(centre, axes, rot, sphere)
         contact = mss.Contact(self.tool_stiffness * pressing, jnp.zeros((), self.dtype))
         carry = self._settled(carry, settle)
@@ -345,7 +348,7 @@ class SculptModel(AbstractHapticModel):
         def substeps(tools):
             def run(carry):
                 state, rest, rest_seam = carry
-                state = self._substeps(state, rest, rest_seam, tools, contact)
+                state = self._substeps(state, rest, rest_seam, tools, contact, count)
                 carry = state, rest, rest_seam
                 x = state.position
                 # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
@@ -365,7 +368,7 @@ class SculptModel(AbstractHapticModel):
         contact = collide.contacts(self.dense, ctrl, tool, method="dense")
         pts = contact.points.reshape(-1, 3)
         nrm = self.sign * contact.normals.reshape(-1, 3)
-        k = jnp.argmin(jnp.sum((pts - centre[None]) ** 2, axis=-1))
+        k = jnp.argmin(_safe.dot(pts - centre[None], pts - centre[None]))
         q, nq = pts[k], nrm[k]
         support = axes[0] if sphere else _safe.norm(axes * (nq @ rot))  # support distance along nq
         spring = self.sign * collide.contact_force(contact, self.contact_stiffness)
@@ -388,12 +391,12 @@ class SculptModel(AbstractHapticModel):
 
     # --- model interface ----------------------------------------------------------------------
     def _inputs(self, position, orientation, pressed: bool, settle: bool) -> np.ndarray:
-        """The tick's `(17,)` inputs (see `_tick_impl`) as one host array of the model's dtype."""
-        out = np.empty(17, self.dtype)
+        """The tick's `(18,)` inputs (see `_tick_impl`) as one host array of the model's dtype."""
+        out = np.empty(18, self.dtype)
         out[0:3] = position
         out[3:6] = self.tool_axes
         out[6:15] = quat_to_matrix(orientation).ravel()
-        out[15], out[16] = float(pressed), float(settle)
+        out[15], out[16], out[17] = float(pressed), float(settle), float(self.substeps)
         return out
 
     def _sphere(self) -> bool:

@@ -241,7 +241,7 @@ def plane_penalty(x, v, point, normal, stiffness, damping=0.0):
 
 def _penalty(depth, n, v, stiffness, damping):
     inside = depth > 0
-    vn = jnp.sum(v * n, axis=-1)
+    vn = _safe.dot(v, n)
     mag = stiffness * depth - jnp.where(inside, damping * jnp.minimum(vn, 0.0), 0.0)
     return mag[..., None] * n
 
