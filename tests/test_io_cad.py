@@ -257,12 +257,14 @@ def _occt_write(shape, path):
 
 
 def _occt_faces(path):
+    """The faces of a STEP or IGES file as OCCT reads them (`STEPControl_Reader`/`IGESControl_Reader`)."""
+    from OCP.IGESControl import IGESControl_Reader
     from OCP.STEPControl import STEPControl_Reader
     from OCP.TopAbs import TopAbs_FACE
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    reader = STEPControl_Reader()
+    reader = IGESControl_Reader() if path.suffix.lower() in (".iges", ".igs") else STEPControl_Reader()
     reader.ReadFile(str(path))
     reader.TransferRoots()
     explorer, faces = TopExp_Explorer(reader.OneShape(), TopAbs_FACE), []

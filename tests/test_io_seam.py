@@ -205,26 +205,6 @@ def _seam_hole_object():
     return io.CadObject(surface, domain=domain, trim=trim)
 
 
-def _occt_file_faces(path):
-    from OCP.IGESControl import IGESControl_Reader
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    from tests.test_io_cad import _occt_faces
-
-    if path.suffix == ".step":
-        return _occt_faces(path)
-    reader = IGESControl_Reader()
-    reader.ReadFile(str(path))
-    reader.TransferRoots()
-    explorer, faces = TopExp_Explorer(reader.OneShape(), TopAbs_FACE), []
-    while explorer.More():
-        faces.append(TopoDS.Face(explorer.Current()))
-        explorer.Next()
-    return faces
-
-
 def _classify(face, points):
     """OCCT's classifier on `face` at each 3-D point (projected onto the face's surface):
     `(inside, decided)`."""
@@ -253,9 +233,11 @@ def test_a_loop_across_the_seam_is_written_inside_the_surface(tmp_path, ext):
     trim's mask at points compared in 3-D (the parametrisation moved)."""
     from OCP.BRepCheck import BRepCheck_Analyzer
 
+    from tests.test_io_cad import _occt_faces
+
     obj = _seam_hole_object()
     path = io.save(obj, tmp_path / f"seam{ext}", units="mm")  # OCCT reads in mm: numbers unchanged
-    (face,) = _occt_file_faces(path)
+    (face,) = _occt_faces(path)
     assert BRepCheck_Analyzer(face).IsValid()
     u, v = np.random.default_rng(5).uniform(0.0, 1.0, (2, 400))
     u = np.concatenate([u, np.linspace(0.0, 0.05, 20), np.linspace(0.95, 1.0, 20)])
