@@ -53,7 +53,7 @@ def spring_forces(
 ) -> Float[Array, "N 3"]:
     """`−g_i` (eq. 5.13) plus the Voigt damping of every spring at node i.
 
-    Uses dense slices when the lattice is a hexahedral grid (`lattice.grid_shape`), else
+    Uses the stencil kernel when the lattice is a hexahedral grid (`lattice.grid_shape`), else
     `segment_sum` over the edge list; both give the same forces.
     """
     rest = lattice.rest_length if rest_length is None else rest_length

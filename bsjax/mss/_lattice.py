@@ -57,8 +57,8 @@ class Lattice(eqx.Module):
     - `node_damping`: absolute (ground) damping `D_i` in N·s/m of eq. 5.12, scalar or `(N,)`.
     - `rest_length`: optional `(E,)` rest lengths (default: from `rest_positions`).
     - `grid_shape`: `(a, b, c)` when the nodes are a C-ordered hexahedral grid and the edges are
-      in `hex_edges` order; springs are then summed with dense slices instead of a scatter (the
-      same forces, faster on CPU). Set by `hex_lattice`; leave `None` otherwise.
+      in `hex_edges` order; springs are then summed by a stencil kernel of static slices instead
+      of a scatter (the same forces, faster on CPU). Set by `hex_lattice`; leave `None` otherwise.
     """
 
     rest_positions: Float[Array, "N 3"]
