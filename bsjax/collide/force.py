@@ -45,9 +45,9 @@ def _coefficient(value, name: str, dtype):
 def _direction(contact, method: str):
     if method not in METHODS:
         _checks.fail("method", f"one of {METHODS}", repr(method))
-    w = contact.depth[..., None]
     normals = contact.normals if method == "surface_normal" else -contact.tool_normals
-    return _safe.unit(jnp.sum(w * normals, axis=(0, 1)))
+    # Σ d_i N_i as a contraction: XLA:CPU runs it as a product, several times faster than a sum
+    return _safe.unit(jnp.einsum("ab,abc->c", contact.depth, normals))
 
 
 def _magnitudes(contact, stiffness, damping, velocity, direction):

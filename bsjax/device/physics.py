@@ -345,21 +345,15 @@ class SculptModel(AbstractHapticModel):
         contact = mss.Contact(self.tool_stiffness * pressing, jnp.zeros((), self.dtype))
         carry = self._settled(carry, settle)
 
-        def substeps(tools):
-            def run(carry):
-                state, rest, rest_seam = carry
-                state = self._substeps(state, rest, rest_seam, tools, contact, count)
-                carry = state, rest, rest_seam
-                x = state.position
-                # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
-                f = mss.tool_forces(tools, x, jnp.zeros_like(x), contact.stiffness) if tools else x * 0
-                return carry, _safe.norm(jnp.sum(f, axis=0))
-
-            return run
-
-        # the tool acts only while the button is held: skip its push (an ellipsoid's is the
-        # costly part of the tick) otherwise
-        carry, reaction = jax.lax.cond(pressing > 0, substeps((tool,)), substeps(()), carry)
+        # The tool pushes with `tool_stiffness × pressing`: zero while the button is up (its
+        # forces are then exactly 0; one branch-free program, cheaper than a `cond` here).
+        state, rest, rest_seam = carry
+        state = self._substeps(state, rest, rest_seam, (tool,), contact, count)
+        carry = state, rest, rest_seam
+        x = state.position
+        # Newton's third law (002 §4.2.2): what the tool pushes into the nodes pushes back on it.
+        f = mss.tool_forces((tool,), x, jnp.zeros_like(x), contact.stiffness)
+        reaction = _safe.norm(jnp.ones(f.shape[0], f.dtype) @ f)  # Σ_i f_i: a dot; XLA:CPU's reduce is slower
         x = carry[0].position
         ctrl = self.coupling.ctrl(x)  # refit of the outer layer (thesis eq. 3.7)
         # Distributed springs of 002 §3.2 (eq. 3.3, surface-normal method) through bsjax.collide.
