@@ -7,6 +7,7 @@ beside them. float32 (no x64), like a haptic loop.
     .venv/bin/python benchmarks/physics.py                 # everything (a few minutes)
     .venv/bin/python benchmarks/physics.py --quick         # small sizes only
     .venv/bin/python benchmarks/physics.py --only vsofm    # one section (lattice, contact, haptic, vsofm)
+    .venv/bin/python benchmarks/physics.py --only vsofm --sizes 40   # issue #11's 40³ VSOFM row
     .venv/bin/python benchmarks/physics.py --only haptic --x64   # issue #11's haptic row, float64
 """
 
@@ -382,6 +383,7 @@ def main():
     parser.add_argument("--calls", type=int, default=20)
     parser.add_argument("--only", choices=("lattice", "contact", "haptic", "vsofm"), help="run one section")
     parser.add_argument("--x64", action="store_true", help="float64 (the haptic row's dtype in issue #11)")
+    parser.add_argument("--sizes", type=int, nargs="+", help="VSOFM lattice sizes (e.g. --sizes 12 40)")
     args = parser.parse_args()
     if args.x64:
         jax.config.update("jax_enable_x64", True)
@@ -393,7 +395,7 @@ def main():
     if args.only in (None, "haptic"):
         haptic_section(args.calls)
     if args.only in (None, "vsofm"):
-        vsofm_section((10, 12) if args.quick else (10, 12, 15, 20, 25, 30, 40))
+        vsofm_section(args.sizes or ((10, 12) if args.quick else (10, 12, 15, 20, 25, 30, 40)))
 
 
 if __name__ == "__main__":
