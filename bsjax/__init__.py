@@ -3,7 +3,8 @@
 The names a newcomer needs first; everything else lives in its module (`bsjax.basis`,
 `bsjax.collide`, `bsjax.merge`, `bsjax.mss`, `bsjax.vsofm`, `bsjax.device`, `bsjax.io`, …).
 Importing bsjax changes no global configuration. Every public function that computes is
-compiled at its boundary; `clear_caches()` forgets every compiled entry point and cached plan.
+compiled at its boundary; `clear_caches()` forgets every compiled entry point and cached plan;
+`enable_compilation_cache()` keeps the compiled programs on disk for the next process.
 
 Sources cited in the docstrings:
 * the thesis — H. Pungotra, *Collision detection and merging of deformable B-spline surfaces in
@@ -25,6 +26,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from bsjax._boundary import clear_caches as clear_caches
+    from bsjax._cache import enable_compilation_cache as enable_compilation_cache
     from bsjax.basis import Blending as Blending
     from bsjax.basis import BSplineCurve as BSplineCurve
     from bsjax.basis import BSplineSurface as BSplineSurface
@@ -38,6 +40,7 @@ if TYPE_CHECKING:
 # does not import JAX until something that computes is asked for.
 _NAMES = {
     "clear_caches": "bsjax._boundary",
+    "enable_compilation_cache": "bsjax._cache",
     **{
         name: "bsjax.basis"
         for name in (
@@ -76,5 +79,6 @@ __all__ = [
     "blending_matrix",
     "clamped_knots",
     "clear_caches",
+    "enable_compilation_cache",
     "periodic_blending_matrix",
 ]

@@ -41,9 +41,15 @@ import weakref
 from collections.abc import Callable
 from typing import Any
 
+import equinox as eqx
 import jax
 import numpy as np
 
+from bsjax import _checks
+
+# equinox's EQX_ON_ERROR other than "raise" (nan, breakpoint, off) asks for its own handling of
+# failed checks: then every check stays an `eqx.error_if`.
+_FUNCTIONAL = eqx._config.EQX_ON_ERROR == "raise"  # pyright: ignore[reportPrivateImportUsage]
 _ERROR = re.compile(r"_EquinoxRuntimeError: (.*?)(?:\n\n-{10}|\Z)", re.S)
 _CHECK_MESSAGE = re.compile(r"^[\w\[\]., ()]+: expected .*, got ", re.S)
 _registry: weakref.WeakSet = weakref.WeakSet()
@@ -180,8 +186,8 @@ class _Compiled:
                 kwargs = {**kwargs, name: _Static(kwargs[name])}
         return tuple(args), kwargs
 
-    def _jitted(self, treedef, mask, static):
-        key = (treedef, mask, static)
+    def _jitted(self, treedef, mask, static, functional: bool):
+        key = (treedef, mask, static, functional)
         jitted = self._cache.get(key)
         if jitted is None:
             fn = precise(self._fn)
@@ -193,27 +199,51 @@ class _Compiled:
                     for m, s in zip(mask, static)
                 ]
                 args, kwargs = jax.tree_util.tree_unflatten(treedef, leaves)
-                return fn(*args, **kwargs)
+                if not functional:
+                    return fn(*args, **kwargs)
+                with _checks.collecting() as failures:
+                    out = fn(*args, **kwargs)
+                    return out, failures.code()
 
             jitted = self._cache[key] = jax.jit(core)
         return jitted
 
     def __call__(self, *args, **kwargs):
+        if _checks.collecting_now():  # inside another compiled program's trace: inlined there,
+            args, kwargs = as_arrays(args, kwargs)  # its checks become that program's
+            return self._fn(*args, **kwargs)
         if self._static:
             args, kwargs = self._mark_static(args, kwargs)
         args, kwargs = as_arrays(args, kwargs)
         leaves, treedef = jax.tree_util.tree_flatten((args, kwargs))
         mask = tuple(is_traced(leaf) for leaf in leaves)
         static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
+        dynamic = [leaf for m, leaf in zip(mask, leaves) if m]
+        traced = not _checks.is_concrete(dynamic)  # inside the caller's jit/vmap/grad
+        functional = not traced and _FUNCTIONAL
         try:
-            jitted = self._jitted(treedef, mask, static)
+            jitted = self._jitted(treedef, mask, static, functional)
         except TypeError as err:  # an unhashable static argument
             raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
+        if traced:
+            return jitted(dynamic)
+        out, code = self._run(jitted, dynamic, functional)
+        if code:
+            raise ValueError(_checks.message_of(code))
+        return out
+
+    @staticmethod
+    def _run(jitted, dynamic, functional: bool):
+        """`(result, failure code)` of a direct call (code 0 when not `functional`), a failed
+        `eqx.error_if` check inside the program raised as its `ValueError`."""
         try:
-            out = jitted([leaf for m, leaf in zip(mask, leaves) if m])
+            if functional:
+                out, code = jitted(dynamic)
+                return out, int(code)  # waits for the program
+            out = jitted(dynamic)
             if _asynchronous():  # a failed check raises here, not where the result is read
                 jax.block_until_ready(out)
-            return out
+            return out, 0
         except (jax.errors.JaxRuntimeError, ValueError) as err:  # the C++ fast path: a ValueError
             failure = check_failure(err)
             if failure is None:

@@ -13,6 +13,9 @@ Two kinds of checks (STYLE "Checks and numerics"):
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+from collections.abc import Iterator
 from typing import Any
 
 import equinox as eqx
@@ -21,6 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 _Tracer = jax.core.Tracer  # pyright: ignore[reportAttributeAccessIssue]  (public, not in the stubs)
+
+try:  # the trace being built now (JAX has no public name for it; without it: always error_if)
+    from jax._src.core import trace_ctx as _trace_ctx
+except ImportError:  # pragma: no cover
+    _trace_ctx = None
 
 
 def is_concrete(x: Any) -> bool:
@@ -42,13 +50,87 @@ def check(x, bad, name: str, expected: str, got: str, detail=None):
     """`x`, after checking that `bad` (a boolean array) is all False.
 
     Concrete `bad` → `ValueError` now (its "got" part from `detail(x)` when given: the offending
-    values); traced → `eqx.error_if` with the message "name: expected …, got <got>".
+    values); traced → `report` of the message "name: expected …, got <got>".
     """
     if is_concrete(bad):
         if bool(np.any(np.asarray(bad))):
             fail(name, expected, got if detail is None or not is_concrete(x) else detail(np.asarray(x)))
         return x
-    return eqx.error_if(x, jnp.any(bad), message(name, expected, got))
+    return report(x, jnp.any(bad), message(name, expected, got))
+
+
+def xp(*arrays):
+    """`numpy` when every leaf of `arrays` is concrete, else `jax.numpy`: a check of concrete
+    values computes in numpy (no JAX program compiled and dispatched per elementwise test)."""
+    return np if is_concrete(arrays) else jnp
+
+
+# --- failures as part of a compiled program's result ---------------------------------------------
+_MESSAGES: list[str] = [""]  # a message's id is its index; 0 = no failure
+_IDS: dict[str, int] = {}
+
+
+def message_of(code: int) -> str:
+    """The message of a failure code (`collecting`)."""
+    return _MESSAGES[code]
+
+
+def _message_id(text: str) -> int:
+    ident = _IDS.get(text)
+    if ident is None:
+        ident = _IDS[text] = len(_MESSAGES)
+        _MESSAGES.append(text)
+    return ident
+
+
+class _Collector:
+    """The failure codes of one program being traced at the compiled boundary."""
+
+    def __init__(self):
+        self.trace = _trace_ctx.trace if _trace_ctx is not None else None
+        self.codes: list = []
+
+    def here(self) -> bool:
+        """Whether the trace being built now is the program's own (not a `vmap`/`scan`/`cond`
+        body or a derivative inside it, whose values cannot become the program's result)."""
+        return _trace_ctx is not None and _trace_ctx.trace is self.trace
+
+    def code(self):
+        """int32 scalar: the first non-zero code in program order, 0 when none."""
+        code = jnp.zeros((), jnp.int32)
+        for c in reversed(self.codes):
+            code = jnp.where(c != 0, c, code)
+        return code
+
+
+_collector: contextvars.ContextVar[_Collector | None] = contextvars.ContextVar("bsjax_checks", default=None)
+
+
+@contextlib.contextmanager
+def collecting() -> Iterator[_Collector]:
+    """Inside, traced checks of the program being built add their failure to the collector's
+    `code()` instead of an `eqx.error_if` (the compiled boundary returns it beside the result)."""
+    collector = _Collector()
+    token = _collector.set(collector)
+    try:
+        yield collector
+    finally:
+        _collector.reset(token)
+
+
+def collecting_now() -> bool:
+    """Whether a compiled-boundary program is being traced (`collecting`)."""
+    return _collector.get() is not None
+
+
+def report(x, failed, text: str):
+    """`x`, with the traced scalar `failed` reported as the failure `text`: added to the program's
+    failure code when collecting in the program's own trace, else an `eqx.error_if`."""
+    collector = _collector.get()
+    if collector is not None and collector.here():
+        collector.codes.append(jnp.where(failed, _message_id(text), 0).astype(jnp.int32))
+        return x
+    return eqx.error_if(x, failed, text)
 
 
 # --- structure --------------------------------------------------------------------------------
@@ -94,7 +176,7 @@ def check_real(x: Any, name: str) -> None:
 # --- values -----------------------------------------------------------------------------------
 def finite(x, name: str):
     """`x` with every entry finite."""
-    return check(x, ~jnp.isfinite(x), name, "finite values", "NaN or inf")
+    return check(x, ~xp(x).isfinite(x), name, "finite values", "NaN or inf")
 
 
 def coordinate_limit(dtype) -> float:
@@ -106,28 +188,30 @@ def coordinate_limit(dtype) -> float:
 def coordinates(x, name: str):
     """`x` with every entry finite and `|x| ≤ coordinate_limit(dtype)` (positions, lengths)."""
     limit = coordinate_limit(x.dtype)
-    bad = ~(jnp.abs(x) <= limit)
+    bad = ~(xp(x).abs(x) <= limit)
     return check(x, bad, name, f"finite values of magnitude <= {limit:.3g}", "NaN, inf or larger", _span)
 
 
 def positive(x, name: str, strict: bool = True):
     """`x` with every entry finite and > 0 (≥ 0 when `strict=False`)."""
     sign = "> 0" if strict else ">= 0"
-    bad = (x <= 0) if strict else (x < 0)
+    v = np.asarray(x) if is_concrete(x) else x
+    bad = (v <= 0) if strict else (v < 0)
     got = f"a value not {sign} (or NaN/inf)"
-    return check(x, bad | ~jnp.isfinite(x), name, f"finite values {sign}", got, _extreme)
+    return check(x, bad | ~xp(x).isfinite(v), name, f"finite values {sign}", got, _extreme)
 
 
 def in_range(x, name: str, lo: float, hi: float):
     """`x` with every entry in `[lo, hi]` (NaN fails)."""
-    bad = ~((x >= lo) & (x <= hi))
+    v = np.asarray(x) if is_concrete(x) else x
+    bad = ~((v >= lo) & (v <= hi))
     return check(x, bad, name, f"values in [{lo}, {hi}]", "a value outside (or NaN)", _span)
 
 
 def monotone(x, name: str):
     """A 1-D `x`, finite and non-decreasing."""
     x = finite(x, name)
-    return check(x, jnp.diff(x) < 0, name, "a non-decreasing knot vector", "a decrease")
+    return check(x, xp(x).diff(x) < 0, name, "a non-decreasing knot vector", "a decrease")
 
 
 def clamped_knots(knots, degree: int, n_ctrl: int, name: str):
@@ -137,13 +221,14 @@ def clamped_knots(knots, degree: int, n_ctrl: int, name: str):
     if knots.shape[0] != n_ctrl + degree + 1:
         fail(name, f"length n_ctrl + degree + 1 = {n_ctrl + degree + 1}", knots.shape[0])
     knots = monotone(knots, name)
-    ends = (knots[: degree + 1] != 0) | (knots[-degree - 1 :] != 1)
+    t = np.asarray(knots) if is_concrete(knots) else knots
+    ends = (t[: degree + 1] != 0) | (t[-degree - 1 :] != 1)
     expected = f"a clamped knot vector on [0, 1] ({degree + 1} knots 0 and 1)"
     knots = check(knots, ends, name, expected, "other ends", lambda t: f"[{t[0]}, {t[-1]}]")
-    interior = knots[degree + 1 : n_ctrl]
+    interior = t[degree + 1 : n_ctrl]
     if interior.shape[0] > degree:  # degree + 1 equal consecutive interior knots
-        windows = jnp.stack([interior[i : interior.shape[0] - degree + i] for i in range(degree + 1)])
-        too_many = jnp.all(windows == windows[:1], axis=0)
+        windows = xp(t).stack([interior[i : interior.shape[0] - degree + i] for i in range(degree + 1)])
+        too_many = xp(t).all(windows == windows[:1], axis=0)
         knots = check(knots, too_many, name, f"interior knot multiplicity <= degree {degree}", "more")
     return knots
 

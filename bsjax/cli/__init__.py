@@ -42,6 +42,10 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"bsjax: {name}: unknown command (one of {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
+    if not {"-h", "--help"} & set(rest):  # compiled programs kept for the next run (BSJAX_CACHE_DIR)
+        from bsjax._cache import enable_compilation_cache
+
+        enable_compilation_cache()
     try:
         module = importlib.import_module(COMMANDS[name][0])
     except ModuleNotFoundError as err:
