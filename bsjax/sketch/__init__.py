@@ -1,0 +1,37 @@
+"""Strokes to curves, curve editing by over-sketching, and sketch understanding (thesis ch. 3–4,
+§5.1.2; *Interactive shape modeling and dynamic deformation based on spline sculpting*, PhD
+thesis, University of Trento, 2007).
+
+* `_strokes`: the stroke chain — `features` → `corners` → `resample` → `fit_curve` /
+  `fit_stroke`; `oversketch`; `unproject` onto a drawing `Plane` seen by a `Camera`.
+"""
+
+from bsjax.sketch._strokes import Camera as Camera
+from bsjax.sketch._strokes import CurveFit as CurveFit
+from bsjax.sketch._strokes import Features as Features
+from bsjax.sketch._strokes import Oversketch as Oversketch
+from bsjax.sketch._strokes import Plane as Plane
+from bsjax.sketch._strokes import Resampled as Resampled
+from bsjax.sketch._strokes import corners as corners
+from bsjax.sketch._strokes import features as features
+from bsjax.sketch._strokes import fit_curve as fit_curve
+from bsjax.sketch._strokes import fit_stroke as fit_stroke
+from bsjax.sketch._strokes import oversketch as oversketch
+from bsjax.sketch._strokes import resample as resample
+from bsjax.sketch._strokes import unproject as unproject
+
+__all__ = [
+    "Camera",
+    "CurveFit",
+    "Features",
+    "Oversketch",
+    "Plane",
+    "Resampled",
+    "corners",
+    "features",
+    "fit_curve",
+    "fit_stroke",
+    "oversketch",
+    "resample",
+    "unproject",
+]
