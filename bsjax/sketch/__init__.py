@@ -6,6 +6,9 @@ thesis, University of Trento, 2007).
   `fit_stroke`; `oversketch`; `unproject` onto a drawing `Plane` seen by a `Camera`.
 """
 
+from bsjax.sketch._recognise import KINDS as KINDS
+from bsjax.sketch._recognise import Recognised as Recognised
+from bsjax.sketch._recognise import recognise as recognise
 from bsjax.sketch._strokes import Camera as Camera
 from bsjax.sketch._strokes import CurveFit as CurveFit
 from bsjax.sketch._strokes import Features as Features
@@ -21,17 +24,20 @@ from bsjax.sketch._strokes import resample as resample
 from bsjax.sketch._strokes import unproject as unproject
 
 __all__ = [
+    "KINDS",
     "Camera",
     "CurveFit",
     "Features",
     "Oversketch",
     "Plane",
+    "Recognised",
     "Resampled",
     "corners",
     "features",
     "fit_curve",
     "fit_stroke",
     "oversketch",
+    "recognise",
     "resample",
     "unproject",
 ]

@@ -1,0 +1,522 @@
+"""Single-stroke recognition and regularisation (thesis §3.1.1, Table 3-1 STEP 2, Fig. 3-3).
+
+A stroke `G(L, S, P, V)` (length, speed, point set, vertex set) is classified as one of
+`KINDS` and regularised into the primitive it stands for, with a score. Host-side numpy: a
+stroke's length depends on the data. The chain:
+
+1. **clean** — consecutive duplicate samples dropped; a closed stroke's over-traced tail (it runs
+   on past its start) cut at its closest return to the start.
+2. **resample** — `_SAMPLES` samples evenly spaced in arc length (times interpolated), lightly
+   smoothed (two passes of the [¼, ½, ¼] filter), so every stroke is one compiled shape for
+   the vertex set `V`: `bsjax.sketch.corners` (high curvature of eq. 4-1, and low speed when
+   timed).
+3. **fit** (in the stroke's plane, PCA for 3-D strokes) — a total-least-squares line, a
+   geometric circle (Kåsa's algebraic fit refined by Gauss–Newton), a direct least-squares
+   ellipse (Fitzgibbon, Pilu & Fisher 1999, in Halíř & Flusser's stable form) for closed
+   strokes, and a polygon: the corners of step 2 (and the start of a closed stroke) as candidate
+   vertices, merged while two neighbouring edges turn by less than `_MERGE_TURN`, each edge a
+   total-least-squares line, the regularised corners their intersections.
+4. **decide** — the residual of each model, `e = rms distance / D` (D the diagonal of the
+   stroke's bounding box: independent of position, size and rotation), against the tolerance
+   `_TOL`: open strokes are a line, else the better of arc and polyline, else a spline; closed
+   strokes are the better of polygon and ellipse (an ellipse of axis ratio below `_ROUND` is a
+   circle), else a spline. Polygons: 3 vertices a triangle; 4 with right angles (within
+   `_RIGHT`) a square (sides within `_SQUARE` of each other) or a rectangle; 4 with equal sides
+   (within `_RHOMBUS`) and no right angle a diamond; anything else a polyline.
+
+The regularised curve is exact where bsjax's rational curves allow: a circle is the 9-point
+rational quadratic (The NURBS Book §7.5, Ex. 7.2), an ellipse its affine image, an arc the
+rational quadratic arc of A7.1 (at most 90° a segment), polygons and lines degree-1 curves
+through the regularised vertices (chord-length knots); a free stroke is `fit_stroke`'s cubic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from bsjax import _checks
+from bsjax._typing import ArrayLike
+from bsjax.basis import BSplineCurve
+from bsjax.basis._knots import float_dtype
+from bsjax.sketch._strokes import corners, fit_stroke
+
+KINDS = (
+    "line",
+    "circle",
+    "ellipse",
+    "arc",
+    "triangle",
+    "square",
+    "rectangle",
+    "diamond",
+    "polyline",
+    "spline",
+)
+POLYGONS = ("triangle", "square", "rectangle", "diamond")
+
+_SAMPLES = 64  # samples of the resampled stroke (one compiled `corners` per dimension and timing)
+_CURVATURE = 1.5  # `corners`' curvature_factor (open strokes; the merge step drops false candidates)
+_CURVATURE_CLOSED = 1.0  # closed strokes: a diamond's obtuse corners turn a third of its acute ones
+_CLOSE = 0.15  # a stroke is closed when it returns within this fraction of D of its start
+_TOL = 0.025  # largest rms residual / D of an accepted closed primitive
+_LINE_TOL = 0.015  # … of a line
+_ARC_TOL = 0.015  # … of an arc
+_POLYLINE_TOL = 0.01  # … of an open polyline (a free curve's crests make a polyline of ~0.015)
+_MERGE_TURN = math.radians(30)  # candidate vertices between edges turning less are dropped
+_WINDOW = 2  # samples either side of a vertex whose turn must be …
+_SHARP = 0.5  # … at least this fraction of the turn between the vertex's edges
+_ROUND = 1.22  # ellipses of axis ratio below are circles
+_RIGHT = math.radians(12)  # largest deviation from 90° of a rectangle's angles
+_SQUARE = 1.2  # largest long/short side ratio of a square
+_RHOMBUS = 1.3  # largest long/short side ratio of a diamond
+_W = math.sqrt(0.5)  # weight of a quarter circle's middle control point
+
+
+@dataclasses.dataclass(frozen=True)
+class Recognised:
+    """A recognised stroke.
+
+    **Fields:**
+    - `kind`: one of `KINDS`.
+    - `params`: the regularised primitive's parameters (points in the stroke's space, d = 2 or 3;
+      angles in radians in the stroke's plane frame `frame`):
+      line `endpoints (2, d)`; circle `centre (d,)`, `radius`; ellipse `centre (d,)`,
+      `axes (2,)` (a ≥ b), `angle` (of the major axis), `major (d,)` (its unit vector); arc
+      `centre`, `radius`, `start`, `end` (`end − start` the signed sweep, counter-clockwise
+      positive); triangle/square/rectangle/diamond `corners (k, d)` in drawing order;
+      polyline `vertices (k, d)`, `closed`; spline: `{}`.
+    - `score`: in [0, 1], `exp(−(e/_TOL)²)` of the chosen model's residual e (rms / D).
+    - `curve`: the regularised `BSplineCurve` (see the module docstring).
+    - `points (M, d)`: the cleaned, resampled stroke the decision was made on.
+    - `closed`: whether the stroke returned to its start.
+    - `frame (3, d)`: the plane's origin and two orthonormal axes (d = 2: the identity frame).
+    - `span`: `(first, last)` time stamps, or `None` for an untimed stroke.
+    """
+
+    kind: str
+    params: dict[str, Any]
+    score: float
+    curve: BSplineCurve
+    points: np.ndarray
+    closed: bool
+    frame: np.ndarray
+    span: tuple[float, float] | None
+
+    @property
+    def normal(self) -> np.ndarray:
+        """The unit normal of the stroke's plane `(3,)` (d = 2: the drawing plane's +z)."""
+        if self.frame.shape[1] == 2:
+            return np.array([0.0, 0.0, 1.0])
+        n = np.cross(self.frame[1], self.frame[2])
+        return n / np.linalg.norm(n)
+
+    @property
+    def size(self) -> float:
+        """D, the diagonal of the stroke's bounding box."""
+        return float(np.linalg.norm(np.ptp(self.points, axis=0)))
+
+
+# --- input ------------------------------------------------------------------------------------
+def _array(x, name: str) -> np.ndarray:
+    if isinstance(x, (str, bytes)):
+        raise TypeError(f"{name}: expected an array of real numbers, got {type(x).__name__}")
+    _checks.check_real(x, name)
+    kind = np.asarray(x).dtype.kind
+    if kind not in "iuf":
+        raise TypeError(f"{name}: expected an array of real numbers, got dtype {np.asarray(x).dtype}")
+    return np.asarray(x, np.float64)
+
+
+def _inputs(points, times):
+    pts = _array(points, "points")
+    _checks.check_ndim(pts, "points", 2)
+    if pts.shape[1] not in (2, 3):
+        _checks.fail("points", "stroke samples of dimension 2 or 3, shape (N, d)", f"shape {pts.shape}")
+    if pts.shape[0] < 3:
+        _checks.fail("points", "at least 3 samples", pts.shape[0])
+    if not np.isfinite(pts).all():
+        _checks.fail("points", "finite values", "NaN or inf")
+    if times is None:
+        return pts, None
+    t = _array(times, "times")
+    if t.shape != pts.shape[:1]:
+        _checks.fail("times", f"shape ({pts.shape[0]},) like points", t.shape)
+    if not np.isfinite(t).all():
+        _checks.fail("times", "finite values", "NaN or inf")
+    if np.any(np.diff(t) <= 0):
+        _checks.fail("times", "strictly increasing time stamps", "a step <= 0")
+    return pts, t
+
+
+# --- step 1–2: clean and resample ----------------------------------------------------------------
+def _arc(pts: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+
+
+def _clean(pts, times):
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 0])
+    pts = pts[keep]
+    if pts.shape[0] < 2:
+        _checks.fail("points", "a stroke of nonzero length", "all points equal")
+    return pts, None if times is None else times[keep]
+
+
+def _closure(pts: np.ndarray) -> int | None:
+    """The index where a stroke first comes back to its start (within `_CLOSE · D`, at its
+    closest there), searched in its second half; `None` for an open stroke."""
+    arc = _arc(pts)
+    size = np.linalg.norm(np.ptp(pts, axis=0))
+    dist = np.linalg.norm(pts - pts[0], axis=1)
+    late = np.flatnonzero((arc >= 0.5 * arc[-1]) & (dist < _CLOSE * size))
+    if late.size == 0:
+        return None
+    i = int(late[0])
+    while i + 1 < len(dist) and dist[i + 1] <= dist[i]:
+        i += 1
+    return i
+
+
+def _resample(pts, times, count: int):
+    """`count` samples evenly spaced in arc length, smoothed (ends kept), times interpolated."""
+    arc = _arc(pts)
+    at = np.linspace(0.0, arc[-1], count)
+    out = np.stack([np.interp(at, arc, pts[:, i]) for i in range(pts.shape[1])], 1)
+    for _ in range(2):
+        out[1:-1] = 0.25 * out[:-2] + 0.5 * out[1:-1] + 0.25 * out[2:]
+    return out, None if times is None else np.interp(at, arc, times)
+
+
+def _frame(pts: np.ndarray):
+    """The stroke's plane: origin and axes `(3, d)`, its 2-D coordinates `(M, 2)`."""
+    if pts.shape[1] == 2:
+        return np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), pts.copy()
+    origin = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - origin, full_matrices=False)
+    frame = np.stack([origin, vt[0], vt[1]])
+    return frame, (pts - origin) @ vt[:2].T
+
+
+def _lift(frame: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Plane coordinates `(..., 2)` → the stroke's space `(..., d)`."""
+    return frame[0] + q[..., :1] * frame[1] + q[..., 1:2] * frame[2]
+
+
+# --- step 3: fits (2-D, numpy) ---------------------------------------------------------------
+def _line(q: np.ndarray):
+    """Total least squares: (centroid, unit direction along the samples' order, rms distance)."""
+    c = q.mean(axis=0)
+    _, _, vt = np.linalg.svd(q - c, full_matrices=False)
+    d = vt[0] if (q[-1] - q[0]) @ vt[0] >= 0 else -vt[0]
+    normal = np.array([-d[1], d[0]])
+    return c, d, float(np.sqrt(np.mean(((q - c) @ normal) ** 2)))
+
+
+def _circle(q: np.ndarray):
+    """Geometric circle fit: Kåsa's linear fit `x² + y² = a x + b y + c`, then Gauss–Newton on
+    `Σ (|q − c| − r)²`. Returns (centre, radius, rms)."""
+    a = np.column_stack([q, np.ones(len(q))])
+    sol = np.linalg.lstsq(a, np.sum(q * q, axis=1), rcond=None)[0]
+    centre = 0.5 * sol[:2]
+    radius = math.sqrt(max(sol[2] + centre @ centre, 1e-300))
+    for _ in range(8):
+        diff = q - centre
+        dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
+        jac = np.column_stack([-diff / dist[:, None], -np.ones(len(q))])
+        step = np.linalg.lstsq(jac, -(dist - radius), rcond=None)[0]
+        centre, radius = centre + step[:2], radius + step[2]
+    dist = np.linalg.norm(q - centre, axis=1)
+    return centre, abs(radius), float(np.sqrt(np.mean((dist - abs(radius)) ** 2)))
+
+
+def _ellipse(q: np.ndarray):
+    """Direct least-squares ellipse (Fitzgibbon et al.; Halíř & Flusser's partition of the
+    scatter matrix), on centred, scaled samples. Returns (centre, (a, b), major unit vector,
+    rms Sampson distance) or `None` when no ellipse fits."""
+    shift, scale = q.mean(axis=0), float(np.abs(q - q.mean(axis=0)).max())
+    x, y = ((q - shift) / scale).T
+    d1 = np.column_stack([x * x, x * y, y * y])
+    d2 = np.column_stack([x, y, np.ones_like(x)])
+    s1, s2, s3 = d1.T @ d1, d1.T @ d2, d2.T @ d2
+    try:
+        t = -np.linalg.solve(s3, s2.T)
+    except np.linalg.LinAlgError:
+        return None
+    m = s1 + s2 @ t
+    m = np.stack([m[2] / 2, -m[1], m[0] / 2])
+    _, v = np.linalg.eig(m)
+    v = np.real(v)
+    ok = 4 * v[0] * v[2] - v[1] ** 2 > 0
+    if not ok.any():
+        return None
+    a1 = v[:, np.flatnonzero(ok)[0]]
+    conic = np.concatenate([a1, t @ a1])  # A x² + B xy + C y² + D x + E y + F
+    quad = np.array([[conic[0], conic[1] / 2], [conic[1] / 2, conic[2]]])
+    centre = np.linalg.solve(2 * quad, -conic[3:5])
+    value = conic[5] + 0.5 * conic[3:5] @ centre
+    lam, vec = np.linalg.eigh(quad)
+    if not (np.all(lam * -value > 0)):
+        return None
+    axes = np.sqrt(-value / lam)
+    order = np.argsort(-axes)  # a ≥ b (the conic's sign decides which λ is the larger axis)
+    axes, vec = axes[order], vec[:, order]
+    grad = 2 * np.column_stack([x, y]) @ quad + conic[3:5]
+    f = np.einsum("ni,ij,nj->n", np.column_stack([x, y]), quad, np.column_stack([x, y]))
+    f = f + np.column_stack([x, y]) @ conic[3:5] + conic[5]
+    rms = float(np.sqrt(np.mean((f / np.maximum(np.linalg.norm(grad, axis=1), 1e-300)) ** 2)))
+    return shift + scale * centre, scale * axes, vec[:, 0], scale * rms
+
+
+class _Polygon(NamedTuple):
+    """A polygon fit: regularised vertices `(k, 2)` (closed: the corners; open: ends included)
+    and the rms distance of the samples to their edges' lines."""
+
+    vertices: np.ndarray
+    rms: float
+
+
+def _edge(q, a: int, b: int, closed: bool) -> np.ndarray:
+    n = len(q)
+    return q[np.arange(a, b + n + 1) % n] if closed and b <= a else q[a : b + 1]
+
+
+def _edge_fits(q, vs: list[int], closed: bool):
+    n = len(q)
+    pairs = zip(vs, vs[1:] + vs[:1]) if closed else zip([0, *vs], [*vs, n - 1])
+    return [_line(_edge(q, a, b, closed)) for a, b in pairs]
+
+
+def _turns(fits, closed: bool) -> np.ndarray:
+    """The turn between the edges meeting at each vertex (closed: vertex j joins edges j − 1
+    and j; open: edges j and j + 1)."""
+    d = np.stack([f[1] for f in fits])
+    ahead = d if closed else d[1:]
+    behind = np.roll(d, 1, axis=0) if closed else d[:-1]
+    return np.arccos(np.clip(np.sum(ahead * behind, axis=1), -1.0, 1.0))
+
+
+def _meet(f0, f1, fallback) -> np.ndarray:
+    """The intersection of two fitted lines (the sample `fallback` when nearly parallel)."""
+    (c0, d0, _), (c1, d1, _) = f0, f1
+    cross = d0[0] * d1[1] - d0[1] * d1[0]
+    if abs(cross) < math.sin(math.radians(10)):
+        return fallback
+    diff = c1 - c0
+    return c0 + d0 * (diff[0] * d1[1] - diff[1] * d1[0]) / cross
+
+
+def _polygon(q: np.ndarray, mask: np.ndarray, closed: bool) -> _Polygon | None:
+    """Candidate vertices (the corner samples, and a closed stroke's start), merged while the
+    two edges at a vertex turn by less than `_MERGE_TURN` (the flattest first); edges are
+    total-least-squares lines, the corners their intersections."""
+    n = len(q)
+    vs: list[int] = []
+    for i in sorted(set(np.flatnonzero(mask).tolist()) | ({0} if closed else set())):
+        if (not vs or i - vs[-1] >= 3) and (closed or n - 1 - i >= 3) and i >= (0 if closed else 3):
+            vs.append(i)
+    if closed and len(vs) > 1 and n - vs[-1] + vs[0] < 3:
+        vs.pop()
+    while vs:
+        fits = _edge_fits(q, vs, closed)
+        turns = _turns(fits, closed)
+        j = int(np.argmin(turns))
+        if turns[j] >= _MERGE_TURN:
+            break
+        vs.pop(j)
+    if closed and len(vs) < 3:
+        return None
+    fits = _edge_fits(q, vs, closed)
+    sq = [f[2] ** 2 * len(_edge(q, a, b, closed)) for f, (a, b) in zip(fits, _pairs(vs, n, closed))]
+    rms = math.sqrt(sum(sq) / sum(len(_edge(q, a, b, closed)) for a, b in _pairs(vs, n, closed)))
+    if closed:
+        corners_ = [_meet(fits[j - 1], fits[j], q[vs[j]]) for j in range(len(vs))]
+    else:
+        ends = [fits[0][0] + fits[0][1] * ((q[0] - fits[0][0]) @ fits[0][1])]
+        inner = [_meet(fits[j], fits[j + 1], q[vs[j]]) for j in range(len(vs))]
+        last = fits[-1][0] + fits[-1][1] * ((q[-1] - fits[-1][0]) @ fits[-1][1])
+        corners_ = [*ends, *inner, last]
+    return _Polygon(np.asarray(corners_), rms)
+
+
+def _sharp(q: np.ndarray, vertices: np.ndarray) -> bool:
+    """Whether an open polyline's vertices are corners rather than the crests of a smooth curve:
+    at each interior vertex, the turn of the samples within `_WINDOW` of it is at least
+    `_SHARP` of the turn between its two edges (a crest spreads its turn along the curve)."""
+    step = np.diff(q, axis=0)
+    heading = np.unwrap(np.arctan2(step[:, 1], step[:, 0]))
+    for a, v, b in zip(vertices[:-2], vertices[1:-1], vertices[2:]):
+        i = int(np.argmin(np.linalg.norm(q - v, axis=1)))
+        lo, hi = max(i - _WINDOW, 0), min(i + _WINDOW, len(heading) - 1)
+        local = abs(heading[hi] - heading[lo])
+        d0, d1 = (v - a) / np.linalg.norm(v - a), (b - v) / np.linalg.norm(b - v)
+        if local < _SHARP * math.acos(float(np.clip(d0 @ d1, -1.0, 1.0))):
+            return False
+    return True
+
+
+def _pairs(vs: list[int], n: int, closed: bool):
+    return list(zip(vs, vs[1:] + vs[:1])) if closed else list(zip([0, *vs], [*vs, n - 1]))
+
+
+def _polygon_kind(v: np.ndarray) -> str:
+    """Triangle, square, rectangle, diamond or polyline from a closed polygon's corners `(k, 2)`."""
+    if len(v) == 3:
+        return "triangle"
+    if len(v) != 4:
+        return "polyline"
+    sides = np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1)
+    into, out = np.roll(v, 1, axis=0) - v, np.roll(v, -1, axis=0) - v
+    cos = np.sum(into * out, axis=1) / np.maximum(
+        np.linalg.norm(into, axis=1) * np.linalg.norm(out, axis=1), 1e-300
+    )
+    angles = np.arccos(np.clip(cos, -1.0, 1.0))
+    if np.max(np.abs(angles - math.pi / 2)) < _RIGHT:
+        ratio = (sides[0] + sides[2]) / (sides[1] + sides[3])
+        return "square" if max(ratio, 1 / ratio) < _SQUARE else "rectangle"
+    return "diamond" if sides.max() / sides.min() < _RHOMBUS else "polyline"
+
+
+# --- regularised curves (2-D, then lifted) ----------------------------------------------------
+def _polyline_curve(v: np.ndarray):
+    """Degree 1 through `v (k, 2)`, chord-length knots: `(ctrl, knots, 1, None)`."""
+    at = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(v, axis=0), axis=1))])
+    return v, np.concatenate([[0.0], at / at[-1], [1.0]]), 1, None
+
+
+def _arc_curve(centre, radius: float, start: float, sweep: float, u=(1.0, 0.0), v=(0.0, 1.0), b=None):
+    """The rational quadratic arc of The NURBS Book A7.1: `ceil(|sweep| / 90°)` segments, end
+    control points on the arc, middle ones at `radius / cos(Δ/2)` with weight `cos(Δ/2)`. With
+    axes `u`, `v` and semi-axis `b` (≠ radius) the affine image: an elliptic arc, exact."""
+    segments = max(1, math.ceil(abs(sweep) / (math.pi / 2) - 1e-9))
+    half = sweep / (2 * segments)
+    theta = start + half * np.arange(2 * segments + 1)
+    middle = np.arange(2 * segments + 1) % 2 == 1
+    gain = np.where(middle, 1 / math.cos(half), 1.0)
+    ax, by = radius * gain * np.cos(theta), (radius if b is None else b) * gain * np.sin(theta)
+    ctrl = np.asarray(centre) + ax[:, None] * np.asarray(u)[None] + by[:, None] * np.asarray(v)[None]
+    steps = np.repeat(np.arange(1, segments) / segments, 2)
+    knots = np.concatenate([np.zeros(3), steps, np.ones(3)])
+    return ctrl, knots, 2, np.where(middle, math.cos(half), 1.0)
+
+
+def _curve(parts, frame: np.ndarray, dtype) -> BSplineCurve:
+    ctrl, knots, degree, weights = parts
+    return BSplineCurve(np.asarray(_lift(frame, np.asarray(ctrl)), dtype), np.asarray(knots, dtype), degree,
+                        weights=None if weights is None else np.asarray(weights, dtype))  # fmt: skip
+
+
+def _orientation(q: np.ndarray) -> float:
+    """+1 for a counter-clockwise stroke (positive signed area), −1 otherwise."""
+    x, y = q[:, 0], q[:, 1]
+    return 1.0 if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) >= 0 else -1.0
+
+
+def _angle_of(q, centre) -> np.ndarray:
+    return np.unwrap(np.arctan2(q[:, 1] - centre[1], q[:, 0] - centre[0]))
+
+
+def _score(e: float) -> float:
+    return float(math.exp(-((e / _TOL) ** 2)))
+
+
+# --- step 4: decide ---------------------------------------------------------------------------
+def _decide(q: np.ndarray, mask: np.ndarray, closed: bool, size: float):
+    """(kind, params in plane coordinates, curve parts or None for a free spline, residual e)."""
+    if not closed:
+        c, d, rms = _line(q)
+        if rms / size <= _LINE_TOL:
+            ends = c + np.outer([(q[0] - c) @ d, (q[-1] - c) @ d], d)
+            return "line", {"endpoints": ends}, _polyline_curve(ends), rms / size
+    centre, radius, circle_rms = _circle(q)
+    poly = _polygon(q, mask, closed)
+    e_poly = poly.rms / size if poly is not None and (closed or len(poly.vertices) > 2) else math.inf
+    if closed:
+        fit = _ellipse(q)
+        e_conic = math.inf if fit is None else fit[3] / size
+        if e_poly <= min(e_conic, _TOL) and poly is not None:
+            return _closed_polygon(q, poly, e_poly)
+        if e_conic <= _TOL and fit is not None:
+            return _conic(q, fit, (centre, radius, circle_rms / size), e_conic)
+        return "spline", {}, None, min(e_poly, e_conic)
+    e_arc = circle_rms / size
+    if e_poly <= min(e_arc, _POLYLINE_TOL) and poly is not None and _sharp(q, poly.vertices):
+        params = {"vertices": poly.vertices, "closed": False}
+        return "polyline", params, _polyline_curve(poly.vertices), e_poly
+    if e_arc <= _ARC_TOL:
+        angles = _angle_of(q, centre)
+        params = {"centre": centre, "radius": radius, "start": float(angles[0]), "end": float(angles[-1])}
+        return "arc", params, _arc_curve(centre, radius, angles[0], angles[-1] - angles[0]), e_arc
+    return "spline", {}, None, min(e_poly, e_arc)
+
+
+def _closed_polygon(q, poly: _Polygon, e: float):
+    v = poly.vertices
+    kind = _polygon_kind(v)
+    ring = np.concatenate([v, v[:1]])
+    params = {"vertices": v, "closed": True} if kind == "polyline" else {"corners": v}
+    return kind, params, _polyline_curve(ring), e
+
+
+def _conic(q, fit, circle, e_ellipse: float):
+    centre, axes, major, _ = fit
+    sign = _orientation(q)
+    if axes[0] / axes[1] < _ROUND:
+        c, r, e = circle
+        start = math.atan2(q[0, 1] - c[1], q[0, 0] - c[0])
+        return "circle", {"centre": c, "radius": r}, _arc_curve(c, r, start, sign * 2 * math.pi), e
+    minor = np.array([-major[1], major[0]])
+    local = (q[0] - centre) @ np.stack([major, minor], 1) / axes
+    start = math.atan2(local[1], local[0])
+    angle = math.atan2(major[1], major[0])
+    if angle > math.pi / 2 or angle <= -math.pi / 2:  # the major axis's angle in (−π/2, π/2]
+        angle, major, minor, start = angle - math.copysign(math.pi, angle), -major, -minor, start + math.pi
+    params = {"centre": centre, "axes": axes, "angle": angle, "major": major}
+    parts = _arc_curve(centre, float(axes[0]), start, sign * 2 * math.pi, major, minor, float(axes[1]))
+    return "ellipse", params, parts, e_ellipse
+
+
+_POINT_KEYS = ("endpoints", "centre", "corners", "vertices")
+
+
+def recognise(points: ArrayLike, times: ArrayLike | None = None) -> Recognised:
+    """Recognise and regularise one stroke (thesis §3.1.1, Table 3-1 STEP 2, Fig. 3-3).
+
+    See the module docstring for the chain (clean, resample, fit, decide) and the thresholds.
+    The class does not depend on the stroke's position, size or rotation: every test compares
+    ratios (residual / bounding-box diagonal, axis and side ratios, angles).
+
+    **Arguments:**
+    - `points (N, d)`: the stroke's samples in drawing order, N ≥ 3, d = 2 or 3 (3-D strokes,
+      e.g. from `unproject`, are recognised in their best-fitting plane), finite reals.
+    - `times (N,)`: strictly increasing time stamps, or `None`; with times a corner must also be
+      slow (`corners`' speed test).
+
+    **Returns:** a `Recognised` (kind, params, score, curve, …). Host-side numpy; one compiled
+    `corners` call of fixed shape `(_SAMPLES, d)`, and `fit_stroke` for a free stroke.
+    """
+    pts, t = _inputs(points, times)
+    dtype = float_dtype(np.asarray(points))
+    span = None if t is None else (float(t[0]), float(t[-1]))
+    pts, t = _clean(pts, t)
+    cut = _closure(pts)
+    if cut is not None:
+        pts, t = pts[: cut + 1], None if t is None else t[: cut + 1]
+    res, res_t = _resample(pts, t, _SAMPLES)
+    frame, q = _frame(res)
+    size = float(np.linalg.norm(np.ptp(q, axis=0)))
+    factor = _CURVATURE if cut is None else _CURVATURE_CLOSED
+    mask = np.asarray(corners(res, res_t, curvature_factor=factor, speed_factor=1.0))
+    kind, params, parts, e = _decide(q, mask, cut is not None, size)
+    if parts is None:
+        (curve,) = fit_stroke(np.asarray(res, dtype), None, tol=0.005 * size, split=False)
+    else:
+        curve = _curve(parts, frame, dtype)
+    for key in _POINT_KEYS:
+        if key in params:
+            params[key] = _lift(frame, np.asarray(params[key]))
+    if "major" in params:
+        params["major"] = params["major"][0] * frame[1] + params["major"][1] * frame[2]
+    return Recognised(kind, params, _score(e), curve, res, cut is not None, frame, span)
