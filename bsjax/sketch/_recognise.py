@@ -73,7 +73,7 @@ _ROUND = 1.22  # ellipses of axis ratio below are circles
 _RIGHT = math.radians(12)  # largest deviation from 90° of a rectangle's angles
 _SQUARE = 1.2  # largest long/short side ratio of a square
 _RHOMBUS = 1.3  # largest long/short side ratio of a diamond
-_W = math.sqrt(0.5)  # weight of a quarter circle's middle control point
+_OUTLINE = 128  # samples of a regularised shape's outline
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +92,8 @@ class Recognised:
     - `score`: in [0, 1], `exp(−(e/_TOL)²)` of the chosen model's residual e (rms / D).
     - `curve`: the regularised `BSplineCurve` (see the module docstring).
     - `points (M, d)`: the cleaned, resampled stroke the decision was made on.
+    - `outline (K, d)`: samples of the regularised shape (`curve` at K parameters; a free
+      stroke: `points`), what `relations` measures.
     - `closed`: whether the stroke returned to its start.
     - `frame (3, d)`: the plane's origin and two orthonormal axes (d = 2: the identity frame).
     - `span`: `(first, last)` time stamps, or `None` for an untimed stroke.
@@ -102,6 +104,7 @@ class Recognised:
     score: float
     curve: BSplineCurve
     points: np.ndarray
+    outline: np.ndarray
     closed: bool
     frame: np.ndarray
     span: tuple[float, float] | None
@@ -402,6 +405,36 @@ def _arc_curve(centre, radius: float, start: float, sweep: float, u=(1.0, 0.0), 
     return ctrl, knots, 2, np.where(middle, math.cos(half), 1.0)
 
 
+def _basis(knots: np.ndarray, degree: int, t: np.ndarray) -> np.ndarray:
+    """Cox–de Boor (The NURBS Book eq. 2.5) for a clamped knot vector, `(len(t), n)`; the last
+    span is closed at t = 1."""
+    n = len(knots) - degree - 1
+    span = np.clip(np.searchsorted(knots, t, side="right") - 1, degree, n - 1)
+    out = (np.arange(len(knots) - 1)[None] == span[:, None]).astype(float)
+    for p in range(1, degree + 1):
+        left = knots[: len(knots) - p - 1]
+        right = knots[p + 1 :]
+        a = np.where(
+            knots[p:-1] > left, (t[:, None] - left) / np.where(knots[p:-1] > left, knots[p:-1] - left, 1), 0
+        )
+        b = np.where(right > knots[1 : len(knots) - p], (right - t[:, None]) / np.where(
+            right > knots[1 : len(knots) - p], right - knots[1 : len(knots) - p], 1), 0)  # fmt: skip
+        out = a * out[:, :-1] + b * out[:, 1:]
+    return out
+
+
+def _outline(parts, count: int = _OUTLINE) -> np.ndarray:
+    """The regularised curve's points `(count, 2)` at evenly spaced parameters (numpy)."""
+    ctrl, knots, degree, weights = parts
+    if degree == 1:  # every vertex a sample, so corners stay sharp
+        at = np.asarray(knots, float)[1:-1]
+        t = np.union1d(at, np.linspace(0.0, 1.0, count))
+        return np.stack([np.interp(t, at, np.asarray(ctrl, float)[:, i]) for i in range(2)], 1)
+    basis = _basis(np.asarray(knots, float), degree, np.linspace(0.0, 1.0, count))
+    w = np.ones(len(ctrl)) if weights is None else np.asarray(weights, float)
+    return (basis * w) @ np.asarray(ctrl, float) / (basis @ w)[:, None]
+
+
 def _curve(parts, frame: np.ndarray, dtype) -> BSplineCurve:
     ctrl, knots, degree, weights = parts
     return BSplineCurve(np.asarray(_lift(frame, np.asarray(ctrl)), dtype), np.asarray(knots, dtype), degree,
@@ -512,11 +545,12 @@ def recognise(points: ArrayLike, times: ArrayLike | None = None) -> Recognised:
     kind, params, parts, e = _decide(q, mask, cut is not None, size)
     if parts is None:
         (curve,) = fit_stroke(np.asarray(res, dtype), None, tol=0.005 * size, split=False)
+        outline = res
     else:
-        curve = _curve(parts, frame, dtype)
+        curve, outline = _curve(parts, frame, dtype), _lift(frame, _outline(parts))
     for key in _POINT_KEYS:
         if key in params:
             params[key] = _lift(frame, np.asarray(params[key]))
     if "major" in params:
         params["major"] = params["major"][0] * frame[1] + params["major"][1] * frame[2]
-    return Recognised(kind, params, _score(e), curve, res, cut is not None, frame, span)
+    return Recognised(kind, params, _score(e), curve, res, outline, cut is not None, frame, span)
