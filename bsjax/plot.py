@@ -1,4 +1,7 @@
-"""matplotlib pictures of surfaces, control nets and per-sample scalar maps (Agg, no screen)."""
+"""matplotlib pictures of surfaces, control nets and per-sample scalar maps (Agg, no screen).
+
+Needs the `plot` extra (`pip install 'bsjax[plot]'`); matplotlib is imported by the functions.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from bsjax import _checks
+from bsjax._optional import require
 
 
 def _grid(x, name: str, shape: tuple | None = None) -> np.ndarray:
@@ -27,8 +31,7 @@ def figure(n_panels: int, size: float = 4.0):
     n_panels = _checks.check_count(n_panels, "n_panels")
     if isinstance(size, bool) or not isinstance(size, (int, float)) or not (0 < size < 1e3):
         _checks.fail("size", "a panel size in inches in (0, 1000)", size)
-    import matplotlib
-
+    matplotlib = require("matplotlib", "plot", "bsjax.plot.figure")
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
@@ -42,7 +45,7 @@ def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str 
 
     Bad input (shapes, NaN/inf, an unknown colour map) raises a `ValueError` naming the argument.
     """
-    import matplotlib
+    matplotlib = require("matplotlib", "plot", "bsjax.plot.draw_surface")
 
     p = _grid(points, "points")
     c = None if ctrl is None else _grid(ctrl, "ctrl")
@@ -89,6 +92,4 @@ def save(fig, path) -> None:
         _checks.fail("path", f"an image extension ({', '.join('.' + f for f in sorted(formats))})", str(path))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
+    require("matplotlib.pyplot", "plot", "bsjax.plot.save").close(fig)

@@ -3,13 +3,17 @@
 Each subcommand lives in its own module of this package and exposes `main(argv) -> int`; this
 file only dispatches, so importing it stays cheap. Every subcommand follows the convention of
 `bsjax.cli._common`: comma-separated vectors (`--sphere CX,CY,CZ,R`), one-line user errors with
-exit code 2 (`--debug` for the traceback), float64 unless `--float32`, valid JSON.
+exit code 2 (`--debug` for the traceback), float64 unless `--float32`, valid JSON. A feature whose
+extra is not installed is one line naming it (`bsjax convert: reading 'a.step' needs the 'cad'
+extra: pip install 'bsjax[cad]'`), exit code 2.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+
+from bsjax._optional import MissingExtraError, extra_of
 
 # name → (module with a `main(argv)`, one-line help)
 COMMANDS = {
@@ -26,8 +30,21 @@ COMMANDS = {
 }
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("bsjax")
+    except PackageNotFoundError:  # a source tree on sys.path, not installed
+        return "unknown"
+
+
 def _usage() -> str:
-    lines = ["usage: bsjax COMMAND [options]   (bsjax COMMAND --help for its options)", "", "commands:"]
+    lines = [
+        "usage: bsjax COMMAND [options]   (bsjax COMMAND --help for its options; bsjax --version)",
+        "",
+        "commands:",
+    ]
     lines += [f"  {name:<10} {text}" for name, (_, text) in COMMANDS.items()]
     return "\n".join(lines)
 
@@ -38,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or argv[0] in ("-h", "--help"):
         print(_usage())
         return 0
+    if argv[0] in ("-V", "--version"):
+        print(f"bsjax {_version()}")
+        return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
         print(f"bsjax: {name}: unknown command (one of {', '.join(COMMANDS)})", file=sys.stderr)
@@ -47,11 +67,18 @@ def main(argv: list[str] | None = None) -> int:
 
         enable_compilation_cache()
     try:
-        module = importlib.import_module(COMMANDS[name][0])
-    except ModuleNotFoundError as err:
-        print(f"bsjax {name}: not available in this installation ({err})", file=sys.stderr)
+        return int(importlib.import_module(COMMANDS[name][0]).main(rest) or 0)
+    except MissingExtraError as err:
+        if "--debug" in rest:
+            raise
+        print(f"bsjax {name}: {err}", file=sys.stderr)
         return 2
-    return int(module.main(rest) or 0)
+    except ModuleNotFoundError as err:  # an optional module imported without `require`: still named
+        extra = extra_of(err.name or "")
+        if extra is None or "--debug" in rest:
+            raise  # not an extra: a broken installation, shown in full
+        print(f"bsjax {name}: needs the {extra!r} extra: pip install 'bsjax[{extra}]'", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """Progress bars for the commands: a tqdm bar with an estimate of the time left on a terminal,
-nothing otherwise.
+nothing otherwise. tqdm is the `progress` extra (in `bsjax[all]`): without it the commands run the
+same, without bars — a bar is a convenience, never a reason for a command to fail.
 
 The library never prints: its long functions take an optional `progress(done, total)` callback
 (`bsjax.batch.map`, `bsjax.vsofm.fit`, `bsjax.mss.simulate`, …). A command passes the callback
@@ -8,8 +9,8 @@ of `bar`:
     with _progress.bar("designs", quiet=args.quiet) as progress:
         batch.map(fn, designs, chunk=8, progress=progress)
 
-`progress` is None when the bar is off (`quiet`, or the stream is not a terminal), so the
-library takes its no-progress path and costs nothing extra.
+`progress` is None when the bar is off (`quiet`, the stream is not a terminal, or tqdm is not
+installed), so the library takes its no-progress path and costs nothing extra.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import contextlib
 import sys
 from collections.abc import Callable, Iterator
 from typing import IO
+
+from bsjax._optional import available
 
 
 def enabled(quiet: bool = False, stream: IO[str] | None = None) -> bool:
@@ -43,7 +46,7 @@ def bar(
     between calls, e.g. over groups of designs), or None. The bar is closed on exit.
     """
     stream = sys.stderr if stream is None else stream
-    if not (force and not quiet) and not enabled(quiet, stream):
+    if not available("tqdm") or (not (force and not quiet) and not enabled(quiet, stream)):
         yield None
         return
     from tqdm import tqdm

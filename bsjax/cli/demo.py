@@ -10,6 +10,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from bsjax._optional import require
 from bsjax.cli import _common as c
 
 
@@ -23,6 +24,8 @@ def _parser():
 
 
 def _body(args) -> int:
+    for module, extra in (("matplotlib", "plot"), ("rhino3dm", "cad"), ("trimesh", "mesh")):
+        require(module, extra, "the demo's pictures and files")  # before minutes of work, not after
     from bsjax.examples import demo
 
     out = Path(args.out)

@@ -24,6 +24,7 @@ import signal
 import sys
 import time
 
+from bsjax._optional import require
 from bsjax.cli import _common as c
 from bsjax.device.hid import HidDevice, HidLayout
 from bsjax.device.protocol import DeviceError, Workspace
@@ -171,7 +172,22 @@ def _view(args, loop, model):
     return ViewServer(scene, frame, port=args.port)
 
 
+def _require_extras(args) -> None:
+    """Every extra the chosen options need, before anything starts (a device opened in the servo
+    process would report a missing pyserial as a failed start)."""
+    needs = (
+        (args.serial, "serial", "haptics", "--serial"),
+        (args.hid, "hid", "haptics", "--hid"),
+        (args.view, "websockets", "view", "--view"),
+        (args.plot, "matplotlib", "plot", "--plot"),
+    )
+    for wanted, module, extra, feature in needs:
+        if wanted:
+            require(module, extra, feature)
+
+
 def _body(args) -> int:
+    _require_extras(args)
     if args.view and args.port > 65535:
         raise c.UserError("--port", f"expected a port in [0, 65535], got {args.port}")
     if args.sculpt == "drag" and args.proxy_only:

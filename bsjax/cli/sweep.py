@@ -28,10 +28,12 @@ import sys
 import time
 from pathlib import Path
 
+from bsjax._optional import require
 from bsjax.cli import _common as c
 from bsjax.cli import _progress
 
 NAMES = ("spoon", "collide", "merge")
+_PLOT = "drawing sweep.png"
 
 
 def _spec(text: str) -> tuple[str, tuple[float, float, int]]:
@@ -123,6 +125,7 @@ def _distributed(args) -> None:
 
 
 def _body(args) -> int:
+    require("matplotlib", "plot", _PLOT)  # before the designs run, not after
     if args.surface and args.experiment == "merge":
         raise c.UserError("--surface", "the merge experiment has its own patches (spoon or collide only)")
     _distributed(args)  # first: importing the library creates arrays, which starts JAX's backend
@@ -170,8 +173,7 @@ def write_csv(path: Path, designs: dict, results: dict) -> None:
 def plot(path: Path, experiment, specs: dict, designs: dict, results: dict) -> None:
     """A heat map per output over the first two varied parameters (the others at their first
     value), or lines over the one varied parameter, or one point per output."""
-    import matplotlib
-
+    matplotlib = require("matplotlib", "plot", _PLOT)
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
     import numpy as np

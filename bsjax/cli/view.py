@@ -16,6 +16,7 @@ import signal
 import sys
 import time
 
+from bsjax._optional import require
 from bsjax.cli import _common as c
 
 INPUTS = (".json", ".3dm", ".step", ".stp", ".iges", ".igs", ".npz")
@@ -31,6 +32,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _body(args) -> int:
+    require("websockets", "view", "serving the view")  # before the file is read and the scene built
     from bsjax.view import ViewServer, from_file
 
     if args.port > 65535:

@@ -658,8 +658,10 @@ class TriangleMesh(AbstractTool):
 
     @classmethod
     def load(cls, path, dtype=None) -> "TriangleMesh":
-        """From any mesh file trimesh reads (OBJ, STL, PLY, GLB…)."""
-        import trimesh
+        """From any mesh file trimesh reads (OBJ, STL, PLY, GLB…); needs the `mesh` extra."""
+        from bsjax._optional import require
+
+        trimesh = require("trimesh", "mesh", "bsjax.collide.TriangleMesh.load")
 
         try:  # unprocessed first: trimesh's processing drops non-finite vertices with their faces
             mesh = trimesh.load(path, force="mesh", process=False)

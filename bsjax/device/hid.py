@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsjax import _checks
+from bsjax._optional import require
 from bsjax.device.protocol import (
     DeviceBase,
     DeviceSample,
@@ -278,9 +279,7 @@ class HidDevice(DeviceBase):
         if self._factory is not None:
             dev = self._factory
         else:
-            import hid
-
-            dev = hid.device()
+            dev = require("hid", "haptics", "bsjax.device.HidDevice").device()
         if self.path is not None:
             dev.open_path(self.path)
         else:

@@ -18,8 +18,8 @@ import os
 import time
 
 import numpy as np
-import serial as pyserial
 
+from bsjax._optional import require
 from bsjax.device import frames
 from bsjax.device.protocol import (
     DeviceBase,
@@ -31,6 +31,12 @@ from bsjax.device.protocol import (
 )
 
 _READ_CHUNK = 4096
+
+
+def _pyserial():
+    # pyserial is the `haptics` extra: imported when a port is opened, so `bsjax.device` (and the
+    # simulated device) imports without it; an `except` clause names it only once an error is raised
+    return require("serial", "haptics", "bsjax.device.SerialDevice")
 
 
 class SerialDevice(DeviceBase):
@@ -80,7 +86,7 @@ class SerialDevice(DeviceBase):
 
     # --- connection ---------------------------------------------------------------------------
     def _open(self) -> None:
-        self._port = pyserial.serial_for_url(
+        self._port = _pyserial().serial_for_url(
             self.port_name, baudrate=self.baudrate, timeout=0, write_timeout=self.write_timeout
         )
         self._buffer = b""
@@ -101,7 +107,7 @@ class SerialDevice(DeviceBase):
         try:
             self._open()
             self._count("reconnects")
-        except (OSError, pyserial.SerialException):
+        except (OSError, _pyserial().SerialException):
             self._retry_at = time.perf_counter() + self.reconnect_interval
 
     @property
@@ -118,7 +124,7 @@ class SerialDevice(DeviceBase):
                 return
         try:
             chunk = self._port.read(max(1, min(self._port.in_waiting, _READ_CHUNK)))
-        except (OSError, pyserial.SerialException):
+        except (OSError, _pyserial().SerialException):
             self._lost()
             return
         if chunk:
@@ -166,9 +172,9 @@ class SerialDevice(DeviceBase):
             return
         try:
             written = self._port.write(data)
-        except pyserial.SerialTimeoutException:
+        except _pyserial().SerialTimeoutException:
             written = 0
-        except (OSError, pyserial.SerialException):
+        except (OSError, _pyserial().SerialException):
             self._lost()
             return
         if written is not None and written < len(data):
@@ -182,7 +188,7 @@ class SerialDevice(DeviceBase):
         try:
             self._port.write(frames.encode_force(self._tx_seq, (0.0, 0.0, 0.0)))
             self._port.flush()
-        except (OSError, pyserial.SerialException):
+        except (OSError, _pyserial().SerialException):
             pass
         self._port.close()
         self._port = None

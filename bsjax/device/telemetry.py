@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from bsjax._optional import require
+
 log = logging.getLogger("bsjax.device")
 
 DROPPED_COUNTERS = ("crc_errors", "truncated", "malformed", "out_of_order", "unexpected_kind", "bad_pose")
@@ -99,8 +101,9 @@ def percentiles(values_ns: np.ndarray) -> tuple[float, float, float]:
 
 
 def plot_recording(recording, path: str | os.PathLike, title: str = "haptic session") -> None:
-    """Write a PNG: stylus position, force written, and tick period over a recorded session."""
-    from matplotlib.figure import Figure
+    """Write a PNG: stylus position, force written, and tick period over a recorded session
+    (the `plot` extra)."""
+    Figure = require("matplotlib.figure", "plot", "bsjax.device.plot_recording").Figure
 
     t = recording.time - (recording.time[0] if len(recording) else 0.0)
     fig = Figure(figsize=(9, 7), tight_layout=True)

@@ -29,6 +29,8 @@ import zlib
 
 import numpy as np
 
+from bsjax._optional import require
+
 TCODE_ANONYMOUS = 0x40008000
 TCODE_CLASS, TCODE_CLASS_UUID, TCODE_CLASS_DATA, TCODE_CLASS_END = 0x27FFA, 0x2FFFB, 0x2FFFC, 0x80027FFF
 BREP_CLASS_UUID = bytes.fromhex("c5dbb56060e6d311bfe40010830122f0")  # ON_Brep's class id (bytes_le)
@@ -94,7 +96,7 @@ def _curve_array(curves) -> bytes:
 
 def _polyline(points: np.ndarray, dim: int):
     """A degree-1 rhino3dm `NurbsCurve` through `points (k, dim)`, parameter = point index."""
-    import rhino3dm
+    rhino3dm = require("rhino3dm", "cad", ".3dm files")
 
     out = rhino3dm.NurbsCurve(dim, False, 2, len(points))
     for i, p in enumerate(points):
@@ -125,7 +127,7 @@ def trimmed_brep(srf, loops, outer, reversed_: bool, closed=(False, False), tol:
 
     **Returns:** the decoded `rhino3dm.Brep`, or `None` when rhino3dm refuses the archive.
     """
-    import rhino3dm
+    rhino3dm = require("rhino3dm", "cad", ".3dm files")
 
     dom = [(srf.Domain(0).T0, srf.Domain(0).T1), (srf.Domain(1).T0, srf.Domain(1).T1)]
     scale = np.array([d[1] - d[0] for d in dom])

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from bsjax import _checks, collide
+from bsjax._optional import require
 from bsjax.basis import BSplineCurve, BSplineSurface
 from bsjax.io._cad import CadList, CadObject, Trim, check_units, unit_scale
 
@@ -171,9 +172,9 @@ def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82, mask=None):
     no triangle uses. `None`: every triangle.
 
     Seams of periodic directions and collapsed pole rows are welded, so a closed surface gives
-    a closed mesh.
+    a closed mesh. Needs the `mesh` extra (trimesh).
     """
-    import trimesh
+    trimesh = require("trimesh", "mesh", "bsjax.io.tessellate")
 
     if not isinstance(surface, BSplineSurface):
         _checks.fail("surface", "a BSplineSurface", type(surface).__name__)
@@ -255,15 +256,17 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
     if ext == ".json":
         path.write_text(json.dumps(_json_document(objects, units)))
     elif ext == ".3dm":
+        require("rhino3dm", "cad", f"writing {path.name!r}")
         from bsjax.io._rhino import save_3dm
 
         save_3dm(objects, path, units)
     elif ext in _CAD:
+        require("OCP", "cad", f"writing {path.name!r}")
         from bsjax.io._occt import save_occt
 
         save_occt(objects, path, units)
     elif ext in MESH_FORMATS:
-        import trimesh
+        trimesh = require("trimesh", "mesh", f"writing {path.name!r}")
 
         if any(o.is_curve for o in objects):
             _checks.fail("surfaces", f"only surfaces for a mesh format ({ext})", "a BSplineCurve")
@@ -344,10 +347,12 @@ def load_all(
 def _read_all(path: Path, units, on_unsupported: str, trims: bool) -> CadList:
     ext = path.suffix.lower()
     if ext == ".3dm":
+        require("rhino3dm", "cad", f"reading {path.name!r}")
         from bsjax.io._rhino import load_3dm
 
         return load_3dm(path, units, on_unsupported, trims)
     if ext in _CAD:
+        require("OCP", "cad", f"reading {path.name!r}")
         from bsjax.io._occt import load_occt
 
         return load_occt(path, units, on_unsupported, trims)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from bsjax import _checks
+from bsjax._optional import require
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
 from bsjax.io._3dm_archive import trimmed_brep
@@ -118,7 +119,7 @@ def _rhino_knots(knots, degree: int, periodic: bool, n: int, domain) -> np.ndarr
 
 
 def surface_to_rhino(surface: BSplineSurface, domain=None):
-    import rhino3dm
+    rhino3dm = _rhino()
 
     ctrl = np.asarray(surface.ctrl, dtype=np.float64)
     w = np.ones(ctrl.shape[:2]) if surface.weights is None else np.asarray(surface.weights, dtype=np.float64)
@@ -146,7 +147,7 @@ def surface_to_rhino(surface: BSplineSurface, domain=None):
 
 
 def curve_to_rhino(curve: BSplineCurve, domain=None):
-    import rhino3dm
+    rhino3dm = _rhino()
 
     ctrl = np.asarray(curve.ctrl, dtype=np.float64)
     n, dim = ctrl.shape
@@ -186,7 +187,7 @@ class _Reader:
                 self.add(obj.Geometry, obj.Attributes, f"object {index}")
 
     def add(self, geometry, attributes, where: str) -> None:
-        import rhino3dm
+        rhino3dm = _rhino()
 
         kind = type(geometry).__name__
         self.held[kind] += 1
@@ -250,9 +251,7 @@ def _segments(polycurve) -> list:
 
 
 def _rhino():
-    import rhino3dm
-
-    return rhino3dm
+    return require("rhino3dm", "cad", ".3dm files")
 
 
 def _face_trim(brep, face, surface: BSplineSurface) -> Trim:
@@ -303,7 +302,7 @@ def _place(uv: np.ndarray, closed, seam: bool) -> np.ndarray:
 
 
 def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) -> CadList:
-    import rhino3dm
+    rhino3dm = _rhino()
 
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
@@ -349,7 +348,7 @@ def _units_of(system) -> str | None:
 
 # --- writing ------------------------------------------------------------------------------
 def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
-    import rhino3dm
+    rhino3dm = _rhino()
 
     model = rhino3dm.File3dm()
     model.Settings.ModelUnitSystem = getattr(rhino3dm.UnitSystem, _RHINO_UNITS[units] if units else "None")
@@ -379,7 +378,7 @@ def _brep(obj: CadObject):
     first, `seam_moved`), with the exact loops also in the user string `bsjax.trim`; the
     untrimmed surface with that user string when the loops cannot be written (a loop crossing
     every seam position) or OpenNURBS finds the Brep invalid."""
-    import rhino3dm
+    rhino3dm = _rhino()
 
     if obj.trim is not None:
         obj = seam_moved(obj)
@@ -403,7 +402,7 @@ def _brep(obj: CadObject):
 def _polycurve_to_rhino(obj: CadObject):
     """A polycurve `CadObject` → a rhino3dm `PolyCurve`, each segment on its own domain
     (`AppendSegment` keeps the segment's geometry; OpenNURBS refuses a segment after a closed run)."""
-    import rhino3dm
+    rhino3dm = _rhino()
 
     out = rhino3dm.PolyCurve()
     domains = obj.domain or (None,) * len(obj.geometry)  # pyright: ignore[reportArgumentType]

@@ -15,6 +15,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax._optional import require
 from bsjax.basis import BSplineSurface
 from bsjax.merge._project import ProjectionSolver, closest_points
 
@@ -144,9 +145,9 @@ def summarize(dists: Sequence[Float[Array, "m n"]], tolerance: float) -> Deviati
 def plot_deviation(report: Deviation, ax=None, title: str | None = None):
     """Heat map of the deviation, one panel strip per original patch side by side (matplotlib).
 
-    **Returns:** the matplotlib `Axes`.
+    **Returns:** the matplotlib `Axes`. Needs the `plot` extra.
     """
-    import matplotlib.pyplot as plt
+    plt = require("matplotlib.pyplot", "plot", "bsjax.merge.plot_deviation")
 
     if ax is None:
         _, ax = plt.subplots(figsize=(2.4 * len(report.distances) + 1.2, 2.6))

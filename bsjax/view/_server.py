@@ -24,6 +24,7 @@ import threading
 from collections.abc import Callable
 from importlib import resources
 
+from bsjax._optional import require
 from bsjax.device.telemetry import log
 
 _STATIC = "static"
@@ -53,6 +54,8 @@ class ViewServer:
     - `frame`: callable returning the newest frame (dict), or None for a static scene; called
       `rate_hz` times a second in the server's thread, so keep it cheap (no waiting on locks).
     - `host`: `127.0.0.1` (the view is local); `port`: 0 picks a free one (see `url`).
+
+    Serving needs the `view` extra (websockets).
     """
 
     def __init__(
@@ -88,6 +91,8 @@ class ViewServer:
         return f"http://{self.host}:{self.port}/"
 
     def start(self) -> "ViewServer":
+        # checked here, in the caller's thread: a missing extra is not a port problem
+        require("websockets.asyncio.server", "view", "bsjax.view.ViewServer")
         self._thread = threading.Thread(target=self._main, name="bsjax-view", daemon=True)
         self._thread.start()
         self._ready.wait(30)
