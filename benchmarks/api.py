@@ -5,6 +5,14 @@
     .venv/bin/python benchmarks/api.py --only collide   # entries whose name contains "collide"
     .venv/bin/python benchmarks/api.py --only mss.step,stable_dt   # several substrings
     .venv/bin/python benchmarks/api.py --calls 200 --json api.json
+    .venv/bin/python benchmarks/api.py --cold           # each entry's first call in a new process
+
+`--cold`: the first call as a new notebook kernel or script meets it. Per entry, two new
+processes share an empty compilation cache (`bsjax.enable_compilation_cache`): the first pays
+tracing and compilation (`first s`, budget 2 s), the second loads the programs the first stored
+(`cached s`, budget 0.5 s); `setup s` builds the entry's inputs (other entries' first calls),
+`second ms` is the call once more in the first process. One more process times
+`import bsjax` and the subpackages (`import s`, budget 1 s for `import bsjax`).
 
 One row per entry:
 
@@ -38,7 +46,9 @@ import datetime
 import functools
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from typing import Any
@@ -51,6 +61,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from _timing import paired, timed  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
+import bsjax  # noqa: E402
 import bsjax._boundary  # noqa: E402
 from bsjax import collide, merge, mss, shapes, vsofm  # noqa: E402
 
@@ -585,6 +596,75 @@ def summary(rows: list[dict[str, Any]]) -> str:
     return "; ".join(parts)
 
 
+FIRST_BUDGET, CACHED_BUDGET, IMPORT_BUDGET = 2.0, 0.5, 1.0  # s
+
+
+def cold_child(name: str, q: Sizes) -> dict[str, Any]:
+    """In this (new) process: `setup_s`, `first_s`, `second_s` of the entry `name`."""
+    e = next(e for e in ENTRIES if e.name == name)
+    t0 = time.perf_counter()
+    case = e.setup(q)
+    jax.block_until_ready(case.args)
+    t1 = time.perf_counter()
+    jax.block_until_ready(case.call(*case.args))
+    t2 = time.perf_counter()
+    jax.block_until_ready(case.call(*case.args))
+    t3 = time.perf_counter()
+    return {"name": name, "size": case.size, "setup_s": t1 - t0, "first_s": t2 - t1, "second_s": t3 - t2}
+
+
+_IMPORT = """
+import time
+t0 = time.perf_counter(); import bsjax; t1 = time.perf_counter()
+from bsjax import basis, collide, merge, mss, shapes, vsofm; t2 = time.perf_counter()
+print(f"{t1 - t0} {t2 - t1}")
+"""
+
+
+def _child(args: list[str], cache) -> dict[str, Any]:
+    env = {**os.environ, "BSJAX_CACHE_DIR": str(cache)}
+    for key in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"):
+        env.pop(key, None)
+    out = subprocess.run([sys.executable, *args], env=env, capture_output=True, text=True, timeout=900)
+    if out.returncode != 0:
+        return {"error": (out.stderr.strip().splitlines() or ["?"])[-1][:160]}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run_cold(entries: list[Entry], quick: bool) -> list[dict[str, Any]]:
+    """Each entry in two new processes sharing a fresh compilation cache (module docstring)."""
+    times = subprocess.run([sys.executable, "-c", _IMPORT], capture_output=True, text=True, check=True)
+    bare, subpackages = (float(t) for t in times.stdout.split())
+    print(f"import bsjax {bare:.3f} s ({'ok' if bare <= IMPORT_BUDGET else 'SLOW'}); "
+          f"basis, collide, merge, mss, shapes, vsofm {subpackages:.2f} s", flush=True)  # fmt: skip
+    print(f"{'entry':34} {'size':40} {'setup s':>8} {'first s':>8} {'cached s':>8} {'second ms':>10} verdict")
+    rows = []
+    for e in entries:
+        args = [__file__, "--child", e.name] + (["--quick"] if quick else [])
+        with tempfile.TemporaryDirectory() as cache:
+            row = _child(args, cache)
+            if "error" not in row:
+                warm = _child(args, cache)
+                row["cached_s"] = warm.get("first_s", float("nan"))
+        row["name"] = e.name
+        rows.append(row)
+        if "error" in row:
+            print(f"{e.name:34} ERROR: {row['error']}", flush=True)
+            continue
+        good = row["first_s"] <= FIRST_BUDGET and row["cached_s"] <= CACHED_BUDGET
+        print(f"{e.name:34} {row['size']:40} {row['setup_s']:8.2f} {row['first_s']:8.2f} "
+              f"{row['cached_s']:8.2f} {1e3 * row['second_s']:10.2f} {'ok' if good else 'OVER'}",
+              flush=True)  # fmt: skip
+    over = [
+        r["name"]
+        for r in rows
+        if "error" in r or r["first_s"] > FIRST_BUDGET or r["cached_s"] > CACHED_BUDGET
+    ]
+    print(f"COLD: {len(rows) - len(over)}/{len(rows)} within {FIRST_BUDGET} s first / {CACHED_BUDGET} s "
+          f"cached; over or failed: {', '.join(over) or 'none'}")  # fmt: skip
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="small sizes and few calls (smoke test)")
@@ -593,8 +673,14 @@ def main(argv=None) -> int:
         "--only", default=None, help="run the entries whose name contains this (several: comma-separated)"
     )
     parser.add_argument("--json", default=None, help="also write the rows to this file")
+    parser.add_argument("--cold", action="store_true", help="first calls in new processes (see module doc)")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)  # one entry of --cold
     args = parser.parse_args(argv)
     q = QUICK if args.quick else FULL
+    if args.child:
+        bsjax.enable_compilation_cache()  # BSJAX_CACHE_DIR from the parent
+        print(json.dumps(cold_child(args.child, q)))
+        return 0
     calls = args.calls or (5 if args.quick else 100)
     wanted = None if args.only is None else [w for w in args.only.split(",") if w]
     entries = [e for e in ENTRIES if wanted is None or any(w in e.name for w in wanted)]
@@ -603,19 +689,23 @@ def main(argv=None) -> int:
             f"--only {args.only!r}: no entry matches (entries: {', '.join(e.name for e in ENTRIES)})"
         )
 
-    print(f"bsjax public entry points, float64, {'--quick' if args.quick else 'issue #10'} sizes", flush=True)
-    print(HEADER, flush=True)
-    rows = []
-    for e in entries:
-        rows.append(run_entry(e, q, calls))
-        print(format_row(rows[-1]), flush=True)
+    print(f"bsjax public entry points, float64, {'--quick' if args.quick else 'full'} sizes", flush=True)
+    if args.cold:
+        rows = run_cold(entries, args.quick)
+    else:
+        print(HEADER, flush=True)
+        rows = []
+        for e in entries:
+            rows.append(run_entry(e, q, calls))
+            print(format_row(rows[-1]), flush=True)
 
     load = os.getloadavg()
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; {date}; jax {jax.__version__}; "
           f"{jax.devices()[0].platform}")  # fmt: skip
-    line = summary(rows)
-    print(line, flush=True)
+    line = "cold" if args.cold else summary(rows)
+    if not args.cold:
+        print(line, flush=True)
     if args.json:
         meta = {"load_average": load, "date": date, "jax": jax.__version__, "quick": args.quick}
         with open(args.json, "w") as f:

@@ -120,9 +120,10 @@ def fit(
 
     The training is compiled at the boundary (`bsjax._boundary.compiled`, once per sample count,
     `shape`, `cycles` and `settings`), the samples' 16 nearest distinct neighbours found by a
-    k-d tree on the host (`jax.pure_callback`). Called with concrete samples, repeated samples
-    are dropped first; inside the caller's `jit` (where the count of distinct samples is not
-    known) the copies of a sample share one quadric patch and one sample's draw weight.
+    k-d tree on the host. Called with concrete samples, repeated samples are dropped and the
+    neighbours found before the program runs; inside the caller's `jit` (where the count of
+    distinct samples is not known) the search is a `jax.pure_callback` and the copies of a
+    sample share one quadric patch and one sample's draw weight.
     """
     pts, shape = _check_fit_input(points, shape)  # pyright: ignore[reportAssignmentType]
     cycles = _checks.check_count(cycles, "cycles")
@@ -132,14 +133,18 @@ def fit(
         raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
     key = jax.random.PRNGKey(0) if key is None else key
     scale = _power_of_two_scale(pts)  # the training is scale-free: 1e-300 or 1e300 samples work
-    distinct = not isinstance(pts, jax.core.Tracer)  # repeats already dropped on the host
-    return _fit(pts / scale, key, shape, cycles, settings, progress, distinct) * scale
+    if isinstance(pts, jax.core.Tracer):  # inside the caller's jit: the search as a host callback
+        near = None
+    else:  # concrete, repeats dropped: the search now, its indices an input of the program
+        near = tuple(jnp.asarray(a) for a in _kd_neighbours(np.asarray(pts), min(_NEAR, pts.shape[0]), True))
+    return _fit(pts / scale, key, shape, cycles, settings, progress, near) * scale
 
 
 def _power_of_two_scale(points):
     """The power of two nearest the samples' largest coordinate: dividing by it is exact, so
     samples of ordinary size train bit for bit as before."""
-    return jnp.exp2(jnp.round(jnp.log2(jnp.max(jnp.abs(points)))))
+    xp = _checks.xp(points)
+    return xp.exp2(xp.round(xp.log2(xp.max(xp.abs(points))))).astype(points.dtype)
 
 
 def _check_fit_input(points, shape):
@@ -165,11 +170,12 @@ def _distinct(points):
 
 
 @compiled
-def _fit(points, key, shape, cycles, settings, progress=None, distinct=False):
-    """The training of `fit` on samples `points (P, 3)` (`distinct`: a static promise that no
-    sample repeats, so the host search skips its deduplication)."""
+def _fit(points, key, shape, cycles, settings, progress=None, near=None):
+    """The training of `fit` on samples `points (P, 3)`; `near`: `(nbr, copies)` of
+    `_kd_neighbours` found on the host already (distinct samples: a program without a host
+    callback, which the persistent compilation cache can store), or `None` to search inside."""
     dtype = points.dtype
-    nbr, copies = _neighbours(points, _NEAR, distinct)
+    nbr, copies = _neighbours(points, _NEAR) if near is None else near
     # draw probability of each sample ∝ the surface area it stands for (squared mean distance to
     # its 6 nearest distinct samples, shared among its copies), so a parameter grid crowded at the
     # poles does not crowd the lattice
@@ -341,19 +347,20 @@ def _kd_tree(points):
 
 
 def _nearest_sample(x, points):
-    """`(N,)` index of the sample of `points (P, 3)` nearest each `x (N, 3)`: a k-d tree on the
-    host (`jax.pure_callback`, O((N + P) log P) instead of the N × P distances of a brute-force
-    search, the same answer but on exact ties; copies of a sample share one quadric patch, so
-    which copy is found does not matter)."""
-    shape = jax.ShapeDtypeStruct((x.shape[0],), jnp.int32)
-    return jax.pure_callback(
-        _kd_nearest, shape, jax.lax.stop_gradient(x), jax.lax.stop_gradient(points), vmap_method="sequential"
-    )
+    """`(N,)` index of the sample of `points (P, 3)` nearest each `x (N, 3)` (the first on exact
+    ties; copies of a sample share one quadric patch, so which copy is found does not matter):
+    exact squared distances, `_CHUNK` query points at a time (O(N P) work in O(_CHUNK P)
+    memory), inside the program — no host callback, so the program can be stored by the
+    persistent compilation cache."""
+
+    def nearest(q):
+        d = q[None, :] - points
+        return jnp.argmin(jnp.sum(d * d, axis=-1)).astype(jnp.int32)
+
+    return jax.lax.map(nearest, jax.lax.stop_gradient(x), batch_size=_CHUNK)
 
 
-def _kd_nearest(x, points):
-    tree = _kd_tree(np.asarray(points, dtype=np.float64))
-    return tree.query(np.asarray(x, dtype=np.float64))[1].astype(np.int32)
+_CHUNK = 128  # query points per step of `_nearest_sample`
 
 
 def _patches(points, nbr):

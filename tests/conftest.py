@@ -17,6 +17,9 @@ if _CACHE.strip().lower() not in ("off", "0", "false", "no", "none", ""):
 
 import jax  # noqa: E402
 
+import bsjax  # noqa: E402
+
+bsjax.enable_compilation_cache()  # this process too (JAX may have been imported before the env)
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
