@@ -162,7 +162,8 @@ def draw(
     speed = 1 + _smooth_random(rng, grid, total, 0.3)
     speed = np.clip(speed, 0.4, 1.6)
     width = 0.03 * total
-    for c in np.concatenate([corner_at, [0.0, total]]):
+    again = corner_at + length if closed else np.zeros(0)  # an over-traced corner is slowed for again
+    for c in np.concatenate([corner_at, again, [0.0, total]]):
         speed = speed * (1 - 0.75 * np.exp(-(((grid - c) / width) ** 2)))
     elapsed = np.concatenate([[0.0], np.cumsum(np.diff(grid) / (0.5 * (speed[1:] + speed[:-1])))])
     count = rng.integers(*samples)

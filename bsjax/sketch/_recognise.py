@@ -2,32 +2,36 @@
 
 A stroke `G(L, S, P, V)` (length, speed, point set, vertex set) is classified as one of
 `KINDS` and regularised into the primitive it stands for, with a score. Host-side numpy: a
-stroke's length depends on the data. The chain:
+stroke's length depends on the data. D is the diagonal of the stroke's bounding box along its
+principal axes; every test compares ratios to it, angles or ratios of sides and axes, so the
+class does not depend on the stroke's position, size or rotation. The chain:
 
-1. **clean** — consecutive duplicate samples dropped; a closed stroke's over-traced tail (it runs
-   on past its start) cut at its closest return to the start.
-2. **resample** — `_SAMPLES` samples evenly spaced in arc length (times interpolated), lightly
-   smoothed (two passes of the [¼, ½, ¼] filter), so every stroke is one compiled shape for
-   the vertex set `V`: `bsjax.sketch.corners` (high curvature of eq. 4-1, and low speed when
-   timed).
+1. **clean** — samples within `_STEP · D` of the previous kept one dropped (a slow pen's tremor
+   would add path length, and so speed, where the pen is slow); a closed stroke's over-traced
+   tail (it runs on past its start) cut at its closest return to the start.
+2. **resample** — `_SAMPLES` samples evenly spaced in arc length, times interpolated (closed:
+   around the loop). A lightly smoothed copy (two passes of [¼, ½, ¼]) gives the vertex set
+   `V`: `bsjax.sketch.corners` (high curvature of eq. 4-1, and low speed when timed), one
+   compiled shape for every stroke; a loop is read from its start and from half-way round.
 3. **fit** (in the stroke's plane, PCA for 3-D strokes) — a total-least-squares line, a
    geometric circle (Kåsa's algebraic fit refined by Gauss–Newton), a direct least-squares
    ellipse (Fitzgibbon, Pilu & Fisher 1999, in Halíř & Flusser's stable form) for closed
-   strokes, and a polygon: the corners of step 2 (and the start of a closed stroke) as candidate
-   vertices, merged while two neighbouring edges turn by less than `_MERGE_TURN`, each edge a
-   total-least-squares line, the regularised corners their intersections.
-4. **decide** — the residual of each model, `e = rms distance / D` (D the diagonal of the
-   stroke's bounding box: independent of position, size and rotation), against the tolerance
-   `_TOL`: open strokes are a line, else the better of arc and polyline, else a spline; closed
-   strokes are the better of polygon and ellipse (an ellipse of axis ratio below `_ROUND` is a
-   circle), else a spline. Polygons: 3 vertices a triangle; 4 with right angles (within
-   `_RIGHT`) a square (sides within `_SQUARE` of each other) or a rectangle; 4 with equal sides
-   (within `_RHOMBUS`) and no right angle a diamond; anything else a polyline.
+   strokes, and a polygon: the corners of step 2 as candidate vertices, merged while two
+   neighbouring edges turn by less than `_MERGE_TURN`, each edge a total-least-squares line,
+   the regularised corners their intersections.
+4. **decide** — by the models' residuals `e = rms distance / D`: an open stroke is a line
+   (`e ≤ _LINE_TOL`), else a polyline (`e ≤ _POLYLINE_TOL`, below the arc's, and its vertices
+   sharp: `_sharp`), else an arc (`e ≤ _ARC_TOL`), else a spline; a closed stroke is a polygon
+   when its `e ≤ _TOL` is below the ellipse's, else a conic (`e ≤ _TOL`; axis ratio below
+   `_ROUND`: a circle), else a spline. Polygons: 3 vertices a triangle; 4 with right angles
+   (within `_RIGHT`) a square (opposite-side sums within `_SQUARE`) or a rectangle; 4 with equal
+   sides (within `_RHOMBUS`) and no right angle a diamond; anything else a polyline.
 
 The regularised curve is exact where bsjax's rational curves allow: a circle is the 9-point
 rational quadratic (The NURBS Book §7.5, Ex. 7.2), an ellipse its affine image, an arc the
 rational quadratic arc of A7.1 (at most 90° a segment), polygons and lines degree-1 curves
 through the regularised vertices (chord-length knots); a free stroke is `fit_stroke`'s cubic.
+The thresholds were set on the synthetic strokes of the tests (tests/strokes.py).
 """
 
 from __future__ import annotations
@@ -61,14 +65,16 @@ POLYGONS = ("triangle", "square", "rectangle", "diamond")
 _SAMPLES = 64  # samples of the resampled stroke (one compiled `corners` per dimension and timing)
 _CURVATURE = 1.5  # `corners`' curvature_factor (open strokes; the merge step drops false candidates)
 _CURVATURE_CLOSED = 1.0  # closed strokes: a diamond's obtuse corners turn a third of its acute ones
+_STEP = 0.01  # samples nearer than this fraction of D to the previous one are dropped
 _CLOSE = 0.15  # a stroke is closed when it returns within this fraction of D of its start
 _TOL = 0.025  # largest rms residual / D of an accepted closed primitive
 _LINE_TOL = 0.015  # … of a line
 _ARC_TOL = 0.015  # … of an arc
 _POLYLINE_TOL = 0.01  # … of an open polyline (a free curve's crests make a polyline of ~0.015)
+_GAP = 5  # candidates nearer than this many samples are one corner (`corners` may report two)
 _MERGE_TURN = math.radians(30)  # candidate vertices between edges turning less are dropped
-_WINDOW = 2  # samples either side of a vertex whose turn must be …
-_SHARP = 0.5  # … at least this fraction of the turn between the vertex's edges
+_WINDOW = 3  # samples either side of a vertex whose chords' turn must be …
+_SHARP = 0.6  # … at least this fraction of the turn between the vertex's edges
 _ROUND = 1.22  # ellipses of axis ratio below are circles
 _RIGHT = math.radians(12)  # largest deviation from 90° of a rectangle's angles
 _SQUARE = 1.2  # largest long/short side ratio of a square
@@ -119,8 +125,16 @@ class Recognised:
 
     @property
     def size(self) -> float:
-        """D, the diagonal of the stroke's bounding box."""
-        return float(np.linalg.norm(np.ptp(self.points, axis=0)))
+        """D, the diagonal of the stroke's bounding box along its principal axes."""
+        return _extent(self.points)
+
+
+def _extent(points: np.ndarray) -> float:
+    """D: the diagonal of the bounding box of `points (M, d)` along their principal axes (a
+    size that does not change under rotation, unlike the axis-aligned box's)."""
+    centred = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    return float(np.linalg.norm(np.ptp(centred @ vt.T, axis=0)))
 
 
 # --- input ------------------------------------------------------------------------------------
@@ -161,18 +175,28 @@ def _arc(pts: np.ndarray) -> np.ndarray:
 
 
 def _clean(pts, times):
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 0])
-    pts = pts[keep]
-    if pts.shape[0] < 2:
+    """Samples closer than `_STEP · D` to the last kept one dropped (the last sample kept): a
+    slow pen's tremor would otherwise add path length — and so speed — where the pen is slow."""
+    size = _extent(pts)
+    if not size > 0:
         _checks.fail("points", "a stroke of nonzero length", "all points equal")
-    return pts, None if times is None else times[keep]
+    keep, last = [0], pts[0]
+    for i in range(1, len(pts)):
+        if np.linalg.norm(pts[i] - last) >= _STEP * size:
+            keep.append(i)
+            last = pts[i]
+    if keep[-1] != len(pts) - 1 and np.linalg.norm(pts[-1] - pts[keep[-1]]) > 0:
+        keep.append(len(pts) - 1)
+    if len(keep) < 3:
+        _checks.fail("points", "a stroke of nonzero length (3 distinct samples)", f"{len(keep)}")
+    return pts[keep], None if times is None else times[keep]
 
 
 def _closure(pts: np.ndarray) -> int | None:
     """The index where a stroke first comes back to its start (within `_CLOSE · D`, at its
     closest there), searched in its second half; `None` for an open stroke."""
     arc = _arc(pts)
-    size = np.linalg.norm(np.ptp(pts, axis=0))
+    size = _extent(pts)
     dist = np.linalg.norm(pts - pts[0], axis=1)
     late = np.flatnonzero((arc >= 0.5 * arc[-1]) & (dist < _CLOSE * size))
     if late.size == 0:
@@ -183,14 +207,48 @@ def _closure(pts: np.ndarray) -> int | None:
     return i
 
 
-def _resample(pts, times, count: int):
-    """`count` samples evenly spaced in arc length, smoothed (ends kept), times interpolated."""
+def _resample(pts, times, count: int, closed: bool):
+    """`count` samples evenly spaced in arc length (a closed stroke: around the loop closed by
+    its start, the start not repeated), times interpolated; and a smoothed copy (two passes of
+    [¼, ½, ¼], cyclic when closed, else with the ends kept) for the corner detector — the fits
+    use the unsmoothed samples, which the filter would pull towards the centre of curvature."""
+    if closed:  # the closing segment is drawn at the stroke's last speed
+        if times is not None:
+            gap = np.linalg.norm(pts[0] - pts[-1]) / np.linalg.norm(pts[-1] - pts[-2])
+            times = np.append(times, times[-1] + gap * (times[-1] - times[-2]))
+        pts = np.concatenate([pts, pts[:1]])
     arc = _arc(pts)
-    at = np.linspace(0.0, arc[-1], count)
+    at = np.linspace(0.0, arc[-1], count + 1 if closed else count)[:count]
     out = np.stack([np.interp(at, arc, pts[:, i]) for i in range(pts.shape[1])], 1)
+    smooth = out.copy()
     for _ in range(2):
-        out[1:-1] = 0.25 * out[:-2] + 0.5 * out[1:-1] + 0.25 * out[2:]
-    return out, None if times is None else np.interp(at, arc, times)
+        if closed:
+            smooth = 0.25 * np.roll(smooth, 1, axis=0) + 0.5 * smooth + 0.25 * np.roll(smooth, -1, axis=0)
+        else:
+            smooth[1:-1] = 0.25 * smooth[:-2] + 0.5 * smooth[1:-1] + 0.25 * smooth[2:]
+    if times is not None and closed:  # the loop's period, for reading it from half-way round
+        times = np.append(np.interp(at, arc, times), times[-1])
+        return out, smooth, times
+    return out, smooth, None if times is None else np.interp(at, arc, times)
+
+
+def _corner_mask(smooth: np.ndarray, times, closed: bool) -> np.ndarray:
+    """`corners` of the smoothed samples; a closed loop is read twice, from its start and from
+    half-way round, and each reading kept on the half of the loop away from its ends (where
+    `corners` never looks and eq. 4-1's window is cut), so a corner at the seam is found once."""
+    if not closed:
+        return np.asarray(corners(smooth, times, curvature_factor=_CURVATURE, speed_factor=1.0))
+    half = len(smooth) // 2
+    loop = None if times is None else times[:-1]  # times (M + 1,): the last closes the loop
+    mask = np.asarray(corners(smooth, loop, curvature_factor=_CURVATURE_CLOSED, speed_factor=1.0))
+    if times is not None:  # times must increase: the rolled copy is re-timed past its seam
+        times = np.concatenate([times[half:-1], times[:half] + (times[-1] - times[0])])
+    rolled = corners(
+        np.roll(smooth, -half, axis=0), times, curvature_factor=_CURVATURE_CLOSED, speed_factor=1.0
+    )
+    index = np.arange(len(smooth))
+    far_from_seam = (index >= len(smooth) // 4) & (index < len(smooth) - len(smooth) // 4)
+    return np.where(far_from_seam, mask, np.roll(np.asarray(rolled), half))  # each reads its middle
 
 
 def _frame(pts: np.ndarray):
@@ -312,15 +370,15 @@ def _meet(f0, f1, fallback) -> np.ndarray:
 
 
 def _polygon(q: np.ndarray, mask: np.ndarray, closed: bool) -> _Polygon | None:
-    """Candidate vertices (the corner samples, and a closed stroke's start), merged while the
+    """Candidate vertices (the corner samples), merged while the
     two edges at a vertex turn by less than `_MERGE_TURN` (the flattest first); edges are
     total-least-squares lines, the corners their intersections."""
     n = len(q)
     vs: list[int] = []
-    for i in sorted(set(np.flatnonzero(mask).tolist()) | ({0} if closed else set())):
-        if (not vs or i - vs[-1] >= 3) and (closed or n - 1 - i >= 3) and i >= (0 if closed else 3):
+    for i in np.flatnonzero(mask).tolist():
+        if (not vs or i - vs[-1] >= _GAP) and (closed or n - 1 - i >= 3) and i >= (0 if closed else 3):
             vs.append(i)
-    if closed and len(vs) > 1 and n - vs[-1] + vs[0] < 3:
+    if closed and len(vs) > 1 and n - vs[-1] + vs[0] < _GAP:
         vs.pop()
     while vs:
         fits = _edge_fits(q, vs, closed)
@@ -344,20 +402,23 @@ def _polygon(q: np.ndarray, mask: np.ndarray, closed: bool) -> _Polygon | None:
     return _Polygon(np.asarray(corners_), rms)
 
 
-def _sharp(q: np.ndarray, vertices: np.ndarray) -> bool:
+def _sharp(smooth: np.ndarray, vertices: np.ndarray) -> bool:
     """Whether an open polyline's vertices are corners rather than the crests of a smooth curve:
-    at each interior vertex, the turn of the samples within `_WINDOW` of it is at least
-    `_SHARP` of the turn between its two edges (a crest spreads its turn along the curve)."""
-    step = np.diff(q, axis=0)
-    heading = np.unwrap(np.arctan2(step[:, 1], step[:, 0]))
+    at each interior vertex, the chords of the smoothed samples `(M, 2)` reaching `_WINDOW`
+    samples either side turn by at least `_SHARP` of the turn between its two edges (a crest
+    spreads its turn along the curve, a corner makes it at one place)."""
+    n = len(smooth)
     for a, v, b in zip(vertices[:-2], vertices[1:-1], vertices[2:]):
-        i = int(np.argmin(np.linalg.norm(q - v, axis=1)))
-        lo, hi = max(i - _WINDOW, 0), min(i + _WINDOW, len(heading) - 1)
-        local = abs(heading[hi] - heading[lo])
-        d0, d1 = (v - a) / np.linalg.norm(v - a), (b - v) / np.linalg.norm(b - v)
-        if local < _SHARP * math.acos(float(np.clip(d0 @ d1, -1.0, 1.0))):
+        i = int(np.clip(np.argmin(np.linalg.norm(smooth - v, axis=1)), 1, n - 2))
+        into, out = smooth[i] - smooth[max(i - _WINDOW, 0)], smooth[min(i + _WINDOW, n - 1)] - smooth[i]
+        if _angle(into, out) < _SHARP * _angle(v - a, b - v):
             return False
     return True
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    cos = a @ b / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-300)
+    return math.acos(float(np.clip(cos, -1.0, 1.0)))
 
 
 def _pairs(vs: list[int], n: int, closed: bool):
@@ -456,7 +517,7 @@ def _score(e: float) -> float:
 
 
 # --- step 4: decide ---------------------------------------------------------------------------
-def _decide(q: np.ndarray, mask: np.ndarray, closed: bool, size: float):
+def _decide(q: np.ndarray, smooth: np.ndarray, mask: np.ndarray, closed: bool, size: float):
     """(kind, params in plane coordinates, curve parts or None for a free spline, residual e)."""
     if not closed:
         c, d, rms = _line(q)
@@ -475,7 +536,7 @@ def _decide(q: np.ndarray, mask: np.ndarray, closed: bool, size: float):
             return _conic(q, fit, (centre, radius, circle_rms / size), e_conic)
         return "spline", {}, None, min(e_poly, e_conic)
     e_arc = circle_rms / size
-    if e_poly <= min(e_arc, _POLYLINE_TOL) and poly is not None and _sharp(q, poly.vertices):
+    if e_poly <= min(e_arc, _POLYLINE_TOL) and poly is not None and _sharp(smooth, poly.vertices):
         params = {"vertices": poly.vertices, "closed": False}
         return "polyline", params, _polyline_curve(poly.vertices), e_poly
     if e_arc <= _ARC_TOL:
@@ -537,12 +598,12 @@ def recognise(points: ArrayLike, times: ArrayLike | None = None) -> Recognised:
     cut = _closure(pts)
     if cut is not None:
         pts, t = pts[: cut + 1], None if t is None else t[: cut + 1]
-    res, res_t = _resample(pts, t, _SAMPLES)
+    res, smooth, res_t = _resample(pts, t, _SAMPLES, cut is not None)  # closed: res_t (M + 1,)
     frame, q = _frame(res)
-    size = float(np.linalg.norm(np.ptp(q, axis=0)))
-    factor = _CURVATURE if cut is None else _CURVATURE_CLOSED
-    mask = np.asarray(corners(res, res_t, curvature_factor=factor, speed_factor=1.0))
-    kind, params, parts, e = _decide(q, mask, cut is not None, size)
+    size = _extent(q)
+    mask = _corner_mask(smooth, res_t, cut is not None)
+    smooth_q = (smooth - frame[0]) @ frame[1:].T if smooth.shape[1] == 3 else smooth
+    kind, params, parts, e = _decide(q, smooth_q, mask, cut is not None, size)
     if parts is None:
         (curve,) = fit_stroke(np.asarray(res, dtype), None, tol=0.005 * size, split=False)
         outline = res
