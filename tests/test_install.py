@@ -164,7 +164,7 @@ def test_the_command_without_extras(cli):
         ("convert_step", "cad", "reading 'part.step'"),
         ("view_file", "view", "serving the view"),
         ("haptics_serial", "haptics", "--serial"),
-        ("demo", "plot", "the demo's pictures and files"),
+        ("demo", "plot", "writing the demo's pictures and files"),
     ):
         code, out, err = cli[key]
         command = _COMMANDS[key][0]

@@ -25,7 +25,7 @@ def _parser():
 
 def _body(args) -> int:
     for module, extra in (("matplotlib", "plot"), ("rhino3dm", "cad"), ("trimesh", "mesh")):
-        require(module, extra, "the demo's pictures and files")  # before minutes of work, not after
+        require(module, extra, "writing the demo's pictures and files")  # before minutes of work, not after
     from bsjax.examples import demo
 
     out = Path(args.out)
