@@ -15,6 +15,7 @@ trimesh = require("trimesh", "mesh", "bsjax.io.save('x.stl')")
 from __future__ import annotations
 
 import importlib
+import sys
 from types import ModuleType
 
 # extra → what it installs; the names `pyproject.toml` declares (tests/test_install.py checks it)
@@ -42,8 +43,15 @@ _IMPORTS = {
 class MissingExtraError(ImportError):
     """An optional dependency is not installed: `feature` needs `pip install 'bsjax[extra]'`."""
 
-    def __init__(self, module: str, extra: str, feature: str):
-        super().__init__(f"{feature} needs the {extra!r} extra: pip install 'bsjax[{extra}]'", name=module)
+    def __init__(self, module: str, extra: str, feature: str, outdated: str | None = None):
+        if outdated is None:
+            message = f"{feature} needs the {extra!r} extra: pip install 'bsjax[{extra}]'"
+        else:  # installed, but a version without `module`
+            message = (
+                f"{feature} needs the {extra!r} extra at its declared versions ({outdated} is too old): "
+                f"pip install --upgrade 'bsjax[{extra}]'"
+            )
+        super().__init__(message, name=module)
         self.extra = extra
 
 
@@ -67,7 +75,10 @@ def require(module: str, extra: str, feature: str) -> ModuleType:
         top = module.partition(".")[0]
         if err.name is None or err.name.partition(".")[0] != top:
             raise  # the module exists but one of *its* dependencies is missing: not ours to rename
-        raise MissingExtraError(module, extra, feature) from None
+        outdated = None
+        if err.name != top and available(top):  # e.g. websockets 12 has no websockets.asyncio
+            outdated = f"{top} {getattr(sys.modules[top], '__version__', '')}".strip()
+        raise MissingExtraError(module, extra, feature, outdated) from None
 
 
 def extra_of(module: str) -> str | None:

@@ -154,6 +154,18 @@ def test_a_missing_extra_is_one_import_error_naming_it(library, feature, extra, 
     assert message == f"{words} needs the {extra!r} extra: pip install 'bsjax[{extra}]'"
 
 
+def test_require_returns_the_module_and_names_an_outdated_install():
+    assert _optional.require("json", "view", "x") is json
+    # installed, but without the submodule bsjax needs (websockets 12 has no websockets.asyncio)
+    with pytest.raises(
+        _optional.MissingExtraError, match=r"^x needs the 'view' extra at its declared"
+    ) as err:
+        _optional.require("json.asyncio", "view", "x")
+    assert "(json " in str(err.value) and "pip install --upgrade 'bsjax[view]'" in str(err.value)
+    with pytest.raises(ValueError, match="extra: expected one of"):
+        _optional.require("json", "viewer", "x")
+
+
 def test_the_command_without_extras(cli):
     code, out, err = cli["version"]
     assert (code, out, err) == (0, f"bsjax {_installed_version()}\n", "")
