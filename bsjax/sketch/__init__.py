@@ -4,7 +4,8 @@ thesis, University of Trento, 2007).
 
 * `_strokes`: the stroke chain — `features` → `corners` → `resample` → `fit_curve` /
   `fit_stroke`; `oversketch`; `unproject` onto a drawing `Plane` seen by a `Camera`.
-* `_recognise`: `recognise` — one stroke → a `Recognised` primitive of `KINDS`, regularised.
+* `_recognise`: `recognise` — one stroke → a `Recognised` primitive of `KINDS`, regularised
+  (its line, circle, ellipse and polygon fits in `_fits`).
 * `_relations`: `relations` — how one recognised stroke stands to another (`RELATIONS`).
 * `_compose`: `compose` — strokes → a 3-D `Construction` through a `DecisionTree` of `Rule`s
   (`default_tree`, the composites of Fig. 3-4); `adapt` adds a confirmed new composite.

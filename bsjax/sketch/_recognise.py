@@ -13,7 +13,7 @@ class does not depend on the stroke's position, size or rotation. The chain:
    around the loop). A lightly smoothed copy (two passes of [¼, ½, ¼]) gives the vertex set
    `V`: `bsjax.sketch.corners` (high curvature of eq. 4-1, and low speed when timed), one
    compiled shape for every stroke; a loop is read from its start and from half-way round.
-3. **fit** (in the stroke's plane, PCA for 3-D strokes) — a total-least-squares line, a
+3. **fit** (`_fits`; in the stroke's plane, PCA for 3-D strokes) — a total-least-squares line, a
    geometric circle (Kåsa's algebraic fit refined by Gauss–Newton), a direct least-squares
    ellipse (Fitzgibbon, Pilu & Fisher 1999, in Halíř & Flusser's stable form) for closed
    strokes, and a polygon: the corners of step 2 as candidate vertices, merged while two
@@ -21,11 +21,12 @@ class does not depend on the stroke's position, size or rotation. The chain:
    the regularised corners their intersections.
 4. **decide** — by the models' residuals `e = rms distance / D`: an open stroke is a line
    (`e ≤ _LINE_TOL`), else a polyline (`e ≤ _POLYLINE_TOL`, below the arc's, and its vertices
-   sharp: `_sharp`), else an arc (`e ≤ _ARC_TOL`), else a spline; a closed stroke is a polygon
+   sharp: `_fits.sharp_vertices`), else an arc (`e ≤ _ARC_TOL`), else a spline; a closed stroke is a polygon
    when its `e ≤ _TOL` is below the ellipse's, else a conic (`e ≤ _TOL`; axis ratio below
    `_ROUND`: a circle), else a spline. Polygons: 3 vertices a triangle; 4 with right angles
    (within `_RIGHT`) a square (opposite-side sums within `_SQUARE`) or a rectangle; 4 with equal
-   sides (within `_RHOMBUS`) and no right angle a diamond; anything else a polyline.
+   sides (within `_RHOMBUS`) and no right angle a diamond; anything else a polyline (`_fits`
+   holds the polygon thresholds).
 
 The regularised curve is exact where bsjax's rational curves allow: a circle is the 9-point
 rational quadratic (The NURBS Book §7.5, Ex. 7.2), an ellipse its affine image, an arc the
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -46,6 +47,15 @@ from bsjax import _checks
 from bsjax._typing import ArrayLike
 from bsjax.basis import BSplineCurve
 from bsjax.basis._knots import float_dtype
+from bsjax.sketch._fits import (
+    Polygon,
+    fit_circle,
+    fit_ellipse,
+    fit_line,
+    fit_polygon,
+    polygon_kind,
+    sharp_vertices,
+)
 from bsjax.sketch._strokes import corners, fit_stroke
 
 KINDS = (
@@ -71,14 +81,7 @@ _TOL = 0.025  # largest rms residual / D of an accepted closed primitive
 _LINE_TOL = 0.015  # … of a line
 _ARC_TOL = 0.015  # … of an arc
 _POLYLINE_TOL = 0.01  # … of an open polyline (a free curve's crests make a polyline of ~0.015)
-_GAP = 5  # candidates nearer than this many samples are one corner (`corners` may report two)
-_MERGE_TURN = math.radians(30)  # candidate vertices between edges turning less are dropped
-_WINDOW = 3  # samples either side of a vertex whose chords' turn must be …
-_SHARP = 0.6  # … at least this fraction of the turn between the vertex's edges
 _ROUND = 1.22  # ellipses of axis ratio below are circles
-_RIGHT = math.radians(12)  # largest deviation from 90° of a rectangle's angles
-_SQUARE = 1.2  # largest long/short side ratio of a square
-_RHOMBUS = 1.3  # largest long/short side ratio of a diamond
 _OUTLINE = 128  # samples of a regularised shape's outline
 
 
@@ -266,183 +269,6 @@ def _lift(frame: np.ndarray, q: np.ndarray) -> np.ndarray:
     return frame[0] + q[..., :1] * frame[1] + q[..., 1:2] * frame[2]
 
 
-# --- step 3: fits (2-D, numpy) ---------------------------------------------------------------
-def _line(q: np.ndarray):
-    """Total least squares: (centroid, unit direction along the samples' order, rms distance)."""
-    c = q.mean(axis=0)
-    _, _, vt = np.linalg.svd(q - c, full_matrices=False)
-    d = vt[0] if (q[-1] - q[0]) @ vt[0] >= 0 else -vt[0]
-    normal = np.array([-d[1], d[0]])
-    return c, d, float(np.sqrt(np.mean(((q - c) @ normal) ** 2)))
-
-
-def _circle(q: np.ndarray):
-    """Geometric circle fit: Kåsa's linear fit `x² + y² = a x + b y + c`, then Gauss–Newton on
-    `Σ (|q − c| − r)²`. Returns (centre, radius, rms)."""
-    a = np.column_stack([q, np.ones(len(q))])
-    sol = np.linalg.lstsq(a, np.sum(q * q, axis=1), rcond=None)[0]
-    centre = 0.5 * sol[:2]
-    radius = math.sqrt(max(sol[2] + centre @ centre, 1e-300))
-    for _ in range(8):
-        diff = q - centre
-        dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
-        jac = np.column_stack([-diff / dist[:, None], -np.ones(len(q))])
-        step = np.linalg.lstsq(jac, -(dist - radius), rcond=None)[0]
-        centre, radius = centre + step[:2], radius + step[2]
-    dist = np.linalg.norm(q - centre, axis=1)
-    return centre, abs(radius), float(np.sqrt(np.mean((dist - abs(radius)) ** 2)))
-
-
-def _ellipse(q: np.ndarray):
-    """Direct least-squares ellipse (Fitzgibbon et al.; Halíř & Flusser's partition of the
-    scatter matrix), on centred, scaled samples. Returns (centre, (a, b), major unit vector,
-    rms Sampson distance) or `None` when no ellipse fits."""
-    shift, scale = q.mean(axis=0), float(np.abs(q - q.mean(axis=0)).max())
-    x, y = ((q - shift) / scale).T
-    d1 = np.column_stack([x * x, x * y, y * y])
-    d2 = np.column_stack([x, y, np.ones_like(x)])
-    s1, s2, s3 = d1.T @ d1, d1.T @ d2, d2.T @ d2
-    try:
-        t = -np.linalg.solve(s3, s2.T)
-    except np.linalg.LinAlgError:
-        return None
-    m = s1 + s2 @ t
-    m = np.stack([m[2] / 2, -m[1], m[0] / 2])
-    _, v = np.linalg.eig(m)
-    v = np.real(v)
-    ok = 4 * v[0] * v[2] - v[1] ** 2 > 0
-    if not ok.any():
-        return None
-    a1 = v[:, np.flatnonzero(ok)[0]]
-    conic = np.concatenate([a1, t @ a1])  # A x² + B xy + C y² + D x + E y + F
-    quad = np.array([[conic[0], conic[1] / 2], [conic[1] / 2, conic[2]]])
-    centre = np.linalg.solve(2 * quad, -conic[3:5])
-    value = conic[5] + 0.5 * conic[3:5] @ centre
-    lam, vec = np.linalg.eigh(quad)
-    if not (np.all(lam * -value > 0)):
-        return None
-    axes = np.sqrt(-value / lam)
-    order = np.argsort(-axes)  # a ≥ b (the conic's sign decides which λ is the larger axis)
-    axes, vec = axes[order], vec[:, order]
-    grad = 2 * np.column_stack([x, y]) @ quad + conic[3:5]
-    f = np.einsum("ni,ij,nj->n", np.column_stack([x, y]), quad, np.column_stack([x, y]))
-    f = f + np.column_stack([x, y]) @ conic[3:5] + conic[5]
-    rms = float(np.sqrt(np.mean((f / np.maximum(np.linalg.norm(grad, axis=1), 1e-300)) ** 2)))
-    return shift + scale * centre, scale * axes, vec[:, 0], scale * rms
-
-
-class _Polygon(NamedTuple):
-    """A polygon fit: regularised vertices `(k, 2)` (closed: the corners; open: ends included)
-    and the rms distance of the samples to their edges' lines."""
-
-    vertices: np.ndarray
-    rms: float
-
-
-def _edge(q, a: int, b: int, closed: bool) -> np.ndarray:
-    n = len(q)
-    return q[np.arange(a, b + n + 1) % n] if closed and b <= a else q[a : b + 1]
-
-
-def _edge_fits(q, vs: list[int], closed: bool):
-    n = len(q)
-    pairs = zip(vs, vs[1:] + vs[:1]) if closed else zip([0, *vs], [*vs, n - 1])
-    return [_line(_edge(q, a, b, closed)) for a, b in pairs]
-
-
-def _turns(fits, closed: bool) -> np.ndarray:
-    """The turn between the edges meeting at each vertex (closed: vertex j joins edges j − 1
-    and j; open: edges j and j + 1)."""
-    d = np.stack([f[1] for f in fits])
-    ahead = d if closed else d[1:]
-    behind = np.roll(d, 1, axis=0) if closed else d[:-1]
-    return np.arccos(np.clip(np.sum(ahead * behind, axis=1), -1.0, 1.0))
-
-
-def _meet(f0, f1, fallback) -> np.ndarray:
-    """The intersection of two fitted lines (the sample `fallback` when nearly parallel)."""
-    (c0, d0, _), (c1, d1, _) = f0, f1
-    cross = d0[0] * d1[1] - d0[1] * d1[0]
-    if abs(cross) < math.sin(math.radians(10)):
-        return fallback
-    diff = c1 - c0
-    return c0 + d0 * (diff[0] * d1[1] - diff[1] * d1[0]) / cross
-
-
-def _polygon(q: np.ndarray, mask: np.ndarray, closed: bool) -> _Polygon | None:
-    """Candidate vertices (the corner samples), merged while the
-    two edges at a vertex turn by less than `_MERGE_TURN` (the flattest first); edges are
-    total-least-squares lines, the corners their intersections."""
-    n = len(q)
-    vs: list[int] = []
-    for i in np.flatnonzero(mask).tolist():
-        if (not vs or i - vs[-1] >= _GAP) and (closed or n - 1 - i >= 3) and i >= (0 if closed else 3):
-            vs.append(i)
-    if closed and len(vs) > 1 and n - vs[-1] + vs[0] < _GAP:
-        vs.pop()
-    while vs:
-        fits = _edge_fits(q, vs, closed)
-        turns = _turns(fits, closed)
-        j = int(np.argmin(turns))
-        if turns[j] >= _MERGE_TURN:
-            break
-        vs.pop(j)
-    if closed and len(vs) < 3:
-        return None
-    fits = _edge_fits(q, vs, closed)
-    sq = [f[2] ** 2 * len(_edge(q, a, b, closed)) for f, (a, b) in zip(fits, _pairs(vs, n, closed))]
-    rms = math.sqrt(sum(sq) / sum(len(_edge(q, a, b, closed)) for a, b in _pairs(vs, n, closed)))
-    if closed:
-        corners_ = [_meet(fits[j - 1], fits[j], q[vs[j]]) for j in range(len(vs))]
-    else:
-        ends = [fits[0][0] + fits[0][1] * ((q[0] - fits[0][0]) @ fits[0][1])]
-        inner = [_meet(fits[j], fits[j + 1], q[vs[j]]) for j in range(len(vs))]
-        last = fits[-1][0] + fits[-1][1] * ((q[-1] - fits[-1][0]) @ fits[-1][1])
-        corners_ = [*ends, *inner, last]
-    return _Polygon(np.asarray(corners_), rms)
-
-
-def _sharp(smooth: np.ndarray, vertices: np.ndarray) -> bool:
-    """Whether an open polyline's vertices are corners rather than the crests of a smooth curve:
-    at each interior vertex, the chords of the smoothed samples `(M, 2)` reaching `_WINDOW`
-    samples either side turn by at least `_SHARP` of the turn between its two edges (a crest
-    spreads its turn along the curve, a corner makes it at one place)."""
-    n = len(smooth)
-    for a, v, b in zip(vertices[:-2], vertices[1:-1], vertices[2:]):
-        i = int(np.clip(np.argmin(np.linalg.norm(smooth - v, axis=1)), 1, n - 2))
-        into, out = smooth[i] - smooth[max(i - _WINDOW, 0)], smooth[min(i + _WINDOW, n - 1)] - smooth[i]
-        if _angle(into, out) < _SHARP * _angle(v - a, b - v):
-            return False
-    return True
-
-
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    cos = a @ b / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-300)
-    return math.acos(float(np.clip(cos, -1.0, 1.0)))
-
-
-def _pairs(vs: list[int], n: int, closed: bool):
-    return list(zip(vs, vs[1:] + vs[:1])) if closed else list(zip([0, *vs], [*vs, n - 1]))
-
-
-def _polygon_kind(v: np.ndarray) -> str:
-    """Triangle, square, rectangle, diamond or polyline from a closed polygon's corners `(k, 2)`."""
-    if len(v) == 3:
-        return "triangle"
-    if len(v) != 4:
-        return "polyline"
-    sides = np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1)
-    into, out = np.roll(v, 1, axis=0) - v, np.roll(v, -1, axis=0) - v
-    cos = np.sum(into * out, axis=1) / np.maximum(
-        np.linalg.norm(into, axis=1) * np.linalg.norm(out, axis=1), 1e-300
-    )
-    angles = np.arccos(np.clip(cos, -1.0, 1.0))
-    if np.max(np.abs(angles - math.pi / 2)) < _RIGHT:
-        ratio = (sides[0] + sides[2]) / (sides[1] + sides[3])
-        return "square" if max(ratio, 1 / ratio) < _SQUARE else "rectangle"
-    return "diamond" if sides.max() / sides.min() < _RHOMBUS else "polyline"
-
-
 # --- regularised curves (2-D, then lifted) ----------------------------------------------------
 def _polyline_curve(v: np.ndarray):
     """Degree 1 through `v (k, 2)`, chord-length knots: `(ctrl, knots, 1, None)`."""
@@ -520,15 +346,15 @@ def _score(e: float) -> float:
 def _decide(q: np.ndarray, smooth: np.ndarray, mask: np.ndarray, closed: bool, size: float):
     """(kind, params in plane coordinates, curve parts or None for a free spline, residual e)."""
     if not closed:
-        c, d, rms = _line(q)
+        c, d, rms = fit_line(q)
         if rms / size <= _LINE_TOL:
             ends = c + np.outer([(q[0] - c) @ d, (q[-1] - c) @ d], d)
             return "line", {"endpoints": ends}, _polyline_curve(ends), rms / size
-    centre, radius, circle_rms = _circle(q)
-    poly = _polygon(q, mask, closed)
+    centre, radius, circle_rms = fit_circle(q)
+    poly = fit_polygon(q, mask, closed)
     e_poly = poly.rms / size if poly is not None and (closed or len(poly.vertices) > 2) else math.inf
     if closed:
-        fit = _ellipse(q)
+        fit = fit_ellipse(q)
         e_conic = math.inf if fit is None else fit[3] / size
         if e_poly <= min(e_conic, _TOL) and poly is not None:
             return _closed_polygon(q, poly, e_poly)
@@ -536,7 +362,7 @@ def _decide(q: np.ndarray, smooth: np.ndarray, mask: np.ndarray, closed: bool, s
             return _conic(q, fit, (centre, radius, circle_rms / size), e_conic)
         return "spline", {}, None, min(e_poly, e_conic)
     e_arc = circle_rms / size
-    if e_poly <= min(e_arc, _POLYLINE_TOL) and poly is not None and _sharp(smooth, poly.vertices):
+    if e_poly <= min(e_arc, _POLYLINE_TOL) and poly is not None and sharp_vertices(smooth, poly.vertices):
         params = {"vertices": poly.vertices, "closed": False}
         return "polyline", params, _polyline_curve(poly.vertices), e_poly
     if e_arc <= _ARC_TOL:
@@ -546,9 +372,9 @@ def _decide(q: np.ndarray, smooth: np.ndarray, mask: np.ndarray, closed: bool, s
     return "spline", {}, None, min(e_poly, e_arc)
 
 
-def _closed_polygon(q, poly: _Polygon, e: float):
+def _closed_polygon(q, poly: Polygon, e: float):
     v = poly.vertices
-    kind = _polygon_kind(v)
+    kind = polygon_kind(v)
     ring = np.concatenate([v, v[:1]])
     params = {"vertices": v, "closed": True} if kind == "polyline" else {"corners": v}
     return kind, params, _polyline_curve(ring), e
