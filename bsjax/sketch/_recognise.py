@@ -85,7 +85,7 @@ _ROUND = 1.22  # ellipses of axis ratio below are circles
 _OUTLINE = 128  # samples of a regularised shape's outline
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)  # arrays inside: identity, not element-wise, equality
 class Recognised:
     """A recognised stroke.
 
