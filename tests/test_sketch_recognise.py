@@ -252,6 +252,24 @@ def test_relations_on_noisy_strokes():
     assert {"outside", "vertical"} <= sketch.relations(R(circle.points, circle.times), R(side))
 
 
+def test_composites_of_noisy_strokes():
+    """Generated (noisy, over-traced) circles with a wobbly upright line beside or inside them
+    make cylinders and cones whose height is the line's regularised length."""
+    rng = np.random.default_rng(12)
+    for _ in range(3):
+        circle = gen.draw("circle", rng)
+        base = R(circle.points, circle.times)
+        c, r = circle.truth["centre"], circle.truth["radius"]
+        wobble = 0.01 * r * np.sin(9 * _T)[:, None] * [1.0, 0.0]
+        for x, name in ((2.0, "cylinder"), (0.3, "cone")):
+            line = R(_segment(c + [x * r, -0.4 * r], c + [x * r, 0.9 * r]) + wobble)
+            built = sketch.compose([base, line])
+            assert built.name == name
+            height = np.linalg.norm(np.diff(line.params["endpoints"], axis=0))
+            top = np.asarray(built.surface.evaluate(np.linspace(0, 1, 5), np.ones(5)))
+            np.testing.assert_allclose(top[:, 2], height, rtol=1e-12)
+
+
 def test_precedes_and_three_d_vertical():
     a = R(_circle((0, 0), 1, z=0.0), np.linspace(0.0, 1.0, 90))
     standing = R(
