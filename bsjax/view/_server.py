@@ -11,6 +11,12 @@ the model's control net), so neither ever waits for a browser.
 Messages (JSON): `{"type": "scene", ...}` once per connection (surface grid, tool radius, title,
 an optional recording to replay), then `{"type": "frame", ...}` (tool position, force, watchdog
 gain, servo and physics rates, and the surface's sample points when they changed).
+
+With a `handle` callable (`bsjax studio`) the channel also runs the other way: each text message
+a page sends is parsed as JSON and handed to `handle` in one worker thread, in arrival order
+(the asyncio thread keeps serving meanwhile), and its reply goes back to that page. Such a server
+only accepts pages of its own origin (a page from elsewhere, open in the same browser, cannot
+send commands to it).
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import math
 import mimetypes
 import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 
 from bsjax._optional import require
@@ -54,6 +61,8 @@ class ViewServer:
     - `frame`: callable returning the newest frame (dict), or None for a static scene; called
       `rate_hz` times a second in the server's thread, so keep it cheap (no waiting on locks).
     - `host`: `127.0.0.1` (the view is local); `port`: 0 picks a free one (see `url`).
+    - `handle`: callable taking a page's message (the parsed JSON) and returning the reply (a
+      dict), or None (a view only); `page`: the file of `static/` served at `/`.
 
     Serving needs the `view` extra (websockets).
     """
@@ -65,6 +74,8 @@ class ViewServer:
         host: str = "127.0.0.1",
         port: int = 0,
         rate_hz: float = 50.0,
+        handle: Callable[[object], dict] | None = None,
+        page: str = "index.html",
     ):
         if not callable(scene):
             raise TypeError(f"scene: expected a callable returning a dict, got {type(scene).__name__}")
@@ -74,7 +85,13 @@ class ViewServer:
             raise ValueError(f"port: expected an int in [0, 65535], got {port!r}")
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
             raise ValueError(f"rate_hz: expected a rate in (0, 1000] Hz, got {rate_hz!r}")
-        self.scene, self.frame = scene, frame
+        if handle is not None and not callable(handle):
+            raise TypeError(f"handle: expected a callable or None, got {type(handle).__name__}")
+        if _static(page) is None:
+            raise ValueError(f"page: expected a file of bsjax/view/static/, got {page!r}")
+        self.scene, self.frame, self.handle, self.page = scene, frame, handle, page
+        self.commands = 0
+        self._worker: ThreadPoolExecutor | None = None
         self.host, self.port, self.rate_hz = host, port, float(rate_hz)
         self.frames_sent = 0
         self.clients = 0
@@ -107,6 +124,8 @@ class ViewServer:
                 loop.call_soon_threadsafe(stop.set)
         if self._thread is not None:
             self._thread.join(5)
+        if self._worker is not None:
+            self._worker.shutdown(wait=False, cancel_futures=True)
 
     def __enter__(self) -> "ViewServer":
         return self.start()
@@ -127,6 +146,8 @@ class ViewServer:
 
         self._loop = asyncio.get_running_loop()
         self._stop, self._tick = asyncio.Event(), asyncio.Event()
+        if self.handle is not None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="bsjax-view-commands")
         async with serve(
             self._client, self.host, self.port, process_request=self._http, compression=None
         ) as server:
@@ -162,7 +183,11 @@ class ViewServer:
         if ws.request is None or ws.request.path.split("?")[0] != "/ws":
             await ws.close(1008, "unknown path")
             return
+        if self.handle is not None and not self._same_origin(ws.request.headers.get("Origin")):
+            await ws.close(1008, "commands only from this server's own page")
+            return
         self.clients += 1
+        reader = asyncio.create_task(self._commands(ws)) if self.handle is not None else None
         try:
             await ws.send(dumps({"type": "scene", **self.scene()}))
             while True:
@@ -175,6 +200,35 @@ class ViewServer:
             pass
         finally:
             self.clients -= 1
+            if reader is not None:
+                reader.cancel()
+
+    async def _commands(self, ws) -> None:
+        """Each message of the page handled in the worker thread; the reply sent back."""
+        loop = asyncio.get_running_loop()
+        try:
+            async for text in ws:
+                reply = await loop.run_in_executor(self._worker, self._reply, text)
+                await ws.send(reply)
+        except Exception:  # the connection closed: `_client` cleans up
+            pass
+
+    def _reply(self, text) -> str:
+        try:
+            message = json.loads(text)
+        except (TypeError, ValueError) as err:
+            return dumps({"type": "error", "seq": None, "error": f"message: expected JSON text ({err})"})
+        self.commands += 1
+        try:
+            return dumps(self.handle(message))  # pyright: ignore[reportOptionalCall]
+        except Exception as err:  # the handler's own bug: reported to the page, not fatal
+            log.warning("view: command handler failed: %r", err)
+            return dumps({"type": "error", "seq": None, "error": f"internal error: {err!r}"})
+
+    def _same_origin(self, origin: str | None) -> bool:
+        """No Origin header (a local program, not a browser page) or this server's own."""
+        allowed = {f"http://{h}:{self.port}" for h in (self.host, "localhost", "127.0.0.1")}
+        return origin is None or origin in allowed
 
     def _http(self, connection, request):
         """Static files for plain HTTP requests; None lets a WebSocket upgrade through."""
@@ -184,7 +238,7 @@ class ViewServer:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             return None
         path = request.path.split("?")[0]
-        name = "index.html" if path in ("/", "/index.html") else path.lstrip("/")
+        name = self.page if path == "/" else path.lstrip("/")
         body = _static(name)
         if body is None:
             return Response(404, "Not Found", Headers([("Content-Type", "text/plain")]), b"not found\n")

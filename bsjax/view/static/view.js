@@ -1,6 +1,8 @@
 // bsjax live view: a small canvas renderer (painter's algorithm, Lambert shading), no libraries.
 // Messages from /ws: {type: "scene", surface, surfaces, curves, tool_radius, title, replay}
 // then {type: "frame", tool, force, gain, servo_hz, ticks, physics_updates, max_force, surface?}.
+// window.bsjaxView lets a page built on this renderer (studio.js) take pointer presses (grab),
+// draw on top (overlay), receive its own message types (onMessage) and send over the socket.
 "use strict";
 (function () {
   const canvas = document.getElementById("view");
@@ -12,6 +14,9 @@
   let scene = null, frame = null, replayIndex = 0, playing = false, playStart = 0;
   const cam = { yaw: 0.6, pitch: 0.35, dist: 4.0, target: [0, 0, 0] };
   const fpsWindow = [];
+  const view = { grab: null, overlay: null, onMessage: null, send: null, cam, canvas, project, basis,
+    scene: () => scene, setScene: (s, refit) => { scene = s; if (refit) fit(); schedule(); }, schedule: () => schedule() };
+  window.bsjaxView = view;
   let physicsRate = 0, lastPhys = null;
 
   // --- math ----------------------------------------------------------------------------------
@@ -88,8 +93,11 @@
       ctx.beginPath(); ctx.moveTo(...t.pts[0]); ctx.lineTo(...t.pts[1]); ctx.lineTo(...t.pts[2]); ctx.closePath();
       ctx.fill(); ctx.stroke();
     }
-    for (const c of scene.curves || []) polyline(b, c, "#e5c07b", 2);
+    for (const c of scene.curves || []) {
+      if (Array.isArray(c)) polyline(b, c, "#e5c07b", 2); else polyline(b, c.points, c.color || "#e5c07b", c.width || 2);
+    }
     if (scene.replay) polyline(b, scene.replay.position, "rgba(198,120,221,0.6)", 1);
+    if (view.overlay) view.overlay(ctx, b);
     stats.drawn += 1;
   }
   function sphere(p, radius) {
@@ -159,7 +167,7 @@
   function fit() {
     const pts = [];
     for (const g of allSurfaces()) pts.push(g.points);
-    for (const c of scene.curves || []) pts.push(c);
+    for (const c of scene.curves || []) pts.push(Array.isArray(c) ? c : c.points);
     if (scene.replay) pts.push(scene.replay.position);
     let lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
     for (const P of pts) for (let i = 0; i + 2 < P.length; i += 3) for (let k = 0; k < 3; k++) {
@@ -191,6 +199,7 @@
         physicsRate = (msg.physics_updates - lastPhys[1]) / ((now - lastPhys[0]) / 1000); lastPhys = [now, msg.physics_updates];
       } else if (!lastPhys) lastPhys = [now, msg.physics_updates];
     }
+    if (view.onMessage) view.onMessage(msg);  // every message, after the renderer's own handling
     schedule();
   }
   // drawing follows the display (requestAnimationFrame), receiving never waits on it
@@ -202,6 +211,7 @@
   }
   function connect() {
     const ws = new WebSocket(`ws://${location.host}/ws`);
+    view.send = (obj) => ws.send(JSON.stringify(obj));
     ws.onopen = () => { stats.connected = true; stats.connects += 1; status.textContent = "live"; status.className = "on"; };
     ws.onmessage = onMessage;
     ws.onclose = () => {
@@ -212,7 +222,9 @@
 
   // --- mouse: orbit (drag), zoom (wheel); replay slider ---------------------------------------
   let drag = null;
-  canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; canvas.style.cursor = "grabbing"; });
+  canvas.addEventListener("mousedown", (e) => {
+    if (view.grab && view.grab(e)) return;  // the page on top of the renderer took this press
+    drag = [e.clientX, e.clientY]; canvas.style.cursor = "grabbing"; });
   window.addEventListener("mouseup", () => { drag = null; canvas.style.cursor = "grab"; });
   window.addEventListener("mousemove", (e) => {
     if (!drag) return;
