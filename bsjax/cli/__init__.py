@@ -26,6 +26,7 @@ COMMANDS = {
     "sketch": ("bsjax.cli.sketch", "strokes from a JSON file -> curves and a surface (.3dm/.glb + PNG)"),
     "grammar": ("bsjax.cli.grammar", "curve semantics: symbol string of a curve file; enumerate shapes"),
     "view": ("bsjax.cli.view", "live 3-D view in the browser of a surface, curve set or recording"),
+    "studio": ("bsjax.cli.studio", "interactive modelling page: draw, recognise, construct, sculpt"),
     "sweep": ("bsjax.cli.sweep", "parameter study over a grid of designs (spoon, collide, merge)"),
 }
 
