@@ -38,6 +38,8 @@ MIN_PY := $(MIN_VENV)/bin/python
 SMOKE := tests/test_errors.py tests/test_boundary.py tests/test_bad_input.py \
 	tests/test_batch.py::test_map_equals_vmap_and_a_loop \
 	tests/test_batch.py::test_map_accepts_lists_and_works_inside_jit_and_grad \
+	tests/test_merge_refit.py::test_closest_points_plane_and_clamped_edges \
+	tests/test_merge_refit.py::test_closest_points_periodic_crosses_the_seam \
 	--deselect tests/test_bad_input.py::test_plot_bad_input_names_the_argument
 
 $(MIN_PY):

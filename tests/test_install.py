@@ -251,8 +251,11 @@ def test_wheel_metadata_core_and_extras(dists):
     floors = dict(
         line.split("==") for line in (ROOT / "constraints-min.txt").read_text().splitlines() if "==" in line
     )
-    for name, requirement in core.items():  # each declared floor is the tested one
-        assert f">={floors[name]}" in requirement.replace(" ", ""), (requirement, floors[name])
+    for requirement in requires:  # each declared floor is the tested one (core and extras)
+        if _name(requirement) in floors:
+            floor = floors[_name(requirement)]
+            assert f">={floor}" in requirement.replace(" ", ""), (requirement, floor)
+    assert CORE <= set(floors) and {p for ps in _optional.EXTRAS.values() for p in ps} <= set(floors)
     by_extra = {}
     for r in requires:
         if "extra ==" in r:
