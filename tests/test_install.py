@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from bsjax import _optional
+from bsjax.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONAL = ("rhino3dm", "OCP", "trimesh", "matplotlib", "serial", "hid", "websockets", "tqdm")
@@ -85,8 +86,6 @@ print(json.dumps(out))
 _COMMANDS = {
     "version": ["--version"],
     "help": ["--help"],
-    "view_help": ["view", "--help"],
-    "haptics_help": ["haptics", "--help"],
     "convert_step": ["convert", "part.step", "part.json"],
     "view_file": ["view", "plate.json", "--duration", "1"],
     "haptics_serial": ["haptics", "--serial", "/dev/null", "--duration", "1"],
@@ -98,9 +97,9 @@ os.chdir(tempfile.mkdtemp())
 open("part.step", "w").write("ISO-10303-21;")
 from bsjax import io, shapes
 io.save(shapes.plate(4, 4), "plate.json")
-from bsjax.cli import main
+from bsjax.cli import COMMANDS as ALL, main
 out = {}
-for key, argv in COMMANDS.items():
+for key, argv in [*COMMANDS.items(), *((f"{name}_help", [name, "--help"]) for name in ALL)]:
     stdout, stderr = _io.StringIO(), _io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
         code = main(argv)
@@ -169,7 +168,7 @@ def test_require_returns_the_module_and_names_an_outdated_install():
 def test_the_command_without_extras(cli):
     code, out, err = cli["version"]
     assert (code, out, err) == (0, f"bsjax {_installed_version()}\n", "")
-    for key in ("help", "view_help", "haptics_help"):
+    for key in ("help", *(f"{name}_help" for name in COMMANDS)):  # every command's help
         code, out, err = cli[key]
         assert code == 0 and out.startswith("usage: bsjax") and err == "", key
     for key, extra, feature in (

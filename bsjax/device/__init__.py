@@ -8,6 +8,8 @@ with SimulatedDevice() as dev, ServoLoop(dev, SculptModel(), max_force=3.0) as l
     time.sleep(10)
 print(loop.stats.report())
 ```
+The simulated device and the servo loop need only the core; `SerialDevice` and `HidDevice` need
+the `haptics` extra (pyserial, hidapi), `plot_recording` the `plot` extra.
 """
 
 from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose

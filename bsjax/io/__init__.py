@@ -25,7 +25,8 @@ tessellated meshes (trimesh).
 * From the shell: `bsjax convert IN OUT` (`bsjax.cli.convert`).
 
 rhino3dm, OCP and trimesh are imported by the functions that use them, so `import bsjax.io`
-stays light.
+stays light; they are the extras `cad` (rhino3dm, OCP) and `mesh` (trimesh), and a format used
+without its extra raises an `ImportError` that names it (`pip install 'bsjax[cad]'`).
 """
 
 from bsjax.io._cad import UNITS as UNITS
