@@ -23,3 +23,34 @@ bsjax.enable_compilation_cache()  # this process too (JAX may have been imported
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+# --- where the suite's time goes (BSJAX_TEST_PROFILE=FILE: one JSON line per test) ----------------
+if os.environ.get("BSJAX_TEST_PROFILE"):
+    import json
+    import time
+
+    import pytest
+    from jax import monitoring
+
+    _PHASES = {
+        "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+        "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+        "/jax/core/compile/backend_compile_duration": "compile_s",
+    }
+    _spent: dict[str, float] = {}
+
+    def _listen(event: str, duration: float, **_) -> None:
+        if event in _PHASES:
+            _spent[_PHASES[event]] = _spent.get(_PHASES[event], 0.0) + duration
+
+    monitoring.register_event_duration_secs_listener(_listen)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        _spent.clear()
+        t0 = time.perf_counter()
+        yield
+        row = {"test": item.nodeid, "wall_s": time.perf_counter() - t0, **_spent}
+        with open(os.environ["BSJAX_TEST_PROFILE"], "a") as f:
+            f.write(json.dumps(row) + "\n")
