@@ -190,7 +190,9 @@ class ViewServer:
         reader = asyncio.create_task(self._commands(ws)) if self.handle is not None else None
         try:
             await ws.send(dumps({"type": "scene", **self.scene()}))
-            while True:
+            if self.frame is None:  # a static scene: nothing to push; wait for the page to leave
+                await (reader if reader is not None else ws.wait_closed())
+            while self.frame is not None:
                 await self._tick.wait()
                 message = self._latest
                 if message is not None:

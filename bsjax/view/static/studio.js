@@ -5,13 +5,14 @@
 (function () {
   const view = window.bsjaxView, canvas = view.canvas;
   const message = document.getElementById("message"), info = document.getElementById("info");
-  const list = document.getElementById("list");
+  const list = document.getElementById("list"), timed = document.getElementById("timed");
   const KIND_COLOR = { line: "#88c0d0", circle: "#a3be8c", ellipse: "#b48ead", arc: "#8fbcbb", triangle: "#d08770",
     square: "#ebcb8b", rectangle: "#ebcb8b", diamond: "#d08770", polyline: "#81a1c1", spline: "#e5c07b" };
   const PLANES = { xy: [0, 0, 1], xz: [0, 1, 0], yz: [1, 0, 0] };
   const studio = { scene: null, replies: [], errors: [], selection: [], mode: "draw", stroke: null, seq: 0, sent: 0 };
   window.bsjaxStudio = studio;
   const waiting = new Map();
+  studio.pending = () => waiting.size;
 
   // --- talking to Python --------------------------------------------------------------------
   studio.send = (command) => new Promise((resolve) => {
@@ -135,8 +136,8 @@
     if (studio.mode === "oversketch") {
       const curve = studio.selection.filter(isItem).at(-1) ?? studio.scene.items.at(-1)?.id;
       studio.send({ cmd: "oversketch", curve, ...command });
-    } else studio.send({ cmd: "stroke", times: s.times, ...command });
-    studio.lastStroke = s;
+    } else studio.send({ cmd: "stroke", times: timed.checked ? s.times : null, ...command });
+    studio.lastCommand = { ...command, times: timed.checked ? s.times : null };
   });
   view.overlay = (ctx, b) => {
     if (studio.stroke) {
@@ -181,7 +182,7 @@
       window: [toWindow(p)], camera: studio.camera() };
     if (d.busy) { d.next = command; return; }  // one in flight; the newest waits
     const go = (c) => {
-      d.busy = true;
+      d.busy = true; studio.lastDrag = c;
       studio.send(c).then((r) => {
         if (r.type === "update") d.handle = r.result.target;
         d.busy = false;
