@@ -106,7 +106,10 @@ def _reach(graph, start):
         ("bsjax.mss", ("bsjax.merge", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.batch", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.construct", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
-        ("bsjax.sketch", ("bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),  # compose uses construct
+        (
+            "bsjax.sketch",
+            ("bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device"),
+        ),  # compose uses construct
         ("bsjax.sculpt", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.grammar", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.optimise", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
