@@ -250,7 +250,7 @@ def compose(items: Sequence[Item], tree: sketch.DecisionTree) -> tuple[str, BSpl
             f"curves: expected strokes that match a composite of the tree, got kinds "
             f"{[i.kind for i in items]} with relations [{found}]"
         )
-    return built.name, items[0].plane.lift_surface(built.surface)
+    return built.name or "composite", items[0].plane.lift_surface(built.surface)
 
 
 BUILDS = {
