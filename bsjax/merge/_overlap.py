@@ -12,7 +12,6 @@ cheaper to compile, and it also catches patches that overlap without crossing.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from bsjax.basis import BSplineSurface
 
@@ -29,6 +28,8 @@ def contact_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82, toler
     pa = np.asarray(a.blending(samples, samples).points(a.ctrl))
     pb = np.asarray(b.blending(samples, samples).points(b.ctrl))
     tol = tolerance if tolerance is not None else max(_spacing(pa), _spacing(pb))
+    from scipy.spatial import cKDTree  # here: importing scipy.spatial takes tenths of a second
+
     da, _ = cKDTree(pb.reshape(-1, 3)).query(pa.reshape(-1, 3))
     db, _ = cKDTree(pa.reshape(-1, 3)).query(pb.reshape(-1, 3))
     return da.reshape(pa.shape[:2]) <= tol, db.reshape(pb.shape[:2]) <= tol
