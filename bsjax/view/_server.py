@@ -216,11 +216,11 @@ class ViewServer:
             pass
 
     def _reply(self, text) -> str:
+        self.commands += 1
         try:
             message = json.loads(text)
         except (TypeError, ValueError) as err:
             return dumps({"type": "error", "seq": None, "error": f"message: expected JSON text ({err})"})
-        self.commands += 1
         try:
             return dumps(self.handle(message))  # pyright: ignore[reportOptionalCall]
         except Exception as err:  # the handler's own bug: reported to the page, not fatal

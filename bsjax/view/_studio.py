@@ -105,10 +105,10 @@ class Studio:
             return {"type": "update", "seq": seq, "command": name, "scene": scene, "result": result or {}}
         except (CommandError, ValueError, TypeError, OSError) as err:
             where = message.get("cmd") if isinstance(message, dict) else None
-            return _error(seq, _one_line(err), where)
+            return _error(seq, _one_line(err), where, isinstance(err, CommandError))
         except Exception as err:  # a bug must not take the page's server down: reported, logged
             log.exception("studio: %r failed", message)
-            return _error(seq, f"internal error: {type(err).__name__}: {_one_line(err)}", None)
+            return _error(seq, f"internal error: {type(err).__name__}: {_one_line(err)}", None, False)
 
     def scene(self) -> dict:
         """The scene message: surfaces (sample grid, exact spline), curves, plane, history."""
@@ -271,7 +271,10 @@ class Studio:
         s = self.state
         if not s.items and not s.bodies:
             raise f.error("name", "a session with a curve or surface to save", "an empty session")
-        io.save([*(b.surface for b in s.bodies), *(i.curve for i in s.items)], path)
+        try:
+            io.save([*(b.surface for b in s.bodies), *(i.curve for i in s.items)], path)
+        except Exception as err:  # the writer's own refusal (OCCT's exceptions are not ValueErrors)
+            raise f.error("name", "a file the writer accepts", f"{path.name!r}: {_one_line(err)}") from err
         return {"path": str(path)}
 
     def _load(self, f: _Fields):
@@ -442,9 +445,11 @@ def _one_line(err: BaseException) -> str:
     return " ".join(str(err).strip().split("\n\n")[0].split())
 
 
-def _error(seq, message: str, command) -> dict:
-    if command in COMMANDS and not message.startswith(f"{command}"):
-        message = f"{command}: {message}"  # a library error names its argument; add the command
+def _error(seq, message: str, command, own: bool) -> dict:
+    """The command's name before the message: `build.curves: …` for the session's own errors
+    about a field (`curves: …`), `stroke: points: …` for a library function's argument."""
+    if command in COMMANDS and not message.startswith(command):
+        message = f"{command}{'.' if own else ': '}{message}"
     return {"type": "error", "seq": seq, "error": message}
 
 
