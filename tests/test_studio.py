@@ -26,6 +26,7 @@ needs_browser = pytest.mark.skipif(
 )
 DOCS = Path(__file__).parents[1] / "docs"
 W, H = 800, 600
+N = 41  # samples of every synthesised stroke (each a mouse move, ~30 ms in headless Chromium)
 TOP = dict(yaw=-math.pi / 2, pitch=1.5, dist=4.0, target=[0.0, 0.0, 0.0])  # z = 0 nearly face-on
 
 
@@ -37,32 +38,35 @@ def _ring(cx, cy, rx, ry, turn, n, start=0.0, sweep=2 * math.pi):
     return np.stack([cx + c * x - s * y, cy + s * x + c * y], 1)
 
 
-def _path(vertices, per_edge=16):
+def _path(vertices, count=N):
+    """`count` samples along the polyline through `vertices`, every vertex one of them (each edge
+    gets samples in proportion to its length); every test stroke has N, one compiled shape."""
     v = np.asarray(vertices, float)
+    length = np.linalg.norm(np.diff(v, axis=0), axis=1)
+    steps = np.maximum(1, np.round(length / length.sum() * (count - 1)).astype(int))
+    steps[np.argmax(steps)] += count - 1 - steps.sum()
     pieces = [
-        v[i] + np.linspace(0, 1, per_edge, endpoint=False)[:, None] * (v[i + 1] - v[i])
-        for i in range(len(v) - 1)
+        v[i] + np.linspace(0, 1, k, endpoint=False)[:, None] * (v[i + 1] - v[i]) for i, k in enumerate(steps)
     ]
     return np.concatenate([*pieces, v[-1:]])
 
 
-def _polygon(vertices, per_edge=16):
-    return _path([*vertices, vertices[0]], per_edge)
+def _polygon(vertices):
+    return _path([*vertices, vertices[0]])
 
 
 STROKES = {
-    "line": _path([(220, 420), (520, 260)], 40),
-    "circle": _ring(400, 300, 110, 110, 0.0, 64, sweep=2 * math.pi + 0.2),
-    "ellipse": _ring(400, 300, 150, 70, 0.3, 72, sweep=2 * math.pi + 0.15),
-    "arc": _ring(400, 330, 120, 120, 0.0, 48, start=0.2, sweep=2.4),
+    "line": _path([(220, 420), (520, 260)]),
+    "circle": _ring(400, 300, 110, 110, 0.0, N - 1, sweep=2 * math.pi + 0.2),
+    "ellipse": _ring(400, 300, 150, 70, 0.3, N - 1, sweep=2 * math.pi + 0.15),
+    "arc": _ring(400, 330, 120, 120, 0.0, N - 1, start=0.2, sweep=2.4),
     "triangle": _polygon([(280, 420), (520, 420), (400, 200)]),
     "square": _polygon([(300, 200), (500, 200), (500, 400), (300, 400)]),
     "rectangle": _polygon([(250, 230), (560, 230), (560, 380), (250, 380)]),
     "diamond": _polygon([(400, 170), (480, 300), (400, 430), (320, 300)]),
     "polyline": _path([(220, 400), (330, 200), (450, 400), (570, 200)]),
-    "spline": np.stack([np.linspace(200, 600, 60), 300 + 80 * np.sin(np.linspace(0, 1.6 * math.pi, 60))], 1),
+    "spline": np.stack([np.linspace(200, 600, N), 300 + 80 * np.sin(np.linspace(0, 1.6 * math.pi, N))], 1),
 }
-VERTICES = {"triangle", "square", "rectangle", "diamond", "polyline"}  # the pen slows at corners
 
 
 def _camera(data):
@@ -128,16 +132,13 @@ def studio_page(browser, tmp_path_factory):
         page.close()
 
 
-def _draw(page, pixels, corners=False):
+def _draw(page, pixels):
     """One synthesised mouse stroke; returns the page's reply and the command it sent."""
     before = page.evaluate("window.bsjaxStudio.replies.length + window.bsjaxStudio.errors.length")
     pts = np.round(pixels).astype(int)
     page.mouse.move(int(pts[0, 0]), int(pts[0, 1]))
     page.mouse.down()
-    turns = _turns(pts) if corners else set()
-    for i, (x, y) in enumerate(pts[1:], 1):
-        if i in turns:
-            page.wait_for_timeout(40)  # a pen slows down at a corner
+    for x, y in pts[1:]:
         page.mouse.move(int(x), int(y))
     page.mouse.up()
     page.wait_for_function(
@@ -145,13 +146,6 @@ def _draw(page, pixels, corners=False):
     )
     reply = page.evaluate("window.bsjaxStudio.replies.concat(window.bsjaxStudio.errors).at(-1)")
     return reply, page.evaluate("window.bsjaxStudio.lastCommand")
-
-
-def _turns(pts):
-    d = np.diff(pts, axis=0).astype(float)
-    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    ang = np.abs(np.arctan2(cross, np.einsum("ij,ij->i", d[:-1], d[1:])))
-    return {i + 1 for i in np.flatnonzero(ang > 0.3)}
 
 
 def _send(page, command):
@@ -164,7 +158,7 @@ def test_every_primitive_drawn_with_the_mouse_is_recognised_as_from_python(studi
     _send(page, {"cmd": "clear"})
     page.uncheck("#timed")  # headless Chromium's event times jitter by a frame: the shape alone
     for kind, pixels in STROKES.items():
-        reply, command = _draw(page, pixels, corners=kind in VERTICES)
+        reply, command = _draw(page, pixels)
         assert reply["type"] == "update", reply
         px = np.round(pixels)
         np.testing.assert_allclose(
@@ -208,8 +202,8 @@ def test_a_composite_drag_and_save_load_from_the_page_equal_python(studio_page):
     page, session, folder = studio_page
     _send(page, {"cmd": "clear"})
     assert page.is_checked("#timed")
-    circle, circle_cmd = _draw(page, _ring(330, 320, 100, 100, 0.0, 64, sweep=2 * math.pi + 0.2))
-    line, line_cmd = _draw(page, _path([(520, 400), (520, 220)], 30))
+    circle, circle_cmd = _draw(page, _ring(330, 320, 100, 100, 0.0, N - 1, sweep=2 * math.pi + 0.2))
+    line, line_cmd = _draw(page, _path([(520, 400), (520, 220)]))
     a, b = (r["result"]["id"] for r in (circle, line))
     assert (circle["result"]["kind"], line["result"]["kind"]) == ("circle", "line")
     _rows(page, a, b)
@@ -422,10 +416,11 @@ def test_oversketch_and_a_drawing_plane(tmp_path):
     reply = _ok(s, {"cmd": "oversketch", "curve": wave, "window": _window(over), "camera": TOP_CAMERA})
     assert reply["result"]["kind"] == "oversketched"
     before = sketch.recognise(np.stack([2 * t - 1, 0.3 * np.sin(2 * np.pi * t)], 1)).curve
-    pts = _item(s, wave).stroke
-    (fitted,) = sketch.fit_stroke(
-        pts[:, :2], None, tol=5e-3 * float(np.linalg.norm(np.ptp(pts[:, :2], axis=0))), split=False
-    )
+    pts = _item(s, wave).stroke[:, :2]  # the over-sketch stroke, fitted on 64 arc-length samples
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    even = np.stack([np.interp(np.linspace(0, arc[-1], 64), arc, pts[:, i]) for i in range(2)], 1)
+    tol = 5e-3 * float(np.linalg.norm(np.ptp(even, axis=0)))
+    (fitted,) = sketch.fit_stroke(even, None, tol=tol, split=False)
     want = sketch.oversketch(before, fitted).curve
     np.testing.assert_allclose(np.asarray(_item(s, wave).flat.ctrl), np.asarray(want.ctrl), atol=1e-9)
     circle = _stroke(s, np.stack([0.3 * np.cos(6 * t), 0.3 * np.sin(6 * t)], 1)[:47])

@@ -117,9 +117,29 @@ def camera(data: dict, dtype) -> sketch.Camera:
 
 
 def unproject(window: np.ndarray, cam: sketch.Camera, plane: DrawingPlane) -> np.ndarray:
-    """Window points `(N, 2)` on the drawing plane `(N, 3)` (eqs. 5-1/5-2)."""
+    """Window points `(N, 2)` on the drawing plane `(N, 3)` (eqs. 5-1/5-2). The points are
+    padded (the last one repeated) to a power of two ≥ 64, so strokes of every length share a
+    few compiled programs (each point's ray is its own: the padding changes no value)."""
     dtype = np.asarray(cam.eye).dtype
-    return np.asarray(sketch.unproject(np.asarray(window, dtype), cam, plane.tool(dtype)))
+    count = len(window)
+    padded = np.concatenate([window, np.repeat(window[-1:], _bucket(count) - count, axis=0)])
+    return np.asarray(sketch.unproject(np.asarray(padded, dtype), cam, plane.tool(dtype)))[:count]
+
+
+def _bucket(count: int) -> int:
+    return max(64, 1 << (count - 1).bit_length())
+
+
+_FIT_SAMPLES = 64  # an over-sketch stroke is fitted on this many arc-length samples (one program)
+
+
+def _even(points: np.ndarray, count: int = _FIT_SAMPLES) -> np.ndarray:
+    """`count` samples evenly spaced in arc length along the polyline `points (N, d)`."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    at = np.linspace(0.0, arc[-1], count)
+    return np.stack([np.interp(at, arc, points[:, i]) for i in range(points.shape[1])], 1).astype(
+        points.dtype
+    )
 
 
 def drawn(item_id: int, points: np.ndarray, times, plane: DrawingPlane) -> Item:
@@ -130,10 +150,11 @@ def drawn(item_id: int, points: np.ndarray, times, plane: DrawingPlane) -> Item:
 
 def oversketched(item: Item, points: np.ndarray, plane: DrawingPlane) -> Item:
     """`item` with the span under a new stroke replaced (`sketch.oversketch`, thesis §4.2), in
-    the plane's coordinates when the curve was drawn on this plane, else in space."""
+    the plane's coordinates when the curve was drawn on this plane, else in space. The stroke is
+    `fit_stroke`'s cubic through `_FIT_SAMPLES` arc-length samples of it."""
     same = item.flat is not None and _same_plane(item.plane, plane)
     base = item.flat if same else item.curve
-    stroke = plane.coords(points).astype(points.dtype) if same else points
+    stroke = _even(plane.coords(points).astype(points.dtype) if same else points)
     (fitted,) = sketch.fit_stroke(stroke, None, tol=5e-3 * _size(stroke), split=False)
     new = sketch.oversketch(base, fitted).curve
     if same:
