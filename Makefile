@@ -41,6 +41,8 @@ SMOKE := tests/test_errors.py tests/test_boundary.py tests/test_bad_input.py \
 	tests/test_batch.py::test_map_accepts_lists_and_works_inside_jit_and_grad \
 	tests/test_merge_refit.py::test_closest_points_plane_and_clamped_edges \
 	tests/test_merge_refit.py::test_closest_points_periodic_crosses_the_seam \
+	tests/test_merge_refit.py::test_projection_bad_input_eager_and_jit \
+	tests/test_optimise.py::test_least_squares_matches_scipy \
 	--deselect tests/test_bad_input.py::test_plot_bad_input_names_the_argument
 
 $(MIN_PY):
