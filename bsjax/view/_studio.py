@@ -1,4 +1,7 @@
-"""`Studio`: the modelling session behind `bsjax studio` — plain JSON commands in, scenes out.
+"""`Studio`: the modelling session behind `bsjax studio` — plain JSON commands in, scenes out
+(the interaction of *Interactive shape modeling and dynamic deformation based on spline
+sculpting*, PhD thesis, University of Trento, 2007: ch. 3 recognition, ch. 4 over-sketching,
+ch. 5 drawing planes and surface construction, ch. 6 sculpting).
 
 The page (`static/studio.html`, drawn by the view's renderer) sends every gesture as a command
 over the view's WebSocket; `Studio.handle(command)` computes it in Python and returns the new
@@ -283,7 +286,7 @@ class Studio:
             raise f.error("name", f"a file in {self.folder}", f"{path.name!r} (no such file)")
         s, next_id = self.state, self.state.next_id
         items, bodies = list(s.items), list(s.bodies)
-        for obj in io.load_all(path):
+        for obj in _flattened(io.load_all(path)):  # a polycurve: a list of its segments
             if isinstance(obj, BSplineSurface):
                 bodies.append(Body(next_id, "loaded", obj))
             elif isinstance(obj, BSplineCurve):
@@ -451,6 +454,11 @@ def _error(seq, message: str, command, own: bool) -> dict:
     if command in COMMANDS and not message.startswith(command):
         message = f"{command}{'.' if own else ': '}{message}"
     return {"type": "error", "seq": seq, "error": message}
+
+
+def _flattened(objects):
+    for obj in objects:
+        yield from _flattened(obj) if isinstance(obj, (list, tuple)) else (obj,)
 
 
 def _flat(points: np.ndarray) -> list:
