@@ -133,6 +133,10 @@ def _errors(d):
         (["haptics", "--proxy-only", "--view", "--port", "70000"], "--port"),
         (["haptics", "--sculpt", "knead"], "--sculpt"),
         (["haptics", "--sculpt", "drag", "--proxy-only"], "--sculpt"),
+        # studio
+        (["studio", "--dir", str(d / "no" / "such")], "--dir"),
+        (["studio", "--port", "70000"], "--port"),
+        (["studio", "--dir", str(d), "--open", "missing.json"], "--open"),
         # sweep
         (["sweep", "collide", "--param", "radius=0:1", "--out", str(d / "o")], "--param"),
         (["sweep", "collide", "--param", "depth=0:1:2", "--out", str(d / "o")], "--param"),
