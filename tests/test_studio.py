@@ -184,6 +184,22 @@ def test_every_primitive_drawn_with_the_mouse_is_recognised_as_from_python(studi
     assert [i["kind"] for i in session.scene()["items"]] == list(STROKES)
     page.check("#timed")
 
+    # over-sketch the spline (the last curve, selected by default): the pipeline of `_studio_geometry`
+    page.click("[data-mode='oversketch']")
+    xs = np.linspace(320, 460, N)
+    over = np.stack([xs, 300 + 80 * np.sin((xs - 200) / 400 * 1.6 * math.pi) - 25], 1)
+    reply, command = _draw(page, over)
+    page.click("[data-mode='draw']")
+    assert reply["type"] == "update" and reply["result"]["kind"] == "oversketched", reply
+    pts = _on_plane(command)[:, :2]
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    even = np.stack([np.interp(np.linspace(0, arc[-1], 64), arc, pts[:, i]) for i in range(2)], 1)
+    tol = 5e-3 * float(np.linalg.norm(np.ptp(even, axis=0)))
+    (fitted,) = sketch.fit_stroke(even, None, tol=tol, split=False)
+    want = sketch.oversketch(rec.curve, fitted).curve  # rec: the spline, recognised last
+    got = _ctrl(reply["scene"]["items"][-1]["spline"])
+    np.testing.assert_allclose(got[:, :2], np.asarray(want.ctrl), rtol=0, atol=1e-12)
+
 
 def _rows(page, *ids):
     for i in ids:

@@ -133,9 +133,10 @@
     studio.stroke = null;
     if (!s || s.px.length < 3) return view.schedule();
     const command = { window: s.px.map(toWindow), camera: studio.camera() };
-    if (studio.mode === "oversketch") {
+    if (studio.mode === "oversketch") {  // the last selected curve, else the last drawn
       const curve = studio.selection.filter(isItem).at(-1) ?? studio.scene.items.at(-1)?.id;
       studio.send({ cmd: "oversketch", curve, ...command });
+      studio.lastCommand = command;
     } else studio.send({ cmd: "stroke", times: timed.checked ? s.times : null, ...command });
     studio.lastCommand = { ...command, times: timed.checked ? s.times : null };
   });
