@@ -470,8 +470,11 @@ def test_oversketch_and_a_drawing_plane(tmp_path):
 def test_drag_is_the_minimum_norm_edit_and_one_undo_step_per_gesture(drawn):
     s, ids = drawn
     sid = _ok(s, {"cmd": "build", "op": "ruled", "curves": [ids["section"], ids["section2"]]})["result"]["id"]
-    before = _body(s, sid).surface
+    before, state = _body(s, sid).surface, s.state
     depth = len(s.undo_stack)
+    bad = s.handle({"cmd": "drag", "surface": sid, "u": 0.5, "v": 0.5, "gesture": 7})  # no target
+    assert bad["error"].startswith("drag.window: missing") and s.state is state
+    assert len(s.undo_stack) == depth
     for k in range(1, 4):
         target = [0.1, 0.0, 0.1 * k]
         _ok(s, {"cmd": "drag", "surface": sid, "u": 0.5, "v": 0.5, "target": target, "gesture": 7})

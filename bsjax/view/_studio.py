@@ -170,7 +170,7 @@ class Studio:
         points, times = self._unprojected(f)
         item = geo.drawn(self.state.next_id, points, times, self.state.plane)
         self._add_item(item)
-        return {"id": item.id, "kind": item.kind, "score": item.recognised.score}  # pyright: ignore
+        return {"id": item.id, "kind": item.kind, "score": getattr(item.recognised, "score", None)}
 
     def _oversketch(self, f: _Fields):
         item = self._item(f, "curve")
@@ -214,21 +214,23 @@ class Studio:
         body = self._body(f, "surface")
         u, v = f.unit("u"), f.unit("v")
         key = (body.id, u, v, f.message.get("gesture"))
-        if self._gesture is None or self._gesture.key != key or key[-1] is None:
+        g = self._gesture
+        fresh = g is None or g.key != key or key[-1] is None
+        if fresh:  # the solve of this gesture, once (thesis §6.1); each event is one product
             at = np.asarray([u], self.dtype), np.asarray([v], self.dtype)
             point = np.asarray(body.surface.evaluate(*at)).reshape(3)
-            factor = sculpt.prefactor(body.surface, [sculpt.Position(u, point, v)])
-            self._gesture = _Gesture(key, factor, point)
-            self._commit(self.state)  # the gesture is one undo step: the shape before it
-        g = self._gesture
+            g = _Gesture(key, sculpt.prefactor(body.surface, [sculpt.Position(u, point, v)]), point)
+        assert g is not None
         if "target" in f.message:
             target = f.vector("target")
         else:
-            window = f.points("window", 1)
-            cam = self._camera(f)
+            window, cam = f.points("window", 1), self._camera(f)
             facing = DrawingPlane.through(g.point, np.asarray(cam.frame()[0]))
             target = geo.unproject(window, cam, facing)[0]
         surface = g.factor.drag([np.asarray(target, self.dtype)])
+        if fresh:
+            self._commit(self.state)  # the gesture is one undo step: the shape before it
+            self._gesture = g
         s = self.state
         moved = dataclasses.replace(body, surface=surface)
         self.state = s._replace(bodies=tuple(moved if b.id == body.id else b for b in s.bodies))
