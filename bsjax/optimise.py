@@ -263,12 +263,12 @@ def _solve(solver, fn, z0, max_steps: int, throw: bool, progress, f_struct, dtyp
     failed = (result != optx.RESULTS.successful) | ~jnp.isfinite(value)
     status = jnp.where(failed, 2, jnp.where(done, 0, 1)).astype(jnp.int32)
     if throw:
-        z = eqx.error_if(
+        z = _checks.report(
             z,
             status == 1,
             f"max_steps: expected convergence within {max_steps} steps, got none (throw=False returns it)",
         )
-        z = eqx.error_if(z, status == 2, "objective: expected finite values, got a failed solve (NaN/inf)")
+        z = _checks.report(z, status == 2, "objective: expected finite values, got a failed solve (NaN/inf)")
     steps = (state.num_accepted_steps - 1).astype(jnp.int32)
     return z, value, status, steps, evaluations.astype(jnp.int32), history
 

@@ -133,11 +133,12 @@ def fit(
         raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
     key = jax.random.PRNGKey(0) if key is None else key
     scale = _power_of_two_scale(pts)  # the training is scale-free: 1e-300 or 1e300 samples work
-    if isinstance(pts, jax.core.Tracer):  # inside the caller's jit: the search as a host callback
+    unit = pts / scale
+    if isinstance(unit, jax.core.Tracer):  # inside the caller's jit: the search as a host callback
         near = None
-    else:  # concrete, repeats dropped: the search now, its indices an input of the program
-        near = tuple(jnp.asarray(a) for a in _kd_neighbours(np.asarray(pts), min(_NEAR, pts.shape[0]), True))
-    return _fit(pts / scale, key, shape, cycles, settings, progress, near) * scale
+    else:  # concrete, repeats dropped: the search now (at unit scale), its indices an input
+        near = tuple(jnp.asarray(a) for a in _kd_neighbours(np.asarray(unit), min(_NEAR, pts.shape[0]), True))
+    return _fit(unit, key, shape, cycles, settings, progress, near) * scale
 
 
 def _power_of_two_scale(points):
