@@ -1,5 +1,5 @@
 """Volumetric self-organising feature map (VSOFM): a hexahedral lattice fitted inside a closed
-surface from surface samples (thesis §5.3.2, Igwe & Knopf; SPEC §6).
+surface from surface samples (thesis §5.3.2, Igwe & Knopf).
 
 An `a × b × c` lattice of weight nodes, initially the samples' bounding box, is trained
 Kohonen-style: each sample finds its best-matching boundary node, and every boundary node moves
@@ -12,7 +12,7 @@ quadric fits of the samples.
 `report` counts inverted hexahedra and measures boundary distance and element quality;
 `lattice` turns the result into an `mss.Lattice`.
 
-No inverted hexahedra (SPEC §6). A box lattice fitted into a smooth closed surface has cells on
+No inverted hexahedra. A box lattice fitted into a smooth closed surface has cells on
 the box's edges (two faces on the surface) and corners (three faces): at their box-edge corner
 nodes all three edges are chords of the surface, so the corner Jacobian is second order, of the
 sign of the surface's normal curvature across the box edge, and scaled about `κ h` (κ curvature,

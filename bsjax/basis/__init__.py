@@ -1,5 +1,5 @@
 """Knots, spline directions, basis functions, blending matrices, curves, surfaces and their
-refits (thesis ch. 3, SPEC §2).
+refits (thesis ch. 3).
 
 A blending matrix holds every basis function (or its derivative) of one direction at a list of
 parameters, `A[a, i] = B_{i,k}(u_a)` (thesis eq. 3.6); a surface sampled on a grid is then

@@ -1,4 +1,4 @@
-"""B-spline basis functions and blending matrices (thesis ch. 3, SPEC §2).
+"""B-spline basis functions and blending matrices (thesis ch. 3).
 
 A blending matrix holds every basis function (or its derivative) of one direction at a list of
 parameters: `A[a, i] = B_{i,k}(u_a)` (thesis eq. 3.6). A tensor-product surface sampled on a

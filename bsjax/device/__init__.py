@@ -1,4 +1,4 @@
-"""Haptic device bridge: devices, the serial frame, and the safe two-rate force loop (SPEC §8).
+"""Haptic device bridge: devices, the serial frame, and the safe two-rate force loop.
 
 ```python
 import time

@@ -1,4 +1,4 @@
-"""The spoon case study of the thesis (§7.3, SPEC §9), as composable steps.
+"""The spoon case study of the thesis (§7.3), as composable steps.
 
 1. `bend_handle`: a surface mass-spring lattice on the handle's blending grid (plasticine,
    plastic yield), one end clamped by a plane, the neck pushed up by a `collide.Sphere`; each

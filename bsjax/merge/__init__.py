@@ -1,4 +1,4 @@
-"""Merging B-spline patches into one surface (thesis ch. 4, §6.3, App. A; SPEC §4).
+"""Merging B-spline patches into one surface (thesis ch. 4, §6.3, App. A).
 
 Any number of dissimilar patches become one B-spline surface with the continuity asked for at
 each seam, without matching the edges first. Each patch is discretised with its blending

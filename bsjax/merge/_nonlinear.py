@@ -1,4 +1,4 @@
-"""Nonlinear refit with parameter correction — beyond the thesis (SPEC §4).
+"""Nonlinear refit with parameter correction — beyond the thesis.
 
 The linear merge (eq. 3.7) gives every sample x_a a fixed parameter: patch i's grid scaled into
 its segment of the merged domain. With unequal edge lengths or dissimilar curvature those

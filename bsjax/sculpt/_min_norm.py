@@ -5,7 +5,7 @@ based on spline sculpting*, §6.1–6.2, eqs. 6-6…6-18).
 With the constraint rows `F (K, N)` on the N control points and the right-hand sides
 `b (K, d)`, the edit is the displacement of least (weighted) norm that meets `F d = b`:
 
-    d = W⁻¹ Fᵀ (F W⁻¹ Fᵀ)⁻¹ b          (eqs. 6-8/6-9, with the diagonal metric W of SPEC §7)
+    d = W⁻¹ Fᵀ (F W⁻¹ Fᵀ)⁻¹ b          (eqs. 6-8/6-9, with the diagonal metric W)
 
 restricted to the free control points (blocked ones have d = 0). It is computed as
 `d = W^{-1/2} (F W^{-1/2})⁺ b` with the SVD pseudo-inverse (blocked columns zeroed), which is the
