@@ -244,7 +244,7 @@ class Ellipsoid(AbstractTool):
 
     **Fields:** `center (3,)`, `radii (3,)` > 0 (semi-axes), `rotation (3, 3)` orthonormal, its
     columns the axes in world coordinates (identity by default). Depth: exact, along the sample
-    normal (the quadratic of paper 002 §3.2.2 solved in the ellipsoid's unit-sphere frame).
+    normal (the quadratic of Gao & Gibson §3.2.2 solved in the ellipsoid's unit-sphere frame).
     """
 
     center: Float[Array, "3"]

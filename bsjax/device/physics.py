@@ -1,6 +1,6 @@
 """The slow loop's model: a deformable B-spline surface over a volumetric mass-spring lattice.
 
-Dual representation (paper 002 §4.1, Dachille & Qin): the lattice's outer layer is an `m × n`
+Dual representation (Gao & Gibson §4.1, Dachille & Qin): the lattice's outer layer is an `m × n`
 grid of samples of the surface at fixed parameters, so after each physics tick the control net
 is the least-squares refit of those nodes, `P = A_u^+ M (A_v^+)^T` (thesis eq. 3.7,
 `Blending.refit`). Below the surface the lattice has `layers − 1` more layers shrunk towards

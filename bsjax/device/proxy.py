@@ -5,7 +5,7 @@ The physics thread builds a new immutable `Proxy` at its own rate and swaps it i
 (one reference assignment); between updates the servo renders the local model at the current
 tool position — the "intermediate representation" of two-rate haptics (Adachi 1995, Mark 1996).
 
-Force (paper 002 §3.2.2, a penalty spring with damping): depth `s` of the tool into the proxy,
+Force (Gao & Gibson §3.2.2, a penalty spring with damping): depth `s` of the tool into the proxy,
 `F = max(0, k s + d ṡ) n` along the proxy normal `n`, zero when out of contact. The damper
 opposes the penetration rate `ṡ` (the paper's `F = k s − d ṡ` measures ṡ on the surface point,
 which moves the other way); the clip at 0 keeps the wall from pulling the tool in. A magnitude

@@ -1,6 +1,6 @@
 """`ServoLoop`: the two-rate haptic loop — a ≥ 1 kHz servo thread and a slower physics thread.
 
-Servo thread (every `1/rate_hz` s, paper 002 §4.2: haptics needs 1 kHz):
+Servo thread (every `1/rate_hz` s, Gao & Gibson §4.2: haptics needs 1 kHz):
 read the device → estimate velocity → render the current `Proxy` (pure Python, never a jitted
 call) → clamp `|F| ≤ max_force` → rate-limit `|ΔF| ≤ max_force_rate / rate_hz` per tick →
 multiply by the watchdog gain → write. The watchdog gain ramps linearly to 0 within `ramp_time`
@@ -8,7 +8,7 @@ when the proxy arrived more than `proxy_timeout` ago or the newest device sample
 `device_timeout` ago, and back to 1 when both are fresh again (it also ramps up at start). Zero
 force is written when the loop stops, when either thread raises, and at interpreter exit.
 
-Safety chain (paper 002 §4.2's servo contract; issue #16):
+Safety chain (Gao & Gibson §4.2's servo contract; issue #16):
 
 * **The watchdog uses only the servo's own monotonic clock** (`perf_counter_ns`). The servo stamps
   the *arrival* of each new proxy (a new version swapped in by the physics thread) and of each new

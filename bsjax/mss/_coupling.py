@@ -156,7 +156,7 @@ def surface_lattice(
     """A surface lattice on the sample grid of `blending` for the control net `ctrl`.
 
     Structural springs join grid neighbours, shear springs the diagonals, bending springs
-    samples two apart (thesis §5.3, paper 002 §4.1); periodic directions wrap. Samples closer
+    samples two apart (thesis §5.3, Gao & Gibson §4.1); periodic directions wrap. Samples closer
     than `tol` (default `1e-9 ×` the grid's size) merge into one node. Parameters from a
     `material` treat the surface as a shell of `thickness` m; else give `stiffness`, `damping`,
     `mass` (scalars or per spring/node). `fixed`: `(m, n)` mask of samples held in place.

@@ -2,7 +2,7 @@
 
 One asyncio thread serves the static page (`bsjax/view/static/`: HTML and a hand-written canvas
 renderer, no network needed) through the WebSocket server's HTTP hook, and pushes frames to every
-connected page at `rate_hz` (50 Hz by default, paper 002's visual loop beside the 1 kHz haptic
+connected page at `rate_hz` (50 Hz by default, Gao & Gibson's visual loop beside the 1 kHz haptic
 loop). A frame is built once per tick by the `source` callable and sent to each page; a page
 that is slow keeps its one pending frame and skips the ones it missed (the newest wins). The
 source reads only what the servo and the physics already published (`ServoLoop.snapshot()`,
