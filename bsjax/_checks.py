@@ -130,6 +130,8 @@ def report(x, failed, text: str):
     if collector is not None and collector.here():
         collector.codes.append(jnp.where(failed, _message_id(text), 0).astype(jnp.int32))
         return x
+    if collector is not None and collector.codes:  # in a body of the program: an earlier failed
+        failed = failed & (collector.code() == 0)  # check of the program is the one reported
     return eqx.error_if(x, failed, text)
 
 

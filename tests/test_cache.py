@@ -94,6 +94,21 @@ def _outer(x, flag: bool):
     return jax.lax.cond(x[0] > 100.0, lambda: _checked_sqrt(-x), lambda: y) if flag else y
 
 
+@compiled
+def _two_checks(x):
+    """A check of the program itself, then one inside a `cond` branch (an `eqx.error_if`)."""
+    x = _checks.finite(x, "first")
+    return jax.lax.cond(x[0] > 0, lambda: _checks.positive(x, "second"), lambda: x)
+
+
+def test_the_first_failed_check_in_program_order_is_the_one_reported():
+    with pytest.raises(ValueError, match=r"^first: expected finite values"):
+        _two_checks(jnp.array([1.0, np.nan]))  # both fail: the branch's error_if yields to "first"
+    with pytest.raises(ValueError, match=r"^second: expected finite values > 0"):
+        _two_checks(jnp.array([1.0, -1.0]))  # only the branch's check fails
+    np.testing.assert_allclose(_two_checks(jnp.array([-1.0, 2.0])), [-1.0, 2.0])
+
+
 def test_a_failed_check_raises_its_message_in_every_form():
     good = jnp.array([1.0, 4.0])
     np.testing.assert_allclose(_checked_sqrt(good), [1.0, 2.0])
