@@ -219,7 +219,7 @@ class _Compiled:
         mask = tuple(is_traced(leaf) for leaf in leaves)
         static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
         dynamic = [leaf for m, leaf in zip(mask, leaves) if m]
-        traced = not _checks.is_concrete(dynamic)  # inside the caller's jit/vmap/grad
+        traced = _checks.tracing() or not _checks.is_concrete(dynamic)  # in the caller's jit/vmap/grad
         functional = not traced and _FUNCTIONAL
         try:
             jitted = self._jitted(treedef, mask, static, functional)

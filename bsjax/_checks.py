@@ -31,6 +31,12 @@ except ImportError:  # pragma: no cover
     _trace_ctx = None
 
 
+def tracing() -> bool:
+    """Whether a transformation (`jit`, `vmap`, `grad`, …) is being traced now: then even a call
+    on concrete arrays gives traced results."""
+    return _trace_ctx is not None and not _trace_ctx.is_top_level()
+
+
 def is_concrete(x: Any) -> bool:
     """True when no leaf of `x` is a tracer (its values are known now)."""
     return not any(isinstance(leaf, _Tracer) for leaf in jax.tree_util.tree_leaves(x))
