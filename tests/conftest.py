@@ -17,13 +17,28 @@ if _CACHE.strip().lower() not in ("off", "0", "false", "no", "none", ""):
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 import bsjax  # noqa: E402
+from tests.helpers import CHROMIUM  # noqa: E402
 
 bsjax.enable_compilation_cache()  # this process too (JAX may have been imported before the env)
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """A real headless Chromium (Playwright) for the page tests; skipped without a system one."""
+    if CHROMIUM is None:
+        pytest.skip("no system Chromium")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM)
+        yield b
+        b.close()
 
 
 # --- where the suite's time goes (BSJAX_TEST_PROFILE=FILE: one JSON line per test) ----------------

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import shutil
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from bsjax.basis import BSplineSurface, clamped_knots
 
@@ -58,3 +61,10 @@ def raises_both(fn, *arrays, match: str, errors=(ValueError, TypeError)):
     with pytest.raises((*errors, jax.errors.JaxRuntimeError), match=match):
         out = jax.jit(fn)(*arrays)
         jax.block_until_ready(out)
+
+
+# --- a real headless Chromium for the page tests (the `browser` fixture is in conftest.py) ---------
+CHROMIUM = shutil.which("chromium-headless-shell") or shutil.which("chromium")
+needs_browser = pytest.mark.skipif(
+    CHROMIUM is None, reason="no system Chromium (apt-get install chromium-headless-shell)"
+)

@@ -25,18 +25,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.interpolate import BSpline
 
-KINDS = (
-    "line",
-    "circle",
-    "ellipse",
-    "arc",
-    "triangle",
-    "square",
-    "rectangle",
-    "diamond",
-    "polyline",
-    "spline",
-)
+from bsjax import sketch
+
+KINDS = sketch.KINDS  # the classes the generator draws: every class recognise knows
 CLOSED = ("circle", "ellipse", "triangle", "square", "rectangle", "diamond")
 
 

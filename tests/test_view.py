@@ -8,7 +8,6 @@ installed (`make test` installs it).
 import io
 import json
 import math
-import shutil
 import time
 import urllib.error
 import urllib.request
@@ -20,12 +19,8 @@ from bsjax.cli import view as view_cli
 from bsjax.device import Proxy, Recording, ServoLoop, SimulatedDevice, Workspace
 from bsjax.view import SurfaceMesh, ViewServer, from_file, live
 from bsjax.view._server import dumps
-from tests.helpers import random_surface
+from tests.helpers import needs_browser, random_surface
 
-CHROMIUM = shutil.which("chromium-headless-shell") or shutil.which("chromium")
-needs_browser = pytest.mark.skipif(
-    CHROMIUM is None, reason="no system Chromium (apt-get install chromium-headless-shell)"
-)
 WALL = dict(point=(0.5, 0.5, 0.1), normal=(0.0, 0.0, 1.0), stiffness=30.0, damping=0.3, tool_radius=0.1)
 
 
@@ -49,18 +44,6 @@ class Breathing:
 def circling(t):
     """The stylus circling over the surface, dipping into the wall (model units)."""
     return (0.5 + 0.3 * math.cos(2 * t), 0.5 + 0.3 * math.sin(2 * t), 0.15 + 0.1 * math.sin(5 * t)), 0
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if CHROMIUM is None:
-        pytest.skip("no system Chromium")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM)
-        yield b
-        b.close()
 
 
 def pixels(png: bytes) -> np.ndarray:

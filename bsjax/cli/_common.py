@@ -20,7 +20,9 @@ import logging
 import math
 import os
 import re
+import signal
 import sys
+import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
@@ -312,3 +314,18 @@ def dumps(report, indent: int | None = 2) -> str:
 def write_json(report, path: str) -> None:
     """Write `report` as valid JSON to `path` (see `dumps`)."""
     Path(path).write_text(dumps(report) + "\n")
+
+
+def serve(server, name: str, duration: float | None) -> int:
+    """Start `server` (a `ViewServer`, as a context manager) and serve until `duration` seconds pass (None: until
+    Ctrl-C), printing its address first; the exit code (130 after Ctrl-C)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    with server:
+        print(f"bsjax {name}: {server.url} (Ctrl-C to stop)", flush=True)
+        deadline = time.monotonic() + (duration if duration is not None else float("inf"))
+        try:
+            while time.monotonic() < deadline:
+                time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
+        except KeyboardInterrupt:
+            return 130
+    return 0

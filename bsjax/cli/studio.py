@@ -16,9 +16,7 @@ page only draws what comes back. The page works offline (its renderer ships with
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import time
 from pathlib import Path
 
 from bsjax._optional import require
@@ -48,16 +46,8 @@ def _body(args) -> int:
         reply = studio.handle({"cmd": "load", "name": args.open})
         if reply["type"] == "error":
             raise c.UserError("--open", reply["error"])
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    with ViewServer(studio.scene, None, port=args.port, handle=studio.handle, page="studio.html") as server:
-        print(f"bsjax studio: {server.url} (Ctrl-C to stop)", flush=True)
-        deadline = time.monotonic() + (args.duration if args.duration is not None else float("inf"))
-        try:
-            while time.monotonic() < deadline:
-                time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
-        except KeyboardInterrupt:
-            return 130
-    return 0
+    server = ViewServer(studio.scene, None, port=args.port, handle=studio.handle, page="studio.html")
+    return c.serve(server, "studio", args.duration)
 
 
 def main(argv: list[str] | None = None) -> int:

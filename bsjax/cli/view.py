@@ -12,9 +12,7 @@ page works offline (its renderer ships with bsjax).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import time
 
 from bsjax._optional import require
 from bsjax.cli import _common as c
@@ -38,16 +36,7 @@ def _body(args) -> int:
     if args.port > 65535:
         raise c.UserError("--port", f"expected a port in [0, 65535], got {args.port}")
     scene, frame = from_file(args.file, tool_radius=args.tool_radius)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    with ViewServer(scene, frame, port=args.port) as server:
-        print(f"bsjax view: {server.url} (Ctrl-C to stop)", flush=True)
-        deadline = time.monotonic() + (args.duration if args.duration is not None else float("inf"))
-        try:
-            while time.monotonic() < deadline:
-                time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
-        except KeyboardInterrupt:
-            return 130
-    return 0
+    return c.serve(ViewServer(scene, frame, port=args.port), "view", args.duration)
 
 
 def main(argv: list[str] | None = None) -> int:
