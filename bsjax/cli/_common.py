@@ -317,8 +317,8 @@ def write_json(report, path: str) -> None:
 
 
 def serve(server, name: str, duration: float | None) -> int:
-    """Start `server` (a `ViewServer`, as a context manager) and serve until `duration` seconds pass (None: until
-    Ctrl-C), printing its address first; the exit code (130 after Ctrl-C)."""
+    """Start `server` (a `ViewServer`, as a context manager) and serve until `duration` seconds
+    pass (None: until Ctrl-C), printing its address first; the exit code (130 after Ctrl-C)."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     with server:
         print(f"bsjax {name}: {server.url} (Ctrl-C to stop)", flush=True)
