@@ -17,6 +17,11 @@ What is stored: every program bsjax's compiled boundary builds (its value checks
 program's result, not host callbacks, so JAX can store it), however short its compilation; JAX
 keys each entry by the program, the compiler options and the JAX/XLA version, so a stale entry is
 never loaded.
+
+Several processes may share the directory (two notebook kernels, the workers of a test run): the
+cache's size is bounded (`MAX_BYTES`, least recently used entries evicted first), which also makes
+JAX guard every read and write with a file lock (`filelock`), so no process reads an entry another
+is still writing.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import sys
 from pathlib import Path
 
 _DISABLED = ("off", "0", "false", "no", "none", "")
+MAX_BYTES = 4 << 30  # the cache's bound on disk (4 GiB); bsjax's programs are ~10 kB-10 MB each
 
 
 def default_cache_dir() -> Path:
@@ -68,4 +74,5 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
         jax.config.update("jax_compilation_cache_dir", str(where))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)  # eviction on: file-locked I/O
     return where

@@ -1,20 +1,22 @@
 """Tests run in float64 (geometry needs the precision) with strict dtype and rank promotion.
 
-The persistent compilation cache is off for the suite (`BSJAX_CACHE_DIR=off`, inherited by the
-CLI, demo and notebook-kernel subprocesses): in one full run with a cache shared by both xdist
-workers, jaxlib 0.10.2's CPU executable serialisation segfaulted twice (once writing an entry,
-once reading one), and a damaged entry on disk could make such a crash repeat on the rerun.
-`BSJAX_CACHE_DIR=.cache/jax-tests make test` shares one among all the run's processes;
-`tests/test_cache.py` checks the cache itself, in processes run one after the other.
+One persistent compilation cache per test run: the first process of the run (the xdist
+controller, or a plain pytest) makes a new empty directory and names it in `BSJAX_CACHE_DIR`,
+which the workers and every CLI, demo and notebook-kernel subprocess inherit, so a program one
+of them compiled is loaded by the others (the annotation re-run of `test_typing`, the demo, the
+notebooks) instead of compiled again; it is removed at the end of the run. Nothing is carried
+from one run to the next. `BSJAX_CACHE_DIR=DIR make test` uses (and keeps) DIR instead;
+`BSJAX_CACHE_DIR=off` runs without one. `tests/test_cache.py` checks the cache itself.
 """
 
 import os
+import shutil
+import tempfile
 
-_CACHE = os.environ.setdefault("BSJAX_CACHE_DIR", "off")
-if _CACHE.strip().lower() not in ("off", "0", "false", "no", "none", ""):
-    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _CACHE)  # notebook kernels: JAX reads it at import
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+_RUN_CACHE = None
+if "BSJAX_CACHE_DIR" not in os.environ and "PYTEST_XDIST_WORKER" not in os.environ:
+    _RUN_CACHE = tempfile.mkdtemp(prefix="bsjax-test-cache-")
+    os.environ["BSJAX_CACHE_DIR"] = _RUN_CACHE
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -22,7 +24,7 @@ import pytest  # noqa: E402
 import bsjax  # noqa: E402
 from tests.helpers import CHROMIUM  # noqa: E402
 
-bsjax.enable_compilation_cache()  # this process too (JAX may have been imported before the env)
+bsjax.enable_compilation_cache()  # this process (and each worker)
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
@@ -70,3 +72,9 @@ if os.environ.get("BSJAX_TEST_PROFILE"):
         row = {"test": item.nodeid, "wall_s": time.perf_counter() - t0, **_spent}
         with open(os.environ["BSJAX_TEST_PROFILE"], "a") as f:
             f.write(json.dumps(row) + "\n")
+
+
+def pytest_unconfigure(config):
+    """The run's own cache goes with the run (the process that made it removes it)."""
+    if _RUN_CACHE is not None:
+        shutil.rmtree(_RUN_CACHE, ignore_errors=True)
