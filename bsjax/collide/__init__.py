@@ -2,7 +2,9 @@
 
 - Tools: `Point`, `Sphere`, `Ellipsoid`, `Plane`, `Implicit`, `TriangleMesh`.
 - Queries: `contacts(blending, ctrl, tool)` → `Contact`;
-  `surface_contacts(blending_a, ctrl_a, blending_b, ctrl_b)` → `SurfaceContact`.
+  `surface_contacts(blending_a, ctrl_a, blending_b, ctrl_b)` → `SurfaceContact`;
+  `surface_penetration(blending_a, ctrl_a, blending_b, ctrl_b, reach=…)` → a `Penetration` per
+  side (per-sample closest-point depth and contact normal).
 - Kernels: `triangles_intersect`, `closest_point_on_triangle`, `hulls_apart`, `tessellate`.
 - Forces: `contact_force`, `sample_forces`, `nodal_forces`.
 """
@@ -11,6 +13,7 @@ from bsjax.collide.broad import hulls_apart, parametric_window
 from bsjax.collide.contact import Contact, SurfaceContact, contacts, sample_window, surface_contacts
 from bsjax.collide.force import contact_force, nodal_forces, sample_forces
 from bsjax.collide.hierarchy import cell_triangles, sphere_hierarchy, tessellate
+from bsjax.collide.penetration import Penetration, surface_penetration
 from bsjax.collide.tools import (
     AbstractTool,
     Ellipsoid,
@@ -28,6 +31,7 @@ __all__ = [
     "Contact",
     "Ellipsoid",
     "Implicit",
+    "Penetration",
     "Plane",
     "Point",
     "ProjectionSolver",
@@ -45,6 +49,7 @@ __all__ = [
     "sample_window",
     "sphere_hierarchy",
     "surface_contacts",
+    "surface_penetration",
     "tessellate",
     "triangles_intersect",
 ]
