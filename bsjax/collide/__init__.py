@@ -6,12 +6,13 @@
   `surface_penetration(blending_a, ctrl_a, blending_b, ctrl_b, reach=…)` → a `Penetration` per
   side (per-sample closest-point depth and contact normal).
 - Kernels: `triangles_intersect`, `closest_point_on_triangle`, `hulls_apart`, `tessellate`.
-- Forces: `contact_force`, `sample_forces`, `nodal_forces`.
+- Forces: the contact model `DistributedSprings` (Gao & Gibson eq. 3.3: per-sample springs, equal
+  and opposite pairs); `contact_force`, `sample_forces`, `nodal_forces`.
 """
 
 from bsjax.collide.broad import hulls_apart, parametric_window
 from bsjax.collide.contact import Contact, SurfaceContact, contacts, sample_window, surface_contacts
-from bsjax.collide.force import contact_force, nodal_forces, sample_forces
+from bsjax.collide.force import DistributedSprings, contact_force, nodal_forces, sample_forces
 from bsjax.collide.hierarchy import cell_triangles, sphere_hierarchy, tessellate
 from bsjax.collide.penetration import Penetration, surface_penetration
 from bsjax.collide.tools import (
@@ -29,6 +30,7 @@ from bsjax.collide.triangles import closest_point_on_triangle, triangles_interse
 __all__ = [
     "AbstractTool",
     "Contact",
+    "DistributedSprings",
     "Ellipsoid",
     "Implicit",
     "Penetration",

@@ -16,6 +16,7 @@ damping ≥ 0, finite velocity); a force that overflows the dtype raises instead
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -24,6 +25,7 @@ from jaxtyping import Array, Float
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
 from bsjax.collide.contact import Contact
+from bsjax.collide.penetration import Penetration
 
 METHODS = ("surface_normal", "probe_normal")
 
@@ -182,3 +184,89 @@ def nodal_forces(
         w = (inv / jnp.sum(inv, 1, keepdims=True)).astype(f.dtype)
     contrib = (w[..., None] * f[:, None, :]).reshape(-1, 3)
     return jax.ops.segment_sum(contrib, idx.reshape(-1), num_segments=nodes.shape[0])
+
+
+class DistributedSprings(eqx.Module):
+    """The distributed-spring contact model (Gao & Gibson, *Haptic sculpting of multi-resolution
+    B-spline surfaces with shaped tools*, eq. 3.3 and §3.2.3), as one strategy object.
+
+    Every sample in contact is a spring of stiffness `stiffness` k (N/m per sample) compressed by
+    its depth `d_i`, with a damper `damping` c (N·s/m per sample) on the rate `ṡ_i` at which it
+    closes; its force pushes along the contact normal `n_i` with magnitude
+    `max(k d_i + c ṡ_i, 0)` (a contact pushes, never pulls: the damper does not hold a
+    separating sample back). Each force acts in an equal and opposite pair: the reaction goes to
+    the other body at the sample's foot point (split over the foot triangle's vertices by its
+    barycentric weights, which sum to 1), so the contact forces of a scene sum to zero.
+
+    **Fields:** `stiffness ()`, `damping ()`: ≥ 0 and finite (checked, under `jit` too).
+    """
+
+    stiffness: Float[Array, ""]
+    damping: Float[Array, ""]
+
+    def __init__(self, stiffness: float | Array, damping: float | Array = 0.0):
+        dtype = jnp.result_type(float)
+        self.stiffness = _coefficient(stiffness, "stiffness", dtype)
+        self.damping = _coefficient(damping, "damping", dtype)
+
+    def magnitudes(self, depth, closing, mask) -> Float[Array, "..."]:
+        """`max(k d_i + c ṡ_i, 0)` where `mask`, else 0 (shapes broadcast; `closing` is `ṡ_i`)."""
+        k, c = self.stiffness.astype(depth.dtype), self.damping.astype(depth.dtype)
+        return jnp.where(mask, jnp.maximum(k * depth + c * closing, 0), 0)
+
+    @compiled
+    def surface_forces(
+        self,
+        penetration_ab,
+        penetration_ba,
+        velocity_a: Float[Array, "ma na 3"] | None = None,
+        velocity_b: Float[Array, "mb nb 3"] | None = None,
+    ) -> tuple[Float[Array, "ma na 3"], Float[Array, "mb nb 3"]]:
+        """Contact forces on the samples of two surfaces from `surface_penetration`'s pair.
+
+        **Arguments:** `penetration_ab` (A's samples in B) and `penetration_ba` (B's samples in
+        A), the two `collide.Penetration`s of `surface_penetration(blending_a, ctrl_a,
+        blending_b, ctrl_b, reach=…)`; `velocity_a (m_a, n_a, 3)`, `velocity_b (m_b, n_b, 3)`:
+        the samples' velocities for the damper (default: at rest).
+
+        **Returns:** `(forces_a (m_a, n_a, 3), forces_b (m_b, n_b, 3))` in N. A's sample i in B
+        gets `f_i = max(k d_i + c ṡ_i, 0) n_i`, `ṡ_i = −(v_i − v_B(c_i))·n_i` with `v_B(c_i)` the
+        barycentric blend of B's velocities at the foot triangle; B's samples there get
+        `−bary_ik f_i`; the same with A and B exchanged. The springs of both surfaces act in
+        parallel (neither surface is the tool), so `forces_a.sum((0, 1)) + forces_b.sum((0, 1))
+        = 0` to rounding.
+        """
+        for name, p in (("penetration_ab", penetration_ab), ("penetration_ba", penetration_ba)):
+            if not isinstance(p, Penetration):
+                raise TypeError(f"{name}: expected a bsjax.collide.Penetration, got {type(p).__name__}")
+        shape_a, shape_b = penetration_ab.depth.shape, penetration_ba.depth.shape
+        dtype = penetration_ab.depth.dtype
+        va = _velocities(velocity_a, shape_a, "velocity_a", dtype)
+        vb = _velocities(velocity_b, shape_b, "velocity_b", dtype)
+        on_a, back_b = self._one_side(penetration_ab, va, vb)
+        on_b, back_a = self._one_side(penetration_ba, vb, va)
+        forces_a = (on_a + back_a.reshape(shape_a + (3,))).astype(dtype)
+        forces_b = (on_b + back_b.reshape(shape_b + (3,))).astype(dtype)
+        return _representable(forces_a), _representable(forces_b)
+
+    def _one_side(self, pen, v_x, v_y):
+        """Forces on X's samples `(m, n, 3)` and their reactions on Y's flat samples `(M, 3)`."""
+        m, n = pen.depth.shape
+        faces = pen.faces.reshape(-1, 3)
+        bary = pen.bary.reshape(-1, 3, 1)
+        v_foot = jnp.sum(bary * v_y.reshape(-1, 3)[faces], 1).reshape(m, n, 3)
+        closing = -jnp.sum((v_x - v_foot) * pen.normals, -1)
+        f = self.magnitudes(pen.depth, closing, pen.mask)[..., None] * pen.normals
+        reaction = -(bary * f.reshape(-1, 1, 3)).reshape(-1, 3)
+        back = jax.ops.segment_sum(reaction, faces.reshape(-1), num_segments=v_y.reshape(-1, 3).shape[0])
+        return f, back
+
+
+def _velocities(v, shape, name: str, dtype):
+    """`v` as finite velocities `shape + (3,)` (zeros when None)."""
+    if v is None:
+        return jnp.zeros(shape + (3,), dtype)
+    _checks.check_real(v, name)
+    if np.shape(v) != shape + (3,):
+        _checks.fail(name, f"shape {shape + (3,)} (the sample grid)", f"shape {np.shape(v)}")
+    return _checks.finite(jnp.asarray(v, dtype), name)

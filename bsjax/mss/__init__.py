@@ -60,6 +60,14 @@ from bsjax.mss._materials import (
     spring_stiffness,
 )
 from bsjax.mss._rollout import relax, simulate, simulate_plastic, trajectory, yield_rest_lengths
+from bsjax.mss._scene import (
+    Body,
+    Scene,
+    scene_contact_forces,
+    scene_init,
+    simulate_scene,
+    tool_reactions,
+)
 
 __all__ = [
     "HEX_DIRECTIONS",
@@ -67,12 +75,14 @@ __all__ = [
     "PLASTICINE",
     "PRESETS",
     "STEEL",
+    "Body",
     "Contact",
     "Lattice",
     "Material",
     "Plasticity",
     "RigidPlane",
     "RigidSphere",
+    "Scene",
     "State",
     "SurfaceCoupling",
     "behind_plane",
@@ -94,9 +104,12 @@ __all__ = [
     "natural_frequency",
     "plane_penalty",
     "relax",
+    "scene_contact_forces",
+    "scene_init",
     "simulate",
     "simulate_coupled",
     "simulate_plastic",
+    "simulate_scene",
     "sphere_penalty",
     "spring_damping",
     "spring_forces",
@@ -106,6 +119,7 @@ __all__ = [
     "surface_lattice",
     "tool_contacts",
     "tool_forces",
+    "tool_reactions",
     "trajectory",
     "yield_rest_lengths",
 ]

@@ -137,9 +137,10 @@ def energy(
 # --- stability ----------------------------------------------------------------------------------------
 
 
-def _bounds(lattice: Lattice, contact_stiffness) -> tuple[Array, Array]:
+def _bounds(lattice: Lattice, contact_stiffness, contact_damping=0.0) -> tuple[Array, Array]:
     """Block-Gershgorin bounds `(ω², c)` of the largest eigenvalues of `M⁻¹K` and `M⁻¹C` over the
-    free nodes: `max_i Σ_j K_ij (1/m_i + 1/√(m_i m_j)) + k_c/m_i`, the same with the damping.
+    free nodes: `max_i Σ_j K_ij (1/m_i + 1/√(m_i m_j)) + k_c/m_i`, the same with the damping
+    (node damping plus the contact damper `c_c` of a node in contact).
 
     Terms with a zero coefficient contribute 0 (never `0·inf`), and `1/√(m_i m_j)` is formed as
     `(1/√m_i)(1/√m_j)`, so extreme but finite masses give `inf`, never NaN.
@@ -162,11 +163,12 @@ def _bounds(lattice: Lattice, contact_stiffness) -> tuple[Array, Array]:
         return jnp.max(jnp.where(lattice.fixed, 0.0, b), initial=0.0)
 
     k_c = jnp.broadcast_to(jnp.asarray(contact_stiffness, dtype=m.dtype), m.shape)
-    return bound(lattice.stiffness, k_c), bound(lattice.damping, lattice.node_damping)
+    c_c = jnp.asarray(contact_damping, dtype=m.dtype)
+    return bound(lattice.stiffness, k_c), bound(lattice.damping, lattice.node_damping + c_c)
 
 
-def _stable_dt(lattice: Lattice, contact_stiffness) -> Array:
-    w2, c = _bounds(lattice, contact_stiffness)
+def _stable_dt(lattice: Lattice, contact_stiffness, contact_damping=0.0) -> Array:
+    w2, c = _bounds(lattice, contact_stiffness, contact_damping)
     # h = (√(c² + 4ω²) − c)/ω² written as 4/(√(c² + 4ω²) + c): no 0/0 at ω² = 0 (→ 2/c, or inf
     # when also c = 0), no inf/inf at ω² = inf (→ 0); the root is a scaled norm (no overflow of c²)
     ok = jnp.isfinite(w2) & jnp.isfinite(c)
@@ -176,12 +178,18 @@ def _stable_dt(lattice: Lattice, contact_stiffness) -> Array:
 
 
 @compiled
-def stable_dt(lattice: Lattice, contact_stiffness: Float[ArrayLike, ""] = 0.0) -> Float[Array, ""]:
+def stable_dt(
+    lattice: Lattice,
+    contact_stiffness: Float[ArrayLike, ""] = 0.0,
+    contact_damping: Float[ArrayLike, ""] = 0.0,
+) -> Float[Array, ""]:
     """Largest time step in s for which semi-implicit Euler is stable on this lattice.
 
     **Arguments:**
     - `lattice`: the model.
     - `contact_stiffness`: penalty stiffness `k_c` (N/m, ≥ 0) of the tools in contact.
+    - `contact_damping`: the contact damper `c_c` (N·s/m, ≥ 0) on a node in contact (e.g. a
+      `collide.DistributedSprings`' damping), added to the node damping.
 
     **Returns:** `h > 0` (inf for a lattice without springs or dampers); never NaN for finite
     positive masses and finite non-negative stiffnesses (0 when the bound overflows).
@@ -192,7 +200,8 @@ def stable_dt(lattice: Lattice, contact_stiffness: Float[ArrayLike, ""] = 0.0) -
     condition of symplectic Euler on `ẍ = −ω²x − cẋ`: `h = (√(c² + 4ω²) − c) / ω²`.
     """
     contact_stiffness = _checks.positive(jnp.asarray(contact_stiffness), "contact_stiffness", strict=False)
-    return _stable_dt(lattice, contact_stiffness)
+    contact_damping = _checks.positive(jnp.asarray(contact_damping), "contact_damping", strict=False)
+    return _stable_dt(lattice, contact_stiffness, contact_damping)
 
 
 _UNSTABLE = (
@@ -202,7 +211,9 @@ _UNSTABLE = (
 )
 
 
-def _checked_dt(lattice: Lattice, dt, contact_stiffness=0.0, stability: bool = True) -> Array:
+def _checked_dt(
+    lattice: Lattice, dt, contact_stiffness=0.0, stability: bool = True, contact_damping=0.0
+) -> Array:
     """`dt` as an array of the lattice's dtype, checked finite and > 0, and (`stability`) not above
     the semi-implicit Euler limit `_stable_dt` — raised at once when concrete, `eqx.error_if`
     when traced."""
@@ -210,7 +221,8 @@ def _checked_dt(lattice: Lattice, dt, contact_stiffness=0.0, stability: bool = T
     if np.ndim(dt) != 0:
         _checks.fail("dt", "a scalar time step", f"shape {np.shape(dt)}")
     if stability:
-        dt = _checks.check(dt, dt > _stable_dt(lattice, contact_stiffness), "dt", _UNSTABLE, "a larger one")
+        limit = _stable_dt(lattice, contact_stiffness, contact_damping)
+        dt = _checks.check(dt, dt > limit, "dt", _UNSTABLE, "a larger one")
     return dt
 
 

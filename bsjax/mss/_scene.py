@@ -1,0 +1,289 @@
+"""Deformable bodies that push on each other (thesis §3.3 and §5.3.3; Gao & Gibson, *Haptic
+sculpting of multi-resolution B-spline surfaces with shaped tools*, §3.2–4.2).
+
+A `Body` is a mass-spring lattice bounded by a B-spline surface; its surface samples are lattice
+nodes (`SurfaceCoupling`). A `Scene` holds bodies, rigid `bsjax.collide` tools, gravity and one
+contact model (`collide.DistributedSprings`). Each step of `simulate_scene`:
+
+1. every body's surface is refit from its nodes (`coupling.ctrl`, thesis eq. 3.7);
+2. every pair of bodies: `collide.surface_penetration` (closest-point depth and normal on both
+   sides, within `scene.reach`) → `DistributedSprings.surface_forces` on the samples, each force
+   with its equal and opposite reaction at the foot point on the other body;
+3. every rigid tool: each node's `push` (closest-point depth and outward normal) → the same
+   spring law, the tool taking the reaction;
+4. sample forces go to the nodes through the coupling's map; every body takes one
+   semi-implicit Euler step (`mss.step`) with gravity, and the prescribed `motion` moves its fixed
+   nodes.
+
+So Σ of the contact forces over all bodies plus the tools' reactions is zero to rounding.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from bsjax import _checks, collide
+from bsjax._boundary import compiled
+from bsjax.basis import BSplineSurface
+from bsjax.mss._coupling import SurfaceCoupling
+from bsjax.mss._integrators import _checked_dt, _explicit
+from bsjax.mss._lattice import Lattice, State, hex_lattice
+from bsjax.mss._materials import Material
+
+
+class Body(eqx.Module):
+    """A deformable body: `lattice` (its mass-spring lattice), `surface` (the B-spline surface
+    that bounds it, at rest) and `coupling` (its surface samples as lattice nodes)."""
+
+    lattice: Lattice
+    surface: BSplineSurface
+    coupling: SurfaceCoupling
+
+    @classmethod
+    def from_surface(
+        cls,
+        surface: BSplineSurface,
+        shape: tuple[int, int, int],
+        material: Material,
+        *,
+        thickness: float | None = None,
+        fixed: Callable | np.ndarray | None = None,
+    ) -> Body:
+        """The body bounded by `surface`, of lattice `shape = (a, b, c)` and `material`.
+
+        An open surface (a spoon's bowl, a plate) with `thickness` (m, > 0): a shell lattice of
+        `a × b` nodes across the surface (its blending's samples) and `c ≥ 2` layers through the
+        thickness, layer k at `S(u, v) − (c−1−k)/(c−1) · thickness · N(u, v)` (the last layer is
+        the surface, the others inward, against the normal); the springs of a hexahedral grid
+        (`hex_lattice`), masses from the shell's volume.
+        `fixed`: a function of the rest positions `(N, 3) → (N,)` booleans, or a boolean mask
+        `(N,)`, of the nodes held in place (a clamp, a hand).
+
+        Closed surfaces (a volume lattice by the VSOFM) are not coupled yet: they raise.
+        """
+        if not isinstance(surface, BSplineSurface):
+            raise TypeError(f"surface: expected a bsjax.basis.BSplineSurface, got {type(surface).__name__}")
+        if not isinstance(material, Material):
+            raise TypeError(f"material: expected a bsjax.mss.Material, got {type(material).__name__}")
+        a, b, c = _checked_shape(shape)
+        if thickness is None:
+            _checks.fail(
+                "thickness", "a shell thickness in m (closed surfaces' volume lattices: not yet)", None
+            )
+        if surface.periodic_u or surface.periodic_v:
+            _checks.fail("surface", "an open surface (no periodic direction) for a shell", "a periodic one")
+        r, s = surface.ctrl.shape[:2]
+        if a < r or b < s:
+            _checks.fail("shape", f"a ≥ {r} and b ≥ {s} (the control net, for the refit)", (a, b, c))
+        thickness = float(_checks.positive(np.asarray(thickness, float), "thickness"))
+        blending = surface.blending(a, b)
+        top, normal = blending.points(surface.ctrl), blending.normals(surface.ctrl)
+        depth = jnp.linspace(thickness, 0.0, c, dtype=top.dtype)  # the last layer is the surface
+        nodes = top[:, :, None, :] - depth[None, None, :, None] * normal[:, :, None, :]
+        rest = nodes.reshape(-1, 3)
+        held = None if fixed is None else _fixed_mask(fixed, rest)
+        lattice = hex_lattice(nodes, material=material, fixed=held)
+        node_map = (np.arange(a * b).reshape(a, b) * c + c - 1).astype(np.int32)
+        return cls(lattice, surface, SurfaceCoupling.on_nodes(blending, node_map, lattice.n_nodes))
+
+
+def _checked_shape(shape) -> tuple[int, int, int]:
+    if not (isinstance(shape, (tuple, list)) and len(shape) == 3):
+        _checks.fail("shape", "a tuple (a, b, c) of ints ≥ 2", shape)
+    for n in shape:
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+            _checks.fail("shape", "a tuple (a, b, c) of ints ≥ 2", shape)
+    return int(shape[0]), int(shape[1]), int(shape[2])
+
+
+def _fixed_mask(fixed, rest) -> Array:
+    """`fixed` as a boolean mask over the nodes: a function of the rest positions, or a mask."""
+    mask = fixed(rest) if callable(fixed) else fixed
+    mask = np.asarray(mask)
+    if mask.shape != (rest.shape[0],) or mask.dtype != np.bool_:
+        _checks.fail("fixed", f"booleans of shape ({rest.shape[0]},) (or a function giving them)", mask.shape)
+    return jnp.asarray(mask)
+
+
+class Scene(eqx.Module):
+    """Bodies, rigid tools, gravity and the contact model of a simulation.
+
+    **Fields:** `bodies`: a tuple of `Body`; `tools`: rigid `bsjax.collide` tools (solid ones:
+    `Sphere`, `Ellipsoid`, `Plane`, `Implicit`, `TriangleMesh`); `gravity (3,)` in m/s² or None;
+    `contact`: a `collide.DistributedSprings` (default k = 1e3 N/m per sample, c = 0);
+    `reach`: the deepest penetration counted between bodies (m; default: the thinnest body's
+    shell thickness — `surface_penetration`).
+    """
+
+    bodies: tuple[Body, ...]
+    tools: tuple
+    gravity: Float[Array, " 3"] | None
+    contact: collide.DistributedSprings
+    reach: Float[Array, ""]
+
+    def __init__(self, bodies: Sequence[Body], tools=(), gravity=None, contact=None, reach=None):
+        bodies = tuple(bodies)
+        for i, body in enumerate(bodies):
+            if not isinstance(body, Body):
+                raise TypeError(f"bodies[{i}]: expected a bsjax.mss.Body, got {type(body).__name__}")
+        self.bodies = bodies
+        self.tools = tuple(tools)
+        dtype = bodies[0].lattice.rest_positions.dtype if bodies else jnp.result_type(float)
+        if gravity is not None:
+            _checks.check_real(gravity, "gravity")
+            if np.shape(gravity) != (3,):
+                _checks.fail("gravity", "shape (3,)", np.shape(gravity))
+            gravity = _checks.finite(jnp.asarray(gravity, dtype), "gravity")
+        self.gravity = gravity
+        contact = collide.DistributedSprings(1e3) if contact is None else contact
+        if not isinstance(contact, collide.DistributedSprings):
+            raise TypeError(f"contact: expected a collide.DistributedSprings, got {type(contact).__name__}")
+        self.contact = contact
+        if reach is None:
+            reach = min((_thickness(b) for b in bodies), default=1.0)
+        self.reach = _checks.positive(jnp.asarray(reach, dtype), "reach")
+
+
+def _thickness(body: Body) -> float:
+    """A shell body's thickness: the rest distance from its surface node to the innermost one."""
+    x = np.asarray(body.lattice.rest_positions)
+    shape = body.lattice.grid_shape
+    assert shape is not None
+    grid = x.reshape(shape + (3,))
+    return float(np.linalg.norm(grid[0, 0, 0] - grid[0, 0, -1]))
+
+
+@compiled
+def scene_init(scene: Scene) -> tuple[State, ...]:
+    """One `State` per body: at rest, zero velocity."""
+    return tuple(
+        State(b.lattice.rest_positions, jnp.zeros_like(b.lattice.rest_positions)) for b in scene.bodies
+    )
+
+
+@compiled
+def scene_contact_forces(scene: Scene, states: Sequence[State]) -> tuple[Float[Array, "N 3"], ...]:
+    """The contact force on every node of every body, `(N_i, 3)` per body (module docstring,
+    steps 1–4): bodies against each other and against the rigid tools."""
+    return _contact_forces(scene, _checked_states(scene, states))[0]
+
+
+@compiled
+def tool_reactions(scene: Scene, states: Sequence[State]) -> Float[Array, "T 3"]:
+    """The reaction on every rigid tool, `(T, 3)`: minus the sum of its forces on the nodes."""
+    return _contact_forces(scene, _checked_states(scene, states))[1]
+
+
+def _checked_states(scene: Scene, states) -> tuple[State, ...]:
+    states = tuple(states)
+    if len(states) != len(scene.bodies):
+        _checks.fail("states", f"{len(scene.bodies)} States (one per body)", f"{len(states)}")
+    for i, (body, state) in enumerate(zip(scene.bodies, states)):
+        if not isinstance(state, State):
+            raise TypeError(f"states[{i}]: expected a bsjax.mss.State, got {type(state).__name__}")
+        want = body.lattice.rest_positions.shape
+        if state.position.shape != want or state.velocity.shape != want:
+            _checks.fail(f"states[{i}]", f"position and velocity of shape {want}", state.position.shape)
+    return tuple(
+        State(_checks.finite(s.position, "states"), _checks.finite(s.velocity, "states")) for s in states
+    )
+
+
+def _contact_forces(scene: Scene, states):
+    """Per-body node forces and per-tool reactions (no checks)."""
+    dtype = states[0].position.dtype if states else jnp.result_type(float)
+    sample_f = [jnp.zeros(b.coupling.node_map.shape + (3,), dtype) for b in scene.bodies]
+    surfaces = [(b.coupling.blending, b.coupling.ctrl(s.position)) for b, s in zip(scene.bodies, states)]
+    velocities = [b.coupling.grid(s.velocity) for b, s in zip(scene.bodies, states)]
+    for i in range(len(scene.bodies)):
+        for j in range(i + 1, len(scene.bodies)):
+            ab, ba = collide.surface_penetration(*surfaces[i], *surfaces[j], reach=scene.reach)
+            fi, fj = scene.contact.surface_forces(ab, ba, velocities[i], velocities[j])
+            sample_f[i], sample_f[j] = sample_f[i] + fi, sample_f[j] + fj
+    node_f = [
+        jax.ops.segment_sum(f.reshape(-1, 3), b.coupling.node_map.reshape(-1), b.lattice.n_nodes)
+        for b, f in zip(scene.bodies, sample_f)
+    ]
+    reactions = []
+    for tool in scene.tools:
+        total = jnp.zeros(3, dtype)
+        for k, state in enumerate(states):
+            depth, normal = tool.cast(dtype).push(state.position)
+            closing = -jnp.sum(state.velocity * normal, -1)  # the tool at rest
+            f = scene.contact.magnitudes(depth, closing, depth > 0)[:, None] * normal
+            node_f[k] = node_f[k] + f
+            total = total - jnp.sum(f, 0)
+        reactions.append(total)
+    return tuple(node_f), jnp.stack(reactions) if reactions else jnp.zeros((0, 3), dtype)
+
+
+def _stable_dt_scene(scene: Scene, dt):
+    """`dt`, checked against every body's explicit limit with the contact's spring and damper."""
+    k, c = scene.contact.stiffness, scene.contact.damping
+    for b in scene.bodies:
+        dt = _checked_dt(b.lattice, dt, k, contact_damping=c)
+    return dt
+
+
+@compiled(static=("n_steps",))
+def simulate_scene(
+    scene: Scene,
+    states: Sequence[State],
+    dt: float,
+    n_steps: int,
+    *,
+    motion: Sequence[Callable | None] | None = None,
+    progress=None,
+) -> tuple[State, ...]:
+    """`n_steps` steps of the scene (module docstring) as one `lax.scan`.
+
+    **Arguments:** `scene`; `states` (one per body, `scene_init`); `dt` in s (at most every
+    body's `stable_dt(lattice, contact.stiffness, contact.damping)`); `n_steps` (static int
+    ≥ 1); `motion`: per body None or a function `t ↦ (rotation (3, 3), translation (3,))`
+    that moves the body's fixed nodes rigidly from their rest positions (a tilt, a shaking
+    hand; their velocity is its time derivative, by `jax.jvp`); `progress`: not supported yet (must be None).
+
+    **Returns:** the states after `n_steps`.
+    """
+    states = _checked_states(scene, states)
+    n_steps = _checks.check_count(n_steps, "n_steps")
+    if progress is not None:
+        _checks.fail("progress", "None (progress reports for scenes are not supported yet)", progress)
+    motion = (None,) * len(scene.bodies) if motion is None else tuple(motion)
+    if len(motion) != len(scene.bodies):
+        expected = f"{len(scene.bodies)} entries (one per body, None for no motion)"
+        _checks.fail("motion", expected, len(motion))
+    if not scene.bodies:
+        return states
+    step = _stable_dt_scene(scene, dt)
+
+    def advance(carry, k):
+        node_f, _ = _contact_forces(scene, carry)
+        t = (k + 1).astype(step.dtype) * step
+        out = []
+        for b, s, f, move in zip(scene.bodies, carry, node_f, motion):
+            s = _explicit(b.lattice, s, step, f, scene.gravity)
+            out.append(s if move is None else _prescribed(b.lattice, s, move, t))
+        return tuple(out), None
+
+    final, _ = jax.lax.scan(advance, states, jnp.arange(n_steps))
+    return final
+
+
+def _prescribed(lattice: Lattice, state: State, move, t) -> State:
+    """The fixed nodes at `R(t) X + T(t)` with velocity `Ṙ X + Ṫ` (rest positions `X`)."""
+    x = lattice.rest_positions
+
+    def pose(t):
+        rotation, translation = move(t)
+        return x @ jnp.asarray(rotation, x.dtype).T + jnp.asarray(translation, x.dtype)[None]
+
+    position, velocity = jax.jvp(pose, (jnp.asarray(t, x.dtype),), (jnp.ones((), x.dtype),))
+    held = lattice.fixed[:, None]
+    return State(jnp.where(held, position, state.position), jnp.where(held, velocity, state.velocity))

@@ -1,0 +1,164 @@
+"""`mss.Body`, `mss.Scene`, `simulate_scene`: deformable bodies pushing on each other through
+surface–surface contact — momentum, action = reaction (tools included), a body at rest carrying
+its weight, prescribed motion, gradients against central differences, and bad input.
+
+Every body is a 0.1 m plate shell of 8 × 8 × 2 nodes (one compiled shape for the module).
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsjax import collide, mss, shapes
+
+PLATE = shapes.plate(5, 5, size=0.1)
+SHAPE = (8, 8, 2)
+K, C = 200.0, 0.5
+
+
+@functools.cache
+def _pair():
+    """Plate `a` (surface z = 0, normal +z, shell below) and plate `b` facing it 2 mm above
+    (normal −z, shell above)."""
+    a = mss.Body.from_surface(PLATE, SHAPE, mss.JELLY, thickness=0.01)
+    flipped = PLATE.with_ctrl(PLATE.ctrl[:, ::-1] + jnp.array([0.0, 0.0, 0.002])[None, None])
+    b = mss.Body.from_surface(flipped, SHAPE, mss.JELLY, thickness=0.01)
+    return a, b
+
+
+def _with_velocity(states, speeds):
+    return tuple(mss.State(s.position, s.velocity.at[:, 2].set(w)) for s, w in zip(states, speeds))
+
+
+def _momentum(scene, states):
+    return sum(np.asarray(s.velocity * b.lattice.mass[:, None]).sum(0) for s, b in zip(states, scene.bodies))
+
+
+def test_body_is_a_shell_of_the_surface():
+    a, _ = _pair()
+    grid = np.asarray(a.lattice.rest_positions).reshape(SHAPE + (3,))
+    np.testing.assert_allclose(
+        grid[..., -1, :], np.asarray(PLATE.blending(8, 8).points(PLATE.ctrl)), atol=1e-15
+    )
+    np.testing.assert_allclose(grid[..., 0, 2], -0.01, atol=1e-15)
+    np.testing.assert_allclose(a.coupling.grid(a.lattice.rest_positions), grid[..., -1, :], atol=0)
+    mass = float(np.sum(a.lattice.mass))
+    np.testing.assert_allclose(mass, float(mss.JELLY.density) * 0.1 * 0.1 * 0.01, rtol=1e-9)
+
+
+def test_head_on_collision_conserves_momentum_and_bounces():
+    """Two equal shells meet at ±0.5 m/s without gravity: Σ m v stays 0 to 1e-9 of Σ |m v|, and
+    the contact turns both round."""
+    a, b = _pair()
+    scene = mss.Scene((a, b), contact=collide.DistributedSprings(K))
+    start = _with_velocity(mss.scene_init(scene), (0.5, -0.5))
+    dt = 0.5 * float(mss.stable_dt(a.lattice, K))
+    end = mss.simulate_scene(scene, start, dt, 40)
+    scale = sum(
+        np.abs(np.asarray(s.velocity * bd.lattice.mass[:, None])).sum() for s, bd in zip(start, scene.bodies)
+    )
+    np.testing.assert_allclose(_momentum(scene, end), 0, atol=1e-9 * scale)
+    assert float(end[0].velocity[:, 2].mean()) < 0 < float(end[1].velocity[:, 2].mean())
+
+
+def test_action_equals_reaction_with_a_tool():
+    """Bodies pressed together and a sphere pushed into one: the nodes' contact forces plus the
+    tool's reaction sum to zero."""
+    a, b = _pair()
+    ball = collide.Sphere(jnp.array([0.3 / 7, 0.3 / 7, 0.015]), 0.01)  # above node (3, 3)
+    scene = mss.Scene((a, b), tools=(ball,), contact=collide.DistributedSprings(K, C))
+    states = mss.scene_init(scene)
+    pressed = (
+        states[0],
+        mss.State(states[1].position - jnp.array([0.0, 0.0, 0.004])[None], states[1].velocity),
+    )
+    pressed = _with_velocity(pressed, (0.1, -0.2))
+    forces = mss.scene_contact_forces(scene, pressed)
+    reactions = mss.tool_reactions(scene, pressed)
+    assert float(jnp.abs(forces[0]).sum()) > 0 and float(jnp.abs(reactions).sum()) > 0
+    total = sum(np.sum(f, 0) for f in forces) + np.sum(reactions, 0)
+    scale = sum(float(jnp.abs(f).sum()) for f in forces)
+    np.testing.assert_allclose(total, 0, atol=1e-12 * scale)
+
+
+def test_body_resting_on_a_table_carries_its_weight():
+    """A plate shell settles on a rigid plane under gravity: the contact force equals its weight
+    within 1 %."""
+    a, _ = _pair()
+    table = collide.Plane(jnp.array([0.0, 0.0, -0.0105]), jnp.array([0.0, 0.0, 1.0]))
+    g = 9.81
+    scene = mss.Scene(
+        (a,), tools=(table,), gravity=jnp.array([0.0, 0.0, -g]), contact=collide.DistributedSprings(K, C)
+    )
+    dt = 0.5 * float(mss.stable_dt(a.lattice, K, C))
+    end = mss.simulate_scene(scene, mss.scene_init(scene), dt, 1500)
+    weight = float(np.sum(a.lattice.mass)) * g
+    lift = float(np.sum(mss.scene_contact_forces(scene, end)[0][:, 2]))
+    np.testing.assert_allclose(lift, weight, rtol=0.01)
+    np.testing.assert_allclose(-float(mss.tool_reactions(scene, end)[0, 2]), weight, rtol=0.01)
+
+
+def test_motion_moves_the_fixed_nodes():
+    """A held edge follows a prescribed translation `T(t) = (0, 0, w t)` with velocity w."""
+    held = mss.Body.from_surface(PLATE, SHAPE, mss.JELLY, thickness=0.01, fixed=lambda x: x[:, 0] < 1e-9)
+    scene = mss.Scene((held,))
+    w, dt, n = 0.2, 1e-3, 30
+    motion = (lambda t: (jnp.eye(3), jnp.array([0.0, 0.0, w]) * t),)
+    end = mss.simulate_scene(scene, mss.scene_init(scene), dt, n, motion=motion)
+    fixed = np.asarray(held.lattice.fixed)
+    assert fixed.sum() == 16
+    want = np.asarray(held.lattice.rest_positions)[fixed] + [0.0, 0.0, w * n * dt]
+    np.testing.assert_allclose(np.asarray(end[0].position)[fixed], want, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(end[0].velocity)[fixed][:, 2], w, rtol=1e-12)
+
+
+def test_gradient_through_a_contact_rollout_matches_central_differences():
+    """d(final height of b)/d(approach speed) through contact and both lattices."""
+    a, b = _pair()
+    scene = mss.Scene((a, b), contact=collide.DistributedSprings(K, C))
+    start = mss.scene_init(scene)
+    dt = 0.5 * float(mss.stable_dt(a.lattice, K, C))
+
+    def height(speed):
+        end = mss.simulate_scene(scene, _with_velocity(start, (speed, -speed)), dt, 25)
+        return jnp.mean(end[1].position[:, 2])
+
+    speed, h = 0.4, 1e-5
+    grad = float(jax.grad(height)(speed))
+    fd = (float(height(speed + h)) - float(height(speed - h))) / (2 * h)
+    assert abs(fd) > 1e-4
+    np.testing.assert_allclose(grad, fd, rtol=1e-5)
+
+
+def test_bad_input_names_the_argument():
+    a, b = _pair()
+    scene = mss.Scene((a, b))
+    states = mss.scene_init(scene)
+    with pytest.raises(TypeError, match="surface"):
+        mss.Body.from_surface("plate", SHAPE, mss.JELLY, thickness=0.01)
+    with pytest.raises(ValueError, match="shape"):
+        mss.Body.from_surface(PLATE, (8, 8), mss.JELLY, thickness=0.01)
+    with pytest.raises(ValueError, match="thickness"):
+        mss.Body.from_surface(PLATE, SHAPE, mss.JELLY)
+    with pytest.raises(ValueError, match="thickness"):
+        mss.Body.from_surface(PLATE, SHAPE, mss.JELLY, thickness=-1.0)
+    with pytest.raises(ValueError, match="fixed"):
+        mss.Body.from_surface(PLATE, SHAPE, mss.JELLY, thickness=0.01, fixed=np.zeros(3, bool))
+    with pytest.raises(TypeError, match=r"bodies\[1\]"):
+        mss.Scene((a, "b"))
+    with pytest.raises(TypeError, match="contact"):
+        mss.Scene((a,), contact=mss.Contact(1.0))
+    with pytest.raises(ValueError, match="states"):
+        mss.simulate_scene(scene, states[:1], 1e-4, 2)
+    with pytest.raises(ValueError, match="dt"):
+        mss.simulate_scene(scene, states, 1.0, 2)
+    damped = mss.Scene((a, b), contact=collide.DistributedSprings(K, 10.0))
+    with pytest.raises(ValueError, match="dt"):  # the contact damper limits the step too
+        mss.simulate_scene(damped, states, float(mss.stable_dt(a.lattice, K)), 2)
+    with pytest.raises(ValueError, match="motion"):
+        mss.simulate_scene(scene, states, 1e-4, 2, motion=(None,))
+    with pytest.raises(ValueError, match="gravity"):
+        mss.Scene((a,), gravity=[0.0, jnp.nan, 0.0])
