@@ -64,6 +64,22 @@ def test_head_on_collision_conserves_momentum_and_bounces():
     assert float(end[0].velocity[:, 2].mean()) < 0 < float(end[1].velocity[:, 2].mean())
 
 
+def test_energy_never_grows_in_a_damped_collision():
+    """Damped contact, no gravity, no other input: the scene's energy (kinetic + springs +
+    contact springs) at every 5th step never exceeds the start's and ends lower."""
+    a, b = _pair()
+    scene = mss.Scene((a, b), contact=collide.DistributedSprings(K, C))
+    states = _with_velocity(mss.scene_init(scene), (0.5, -0.5))
+    dt = 0.5 * float(mss.stable_dt(a.lattice, K, C))
+    energies = [sum(mss.scene_energy(scene, states))]
+    for _ in range(10):
+        states = mss.simulate_scene(scene, states, dt, 5)
+        energies.append(sum(mss.scene_energy(scene, states)))
+    energies = np.asarray(energies)
+    assert np.all(energies <= energies[0] * (1 + 1e-6)), energies / energies[0]
+    assert energies[-1] < 0.99 * energies[0]
+
+
 def test_action_equals_reaction_with_a_tool():
     """Bodies pressed together and a sphere pushed into one: the nodes' contact forces plus the
     tool's reaction sum to zero."""

@@ -32,7 +32,7 @@ from bsjax import _checks, collide
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
 from bsjax.mss._coupling import SurfaceCoupling
-from bsjax.mss._integrators import _checked_dt, _explicit
+from bsjax.mss._integrators import _checked_dt, _explicit, energy
 from bsjax.mss._lattice import Lattice, State, hex_lattice
 from bsjax.mss._materials import Material
 
@@ -178,6 +178,30 @@ def scene_contact_forces(scene: Scene, states: Sequence[State]) -> tuple[Float[A
 def tool_reactions(scene: Scene, states: Sequence[State]) -> Float[Array, "T 3"]:
     """The reaction on every rigid tool, `(T, 3)`: minus the sum of its forces on the nodes."""
     return _contact_forces(scene, _checked_states(scene, states))[1]
+
+
+@compiled
+def scene_energy(scene: Scene, states: Sequence[State]) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """`(kinetic, potential)` of the scene in J: every body's `mss.energy` (springs, gravity)
+    plus the contact springs' `½ k Σ d_i²` over the samples of every pair (both sides) and the
+    nodes inside the rigid tools. Without input and with damping it does not grow (to the
+    integrator's O(Δt) wobble)."""
+    states = _checked_states(scene, states)
+    kinetic = potential = jnp.zeros((), states[0].position.dtype if states else jnp.result_type(float))
+    for body, state in zip(scene.bodies, states):
+        k_i, p_i = energy(body.lattice, state, scene.gravity)
+        kinetic, potential = kinetic + k_i, potential + p_i
+    k = scene.contact.stiffness
+    surfaces = [(b.coupling.blending, b.coupling.ctrl(s.position)) for b, s in zip(scene.bodies, states)]
+    for i in range(len(scene.bodies)):
+        for j in range(i + 1, len(scene.bodies)):
+            ab, ba = collide.surface_penetration(*surfaces[i], *surfaces[j], reach=scene.reach)
+            potential = potential + 0.5 * k * (jnp.sum(ab.depth**2) + jnp.sum(ba.depth**2))
+    for tool in scene.tools:
+        for state in states:
+            depth, _ = tool.cast(state.position.dtype).push(state.position)
+            potential = potential + 0.5 * k * jnp.sum(jnp.where(depth > 0, depth, 0) ** 2)
+    return kinetic, potential
 
 
 def _checked_states(scene: Scene, states) -> tuple[State, ...]:
