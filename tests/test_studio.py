@@ -25,6 +25,10 @@ W, H = 800, 600
 N = 41  # samples of every synthesised stroke (each a mouse move, ~30 ms in headless Chromium)
 TOP = dict(yaw=-math.pi / 2, pitch=1.5, dist=4.0, target=[0.0, 0.0, 0.0])  # z = 0 nearly face-on
 
+# how long the page waits for the server: a liveness bound, not a speed check (the server may
+# compile a program first, which takes tens of seconds under CI load)
+_REPLY_MS = 120_000
+
 
 # --- strokes in pixels (the page's canvas), deterministic --------------------------------------
 def _ring(cx, cy, rx, ry, turn, n, start=0.0, sweep=2 * math.pi):
@@ -110,7 +114,9 @@ def studio_page(browser, tmp_path_factory):
     with ViewServer(session.scene, None, handle=session.handle, page="studio.html") as server:
         page = browser.new_page(viewport={"width": W, "height": H})
         page.goto(server.url)
-        page.wait_for_function("window.bsjax.connected && window.bsjaxStudio.scene !== null", timeout=20000)
+        page.wait_for_function(
+            "window.bsjax.connected && window.bsjaxStudio.scene !== null", timeout=_REPLY_MS
+        )
         page.evaluate(f"window.bsjaxCamera.set({json.dumps(TOP)})")
         yield page, session, folder
         page.close()
@@ -126,7 +132,7 @@ def _draw(page, pixels):
         page.mouse.move(int(x), int(y))
     page.mouse.up()
     page.wait_for_function(
-        f"window.bsjaxStudio.replies.length + window.bsjaxStudio.errors.length > {before}", timeout=20000
+        f"window.bsjaxStudio.replies.length + window.bsjaxStudio.errors.length > {before}", timeout=_REPLY_MS
     )
     reply = page.evaluate("window.bsjaxStudio.replies.concat(window.bsjaxStudio.errors).at(-1)")
     return reply, page.evaluate("window.bsjaxStudio.lastCommand")
@@ -191,7 +197,7 @@ def _rows(page, *ids):
 
 
 def _last_reply(page):
-    page.wait_for_function("window.bsjaxStudio.pending() === 0", timeout=30000)
+    page.wait_for_function("window.bsjaxStudio.pending() === 0", timeout=_REPLY_MS)
     return page.evaluate(
         "window.bsjaxStudio.replies.concat(window.bsjaxStudio.errors).sort((a, b) => a.seq - b.seq).at(-1)"
     )
