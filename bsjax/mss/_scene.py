@@ -32,6 +32,7 @@ from bsjax import _checks, collide
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
 from bsjax.mss._coupling import SurfaceCoupling
+from bsjax.mss._forces import tool_contacts
 from bsjax.mss._integrators import _checked_dt, _explicit, energy
 from bsjax.mss._lattice import Lattice, State, hex_lattice
 from bsjax.mss._materials import Material
@@ -192,19 +193,15 @@ def scene_energy(scene: Scene, states: Sequence[State]) -> tuple[Float[Array, ""
         k_i, p_i = energy(body.lattice, state, scene.gravity)
         kinetic, potential = kinetic + k_i, potential + p_i
     k = scene.contact.stiffness
-    surfaces = [(b.coupling.blending, b.coupling.ctrl(s.position)) for b, s in zip(scene.bodies, states)]
-    for i in range(len(scene.bodies)):
-        for j in range(i + 1, len(scene.bodies)):
-            ab, ba = collide.surface_penetration(*surfaces[i], *surfaces[j], reach=scene.reach)
-            potential = potential + 0.5 * k * (jnp.sum(ab.depth**2) + jnp.sum(ba.depth**2))
-    for tool in scene.tools:
-        for state in states:
-            depth, _ = tool.cast(state.position.dtype).push(state.position)
-            potential = potential + 0.5 * k * jnp.sum(jnp.where(depth > 0, depth, 0) ** 2)
+    for _, _, ab, ba in _penetrations(scene, states):
+        potential = potential + 0.5 * k * (jnp.sum(ab.depth**2) + jnp.sum(ba.depth**2))
+    for _, _, depth, _ in _tool_pushes(scene, states):
+        potential = potential + 0.5 * k * jnp.sum(depth**2)
     return kinetic, potential
 
 
 def _checked_states(scene: Scene, states) -> tuple[State, ...]:
+    """`states`: one `State` per body, of its lattice's shape, finite."""
     states = tuple(states)
     if len(states) != len(scene.bodies):
         _checks.fail("states", f"{len(scene.bodies)} States (one per body)", f"{len(states)}")
@@ -219,31 +216,41 @@ def _checked_states(scene: Scene, states) -> tuple[State, ...]:
     )
 
 
+def _penetrations(scene: Scene, states):
+    """`(i, j, i-in-j, j-in-i)` for every pair of bodies: their refit surfaces'
+    `collide.surface_penetration` within `scene.reach`."""
+    surfaces = [(b.coupling.blending, b.coupling.ctrl(s.position)) for b, s in zip(scene.bodies, states)]
+    for i in range(len(surfaces)):
+        for j in range(i + 1, len(surfaces)):
+            yield (i, j, *collide.surface_penetration(*surfaces[i], *surfaces[j], reach=scene.reach))
+
+
+def _tool_pushes(scene: Scene, states):
+    """`(tool index, body index, depth (N,), normal (N, 3))` for every rigid tool and body
+    (`mss.tool_contacts`: the tool's `push`, depth 0 outside it)."""
+    for k, state in enumerate(states):
+        for t, (depth, normal) in enumerate(tool_contacts(scene.tools, state.position)):
+            yield t, k, depth, normal
+
+
 def _contact_forces(scene: Scene, states):
     """Per-body node forces and per-tool reactions (no checks)."""
     dtype = states[0].position.dtype if states else jnp.result_type(float)
     sample_f = [jnp.zeros(b.coupling.node_map.shape + (3,), dtype) for b in scene.bodies]
-    surfaces = [(b.coupling.blending, b.coupling.ctrl(s.position)) for b, s in zip(scene.bodies, states)]
     velocities = [b.coupling.grid(s.velocity) for b, s in zip(scene.bodies, states)]
-    for i in range(len(scene.bodies)):
-        for j in range(i + 1, len(scene.bodies)):
-            ab, ba = collide.surface_penetration(*surfaces[i], *surfaces[j], reach=scene.reach)
-            fi, fj = scene.contact.surface_forces(ab, ba, velocities[i], velocities[j])
-            sample_f[i], sample_f[j] = sample_f[i] + fi, sample_f[j] + fj
+    for i, j, ab, ba in _penetrations(scene, states):
+        fi, fj = scene.contact.surface_forces(ab, ba, velocities[i], velocities[j])
+        sample_f[i], sample_f[j] = sample_f[i] + fi, sample_f[j] + fj
     node_f = [
         jax.ops.segment_sum(f.reshape(-1, 3), b.coupling.node_map.reshape(-1), b.lattice.n_nodes)
         for b, f in zip(scene.bodies, sample_f)
     ]
-    reactions = []
-    for tool in scene.tools:
-        total = jnp.zeros(3, dtype)
-        for k, state in enumerate(states):
-            depth, normal = tool.cast(dtype).push(state.position)
-            closing = -jnp.sum(state.velocity * normal, -1)  # the tool at rest
-            f = scene.contact.magnitudes(depth, closing, depth > 0)[:, None] * normal
-            node_f[k] = node_f[k] + f
-            total = total - jnp.sum(f, 0)
-        reactions.append(total)
+    reactions = [jnp.zeros(3, dtype) for _ in scene.tools]
+    for t, k, depth, normal in _tool_pushes(scene, states):
+        closing = -jnp.sum(states[k].velocity * normal, -1)  # the tool at rest
+        f = scene.contact.magnitudes(depth, closing, depth > 0)[:, None] * normal
+        node_f[k] = node_f[k] + f
+        reactions[t] = reactions[t] - jnp.sum(f, 0)
     return tuple(node_f), jnp.stack(reactions) if reactions else jnp.zeros((0, 3), dtype)
 
 
@@ -255,7 +262,7 @@ def _stable_dt_scene(scene: Scene, dt):
     return dt
 
 
-@compiled(static=("n_steps",))
+@compiled
 def simulate_scene(
     scene: Scene,
     states: Sequence[State],
