@@ -263,10 +263,9 @@ class DistributedSprings(eqx.Module):
 
 
 def _velocities(v, shape, name: str, dtype):
-    """`v` as finite velocities `shape + (3,)` (zeros when None)."""
+    """`v` as finite velocities `shape + (3,)` in `dtype` (zeros when None)."""
     if v is None:
         return jnp.zeros(shape + (3,), dtype)
-    _checks.check_real(v, name)
     if np.shape(v) != shape + (3,):
         _checks.fail(name, f"shape {shape + (3,)} (the sample grid)", f"shape {np.shape(v)}")
-    return _checks.finite(jnp.asarray(v, dtype), name)
+    return _positions(v, name).astype(dtype)
