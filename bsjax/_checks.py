@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, NoReturn
 
 import equinox as eqx
 import jax
@@ -47,7 +47,7 @@ def message(name: str, expected: str, got: Any) -> str:
     return f"{name}: expected {expected}, got {got}"
 
 
-def fail(name: str, expected: str, got: Any) -> None:
+def fail(name: str, expected: str, got: Any) -> NoReturn:
     """Raise the project's standard `ValueError`."""
     raise ValueError(message(name, expected, got))
 

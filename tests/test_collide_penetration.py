@@ -265,6 +265,27 @@ def test_sphere_inside_larger_sphere():
     assert not bool(b.mask.any())  # the outer sphere's samples are all outside the inner one
 
 
+def test_spheres_pole_to_pole():
+    """Two spheres overlapping by δ along z, pole against pole: each pole's samples (one row,
+    all at the pole) lie δ inside the other sphere, their foot is on the fan of triangles around
+    the other's pole (a sample shared by a whole row: not an open boundary), and they count
+    with depth δ less at most the triangles' chord error, normal ∓z. Also after a rounding-sized perturbation
+    of the nets (a deformed body's refit pole is not exactly one point)."""
+    radius, delta = 0.3, 0.02
+    low, high = _sphere([0, 0, 0], radius), _sphere([0, 0, 2 * radius - delta], radius)
+    blending = low.blending(GRID, GRID)
+    tol = _sphere_tolerance(blending.points(low.ctrl), blending.normals(low.ctrl), radius, delta)
+    noise = 1e-9 * np.random.default_rng(3).normal(size=low.ctrl.shape)
+    for ctrl_low in (low.ctrl, low.ctrl + noise):
+        a, b = surface_penetration(blending, ctrl_low, blending, high.ctrl, reach=0.1)
+        top, bottom = (0, slice(None)), (-1, slice(None))  # low's top pole row, high's bottom one
+        assert bool(a.mask[top].all()) and bool(b.mask[bottom].all())
+        for depth in (a.depth[top], b.depth[bottom]):
+            assert np.all(_np(depth) <= delta + 1e-7) and np.all(_np(depth) >= delta - tol)
+        assert np.all(_np(a.normals[top])[:, 2] < -np.cos(np.radians(5)))
+        assert np.all(_np(b.normals[bottom])[:, 2] > np.cos(np.radians(5)))
+
+
 # --- an independent dense reference -------------------------------------------------------------
 
 

@@ -23,8 +23,10 @@ X and Y (first A against B, then B against A):
   clamped there). A side is not open at a sample that coincides with the opposite side's
   sample (a closed direction's seam, sampled twice by the default grid `linspace(0, 1, n)`, or
   a clamped net closed on itself) or with its neighbour along the side (a pole); coincidence is
-  within `√ε` times the extent of Y's samples. So samples beyond a plate's edge, or farther
-  than `reach` behind it, never count.
+  within 1 % of the grid's spacing across the side there (the distance to the sample one row
+  in) — loose enough for a deformed body's refit surface, whose pole and seam samples drift
+  apart by rounding-sized amounts — and at least `√ε` times the extent of Y's samples. So
+  samples beyond a plate's edge, or farther than `reach` behind it, never count.
 - Where sample i penetrates: depth `d_i = −s_i`, normal `n_Y(c_i)` (the direction that pushes X
   out of Y); elsewhere depth 0 and normal 0.
 
@@ -152,6 +154,7 @@ def _empty(shape, dtype) -> Penetration:
 
 
 _TILE = _BLOCK - 1  # cells per side of a tile (the searched block's size)
+_COINCIDE = 1e-2  # samples closer than this fraction of the spacing across a side coincide
 
 
 class _Layout(NamedTuple):
@@ -168,9 +171,9 @@ class _Layout(NamedTuple):
     real ones, `rows`/`cols` their grid positions; `dims (2, 2)` is each searched grid's `(p, q)`.
 
     The boundary tables, per vertex and side (first row, last row, first column, last column):
-    `on_side (V, 4)` whether the vertex lies on that side; `rim (V, 4, 3)` the opposite side's
-    vertex and the vertex's two neighbours along the side (one repeated at an end; the vertex
-    itself where it is not on the side).
+    `on_side (V, 4)` whether the vertex lies on that side; `rim (V, 4, 4)` the opposite side's
+    vertex, the vertex's two neighbours along the side (one repeated at an end) and its
+    neighbour one row or column in (the vertex itself where it is not on the side).
     """
 
     dims: np.ndarray
@@ -209,7 +212,7 @@ def _layout(shape_b: tuple[int, int], shape_a: tuple[int, int]) -> _Layout:
     verts = dims[:, 0] * dims[:, 1]
     offset = np.array([0, verts[0]])
     total = int(verts.sum())
-    rim = np.repeat(np.arange(total)[:, None, None], 4, 1).repeat(3, 2)
+    rim = np.repeat(np.arange(total)[:, None, None], 4, 1).repeat(4, 2)
     on_side = np.zeros((total, 4), bool)
     cell_corners, tile_verts, tile_corners = [], [], []
     lists = {k: [] for k in ("vert", "cell", "tile", "tri", "coarse", "sample")}
@@ -238,11 +241,16 @@ def _layout(shape_b: tuple[int, int], shape_a: tuple[int, int]) -> _Layout:
         lists["coarse"].append(idx[coarse_r, coarse_c].reshape(-1))
         rows["coarse"].append(coarse_r.reshape(-1))
         cols["coarse"].append(coarse_c.reshape(-1))
-        lines = ((idx[0], idx[-1]), (idx[-1], idx[0]), (idx[:, 0], idx[:, -1]), (idx[:, -1], idx[:, 0]))
-        for k, (line, opposite) in enumerate(lines):
+        lines = (
+            (idx[0], idx[-1], idx[1]),
+            (idx[-1], idx[0], idx[-2]),
+            (idx[:, 0], idx[:, -1], idx[:, 1]),
+            (idx[:, -1], idx[:, 0], idx[:, -2]),
+        )
+        for k, (line, opposite, inward) in enumerate(lines):
             before = np.concatenate([line[1:2], line[:-1]])  # at an end: the one neighbour twice
             after = np.concatenate([line[1:], line[-2:-1]])
-            rim[line, k] = np.stack([opposite, before, after], 1)
+            rim[line, k] = np.stack([opposite, before, after, inward], 1)
             on_side[line, k] = True
     lists["sample"] = [np.arange(verts[1]), verts[1] + np.arange(verts[0])]  # A's samples, then B's
     stacked = {k: _stack(v) for k, v in lists.items()}
@@ -429,11 +437,14 @@ def _open_sides(verts, grids, lay: _Layout) -> Bool[Array, "V 4"]:
     """Whether each vertex of the searched grids lies on the open side first row, last row,
     first column, last column of its grid: a sample that coincides with the opposite side's
     sample (a seam) or with a neighbour along the side (a pole) is not open (module docstring).
-    Coincidence: every coordinate within `√ε` times the grid's extent."""
+    Coincidence: every coordinate within `_COINCIDE` times the distance to the vertex's
+    neighbour one row in (the grid's local spacing across the side), and at least `√ε` times
+    the grid's extent."""
     eps = jnp.finfo(verts.dtype).eps
     ext_b, ext_a = (jnp.max(jnp.max(g, axis=(0, 1)) - jnp.min(g, axis=(0, 1))) for g in grids)
     # a select, not a gather: XLA fuses a gather's operand into it, every reduction per element
-    tol = jnp.sqrt(eps) * jnp.where(jnp.asarray(lay.vert_side == 0), ext_b, ext_a)[:, None, None]
-    gap = [jnp.abs(verts[lay.rim[..., k]] - verts[:, None, k, None]) for k in range(3)]  # (V, 4, 3)
-    closed = jnp.any(jnp.maximum(jnp.maximum(gap[0], gap[1]), gap[2]) <= tol, axis=-1)
+    floor = jnp.sqrt(eps) * jnp.where(jnp.asarray(lay.vert_side == 0), ext_b, ext_a)[:, None, None]
+    chebyshev = jnp.max(jnp.abs(verts[lay.rim] - verts[:, None, None, :]), axis=-1)  # (V, 4, 4)
+    tol = jnp.maximum(floor, _COINCIDE * chebyshev[..., 3:])
+    closed = jnp.any(chebyshev[..., :3] <= tol, axis=-1)
     return jnp.asarray(lay.on_side) & ~closed

@@ -66,6 +66,7 @@ from bsjax.mss._scene import (
     scene_contact_forces,
     scene_energy,
     scene_init,
+    scene_stable_dt,
     simulate_scene,
     tool_reactions,
 )
@@ -108,6 +109,7 @@ __all__ = [
     "scene_contact_forces",
     "scene_energy",
     "scene_init",
+    "scene_stable_dt",
     "simulate",
     "simulate_coupled",
     "simulate_plastic",

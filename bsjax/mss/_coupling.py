@@ -29,23 +29,32 @@ METHODS = ("semi_implicit", "implicit")
 
 
 class SurfaceCoupling(eqx.Module):
-    """Map between the `m × n` sample grid of a `Blending` and the `N` lattice nodes.
+    """Map between the `m × n` sample grid of a `Blending` and the `N` lattice nodes: each
+    sample is a weighted sum of `K` nodes, and a force on a sample goes to those nodes with the
+    same weights (the transpose).
 
-    **Fields:** `blending`; `node_map (m, n)`: the node of each sample (coincident samples on a
-    closed seam or a pole share one node); `sample (N,)`: the flat sample index of each node,
-    −1 for a node below the surface; `surface_only` (static): every node is a sample (a surface
-    lattice from `surface_lattice`), else the surface is one layer of a volumetric lattice
-    (`SurfaceCoupling.on_nodes`).
+    **Fields:** `blending`; `node_map (m, n, K)`: the nodes carrying each sample; `weights
+    (m, n, K)`: their weights, summing to 1 per sample — `K = 1`, weight 1, where the samples
+    are nodes (a surface lattice from `surface_lattice`, the outer layer of a shell,
+    `SurfaceCoupling.on_nodes`; coincident samples on a closed seam or a pole share one node);
+    `K = 8` trilinear weights of the hexahedral cell holding the sample where the surface is
+    embedded in a volume lattice (`SurfaceCoupling.embedded`, SOFA's barycentric mapping);
+    `sample (N,)`: the flat sample index of each node that is a sample, −1 otherwise;
+    `surface_only` (static): every node is a sample; `poles` (static): which sides of the
+    control net (u = 0, u = 1, v = 0, v = 1) are collapsed to a point at rest — the refit
+    keeps them collapsed (`ctrl`).
     """
 
     blending: Blending
-    node_map: Int[Array, "m n"]
+    node_map: Int[Array, "m n K"]
+    weights: Float[Array, "m n K"]
     sample: Int[Array, " N"]
     surface_only: bool = eqx.field(static=True, default=True)
+    poles: tuple[bool, bool, bool, bool] = eqx.field(static=True, default=(False, False, False, False))
 
     @classmethod
     def on_nodes(cls, blending: Blending, node_map, n_nodes: int) -> SurfaceCoupling:
-        """The coupling of a volumetric lattice of `n_nodes` whose surface layer is the nodes
+        """The coupling of a lattice of `n_nodes` whose surface samples are the nodes
         `node_map (m, n)` (e.g. the outer layer of a hexahedral lattice below the surface)."""
         node_map = np.asarray(node_map)
         n_nodes = _checks.check_count(n_nodes, "n_nodes")
@@ -55,15 +64,72 @@ class SurfaceCoupling(eqx.Module):
             _checks.fail("node_map", f"integer node ids in [0, {n_nodes})", node_map.dtype)
         sample = np.full(n_nodes, -1, np.int32)
         sample[node_map.ravel()] = np.arange(node_map.size, dtype=np.int32)
+        return cls._direct(blending, node_map, sample)
+
+    @classmethod
+    def _direct(
+        cls, blending: Blending, node_map: np.ndarray, sample: np.ndarray, poles=(False,) * 4
+    ) -> SurfaceCoupling:
+        """Samples that are nodes: `node_map (m, n)`, `sample (N,)` (−1 where a node is none)."""
+        ids = jnp.asarray(node_map.astype(np.int32)[..., None])
+        ones = jnp.ones(ids.shape, blending.a_u.dtype)
         surface_only = bool(np.all(sample >= 0))
-        return cls(blending, jnp.asarray(node_map.astype(np.int32)), jnp.asarray(sample), surface_only)
+        return cls(blending, ids, ones, jnp.asarray(sample.astype(np.int32)), surface_only, poles)
+
+    @classmethod
+    def embedded(
+        cls, blending: Blending, ctrl: Float[ArrayLike, "r s 3"], lattice: Lattice
+    ) -> SurfaceCoupling:
+        """The surface `blending.points(ctrl)` embedded in the hexahedral `lattice` (a
+        `grid_shape`, e.g. `vsofm.lattice` or `hex_lattice`): each sample gets the trilinear
+        coordinates of the cell holding it at rest (Newton's method on the trilinear map; a
+        sample just outside the lattice — the surface's sag between boundary nodes — in the
+        nearest cell, its coordinates slightly beyond [0, 1]), so `grid(rest_positions)` is the
+        surface's samples to rounding and the samples move with the cells around them.
+
+        Refused: a lattice without a grid, or a sample more than a cell outside it (a coarse
+        VSOFM lattice leaves up to about half a cell between its boundary faces and the
+        surface where box edges meet it).
+        """
+        cells = lattice.grid_shape if isinstance(lattice, Lattice) else None
+        if cells is None:
+            _checks.fail("lattice", "a hexahedral mss.Lattice (with a grid_shape)", type(lattice).__name__)
+        samples = np.asarray(blending.points(jnp.asarray(ctrl)), np.float64)
+        grid = np.asarray(lattice.rest_positions, np.float64).reshape(cells + (3,))
+        ids, weights = trilinear_embedding(samples.reshape(-1, 3), grid)
+        shape = tuple(blending.grid_shape) + (8,)
+        dtype = lattice.rest_positions.dtype
+        sample = jnp.full(lattice.n_nodes, -1, jnp.int32)
+        ids, weights = jnp.asarray(ids.reshape(shape)), jnp.asarray(weights.reshape(shape), dtype)
+        return cls(blending, ids, weights, sample, False, pole_sides(ctrl))
+
+    @property
+    def n_nodes(self) -> int:
+        """`N`, the lattice's node count."""
+        return self.sample.shape[0]
+
+    def load(self) -> Float[Array, ""]:
+        """The largest stiffness gain a contact spring on every sample puts on one node:
+        `max_j Σ_s |w_sj| Σ_k |w_sk|` (a Gershgorin bound on `WᵀW`, W the `(samples, N)`
+        weights). 1 where each node carries one sample; a pole node of a surface lattice carries
+        a row of samples, an embedded surface's nodes several. Springs of stiffness k on the
+        samples stiffen a node by at most `k · load()` (`scene_stable_dt`)."""
+        w = jnp.abs(self.weights)
+        row = jnp.sum(w, -1, keepdims=True)
+        per_node = jax.ops.segment_sum((w * row).reshape(-1), self.node_map.reshape(-1), self.n_nodes)
+        return jnp.max(per_node)
 
     @compiled
     def nodes(
         self, ctrl: Float[Array, "r s 3"], position: Float[Array, "N 3"] | None = None
     ) -> Float[Array, "N 3"]:
         """Node positions of a control net: the blending samples (thesis eq. 3.6) at the surface
-        nodes; nodes below the surface keep `position` (needed unless `surface_only`)."""
+        nodes; nodes below the surface keep `position` (needed unless `surface_only`). Only for
+        couplings whose samples are nodes (`K = 1`): an embedded surface places no nodes."""
+        if self.node_map.shape[-1] != 1:
+            _checks.fail(
+                "coupling", "samples that are nodes (an embedded surface places no nodes)", "embedded"
+            )
         samples = self.blending.points(ctrl).reshape(-1, 3)
         if position is None:
             if not self.surface_only:
@@ -74,13 +140,88 @@ class SurfaceCoupling(eqx.Module):
 
     @compiled
     def grid(self, position: Float[Array, "N 3"]) -> Float[Array, "m n 3"]:
-        """The `(m, n, 3)` sample grid of node positions."""
-        return position[self.node_map]
+        """The `(m, n, 3)` samples carried by node positions (or velocities): `Σ_k w_k x_k`."""
+        return jnp.einsum("mnk,mnkd->mnd", self.weights, position[self.node_map])
 
     @compiled
     def ctrl(self, position: Float[Array, "N 3"]) -> Float[Array, "r s 3"]:
-        """Control points of node positions by the stored least-squares refit (thesis eq. 3.7)."""
-        return self.blending.refit(position[self.node_map])
+        """Control points of node positions by the stored least-squares refit (thesis eq. 3.7),
+        each pole side (`poles`) then set to its mean: a pole stays a point, so the deformed
+        surface keeps its topology and a well-defined normal there (a refit pole opened by
+        rounding has a tiny, noisy `T_v` and a normal of any direction)."""
+        ctrl = self.blending.refit(self.grid(position))
+        for side, (axis, index) in zip(self.poles, ((0, 0), (0, -1), (1, 0), (1, -1))):
+            if side:
+                row = jnp.take(ctrl, index, axis=axis)
+                mean = jnp.broadcast_to(jnp.mean(row, 0, keepdims=True), row.shape)
+                ctrl = ctrl.at[index].set(mean) if axis == 0 else ctrl.at[:, index].set(mean)
+        return ctrl
+
+
+def pole_sides(ctrl) -> tuple[bool, bool, bool, bool]:
+    """Which sides of a control net `(r, s, 3)` — u = 0, u = 1, v = 0, v = 1 — are collapsed to
+    one point (within `1e-9` of the net's extent): the poles of a sphere-like surface."""
+    p = np.asarray(ctrl)
+    scale = max(float(np.ptp(p.reshape(-1, 3), 0).max()), 1e-300)
+
+    def collapsed(edge):  # (k, 3) control points of one side
+        return bool(np.all(np.linalg.norm(edge - edge[:1], axis=-1) <= 1e-9 * scale))
+
+    return collapsed(p[0]), collapsed(p[-1]), collapsed(p[:, 0]), collapsed(p[:, -1])
+
+
+_CORNERS = np.array([(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)])  # C order
+
+
+def trilinear_embedding(points: np.ndarray, grid: np.ndarray, candidates: int = 8):
+    """`(ids (P, 8), weights (P, 8))`: the trilinear coordinates of `points (P, 3)` in the cells of
+    the node grid `grid (a, b, c, 3)` (host, NumPy). For each point the cells around its
+    `candidates` nearest nodes are tried (Newton's method on `x(ξ) = Σ N_c(ξ) X_c`, 20 steps
+    from the cell centre) and the one whose `ξ` lies least outside `[0, 1]³` is kept."""
+    from scipy.spatial import cKDTree
+
+    a, b, c = grid.shape[:3]
+    flat = grid.reshape(-1, 3)
+    near = cKDTree(flat).query(points, k=min(candidates, len(flat)))[1].reshape(len(points), -1)
+    ijk = np.stack(np.unravel_index(near, (a, b, c)), -1)  # (P, q, 3)
+    lo = (ijk[:, :, None, :] - _CORNERS[None, None]).reshape(len(points), -1, 3)  # cells at the nodes
+    lo = np.clip(lo, 0, np.array([a - 2, b - 2, c - 2]))
+    corner_ids = np.ravel_multi_index(tuple(np.moveaxis(lo[:, :, None] + _CORNERS, -1, 0)), (a, b, c))
+    xi, residual = _invert_trilinear(flat[corner_ids], points[:, None, :])
+    outside = np.sum(np.maximum(0.0, -xi) + np.maximum(0.0, xi - 1.0), -1) + residual
+    best = np.argmin(outside, 1)
+    rows = np.arange(len(points))
+    worst = float(outside[rows, best].max()) if len(points) else 0.0
+    if worst > 1.0:
+        _checks.fail(
+            "lattice", "a lattice whose cells hold the surface's samples", f"a sample {worst:.2g} cells out"
+        )
+    return corner_ids[rows, best].astype(np.int32), _trilinear_weights(xi[rows, best])
+
+
+def _trilinear_weights(xi: np.ndarray) -> np.ndarray:
+    """`(…, 8)` weights `N_c(ξ) = Π_d (ξ_d if c_d else 1 − ξ_d)` of the corners `_CORNERS`."""
+    return np.prod(np.where(_CORNERS == 1, xi[..., None, :], 1.0 - xi[..., None, :]), -1)
+
+
+def _invert_trilinear(corners: np.ndarray, x: np.ndarray, steps: int = 20):
+    """`(ξ (…, 3), residual (…,))` with `Σ N_c(ξ) corners_c = x` (Newton; residual in cell sizes)."""
+    xi = np.full(corners.shape[:-2] + (3,), 0.5)
+    size = np.linalg.norm(corners[..., -1, :] - corners[..., 0, :], axis=-1) + 1e-300
+    sign = np.where(_CORNERS == 1, 1.0, -1.0)  # d N_c / d ξ_d factor
+    for _ in range(steps):
+        w = _trilinear_weights(xi)
+        r = np.einsum("...c,...cd->...d", w, corners) - x
+        f = np.where(_CORNERS == 1, xi[..., None, :], 1.0 - xi[..., None, :])  # (…, 8, 3)
+        grad = np.stack(
+            [sign[:, d] * np.prod(np.delete(f, d, axis=-1), -1) for d in range(3)], -1
+        )  # (…, 8, 3): dN_c/dξ_d
+        jac = np.einsum("...cd,...ce->...de", corners, grad)  # (…, 3 xyz, 3 ξ)
+        step = np.linalg.solve(jac + 1e-300 * np.eye(3), r[..., None])[..., 0]
+        xi = np.clip(xi - step, -2.0, 3.0)
+    w = _trilinear_weights(xi)
+    r = np.einsum("...c,...cd->...d", w, corners) - x
+    return xi, np.linalg.norm(r, axis=-1) / size
 
 
 @compiled
@@ -191,7 +332,7 @@ def surface_lattice(
         if stiffness is None or damping is None or mass is None:
             _checks.fail("stiffness, damping, mass", "all three, or a material", "some missing")
         lattice = Lattice(x, edges, stiffness, damping, mass, fixed_nodes, node_damping=node_damping)
-    return lattice, SurfaceCoupling(blending, jnp.asarray(node_map), jnp.asarray(first.astype(np.int32)))
+    return lattice, SurfaceCoupling._direct(blending, node_map, first, pole_sides(ctrl))
 
 
 def _grid_area(points: np.ndarray) -> float:

@@ -1,17 +1,21 @@
 """Deformable bodies that push on each other (thesis §3.3 and §5.3.3; Gao & Gibson, *Haptic
 sculpting of multi-resolution B-spline surfaces with shaped tools*, §3.2–4.2).
 
-A `Body` is a mass-spring lattice bounded by a B-spline surface; its surface samples are lattice
-nodes (`SurfaceCoupling`). A `Scene` holds bodies, rigid `bsjax.collide` tools, gravity and one
+A `Body` is a mass-spring lattice bounded by a B-spline surface: a shell whose outer layer is the
+surface's samples, or a VSOFM volume lattice in which the surface's samples are embedded by
+trilinear weights (`SurfaceCoupling`). A `Scene` holds bodies, rigid `bsjax.collide` tools, gravity and one
 contact model (`collide.DistributedSprings`). Each step of `simulate_scene`:
 
-1. every body's surface is refit from its nodes (`coupling.ctrl`, thesis eq. 3.7);
+1. every body's surface is refit from its nodes (`coupling.ctrl`, thesis eq. 3.7; poles kept
+   collapsed);
 2. every pair of bodies: `collide.surface_penetration` (closest-point depth and normal on both
    sides, within `scene.reach`) → `DistributedSprings.surface_forces` on the samples, each force
    with its equal and opposite reaction at the foot point on the other body;
 3. every rigid tool: each node's `push` (closest-point depth and outward normal) → the same
    spring law, the tool taking the reaction;
-4. sample forces go to the nodes through the coupling's map; every body takes one
+4. the forces act on the refit surfaces' samples `S(x)` (what the contact sees) and reach the
+   nodes by virtual work, `(∂S/∂x)ᵀ f` (coupling weights and refit together; the dampers see
+   `(∂S/∂x) v`), so the contact does no work the bodies do not feel; every body takes one
    semi-implicit Euler step (`mss.step`) with gravity, and the prescribed `motion` moves its fixed
    nodes.
 
@@ -31,9 +35,9 @@ from jaxtyping import Array, Float
 from bsjax import _checks, collide
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
-from bsjax.mss._coupling import SurfaceCoupling
+from bsjax.mss._coupling import SurfaceCoupling, pole_sides
 from bsjax.mss._forces import tool_contacts
-from bsjax.mss._integrators import _checked_dt, _explicit, energy
+from bsjax.mss._integrators import _checked_dt, _explicit, energy, stable_dt
 from bsjax.mss._lattice import Lattice, State, hex_lattice
 from bsjax.mss._materials import Material
 
@@ -55,30 +59,42 @@ class Body(eqx.Module):
         *,
         thickness: float | None = None,
         fixed: Callable | np.ndarray | None = None,
+        samples: tuple[int, int] | None = None,
+        **vsofm_options,
     ) -> Body:
         """The body bounded by `surface`, of lattice `shape = (a, b, c)` and `material`.
 
-        An open surface (a spoon's bowl, a plate) with `thickness` (m, > 0): a shell lattice of
-        `a × b` nodes across the surface (its blending's samples) and `c ≥ 2` layers through the
-        thickness, layer k at `S(u, v) − (c−1−k)/(c−1) · thickness · N(u, v)` (the last layer is
-        the surface, the others inward, against the normal); the springs of a hexahedral grid
-        (`hex_lattice`), masses from the shell's volume.
+        - A **closed** surface (every side periodic or collapsed to a pole: a sphere, a jelly)
+          without `thickness`: a volume lattice of `shape` fitted inside it by the VSOFM
+          (`bsjax.vsofm.fit` on the surface's samples, then `vsofm.lattice`; further keyword
+          arguments go to `vsofm.fit`: `cycles`, `key`, `settings`), the surface embedded in
+          it (`SurfaceCoupling.embedded`: each of the `samples = (m, n)` surface samples —
+          default `(2a, 2b)` — moves with the trilinear weights of the cell holding it).
+        - An **open** surface (a spoon's bowl, a plate) with `thickness` (m, > 0): a shell
+          lattice of `a × b` nodes across the surface (its blending's samples) and `c ≥ 2`
+          layers through the thickness, layer k at `S(u, v) − (c−1−k)/(c−1) · thickness ·
+          N(u, v)` (the last layer is the surface, the others inward, against the normal); the
+          springs of a hexahedral grid (`hex_lattice`), masses from the shell's volume.
+
         `fixed`: a function of the rest positions `(N, 3) → (N,)` booleans, or a boolean mask
         `(N,)`, of the nodes held in place (a clamp, a hand).
-
-        Closed surfaces (a volume lattice by the VSOFM) are not coupled yet: they raise.
         """
         if not isinstance(surface, BSplineSurface):
             raise TypeError(f"surface: expected a bsjax.basis.BSplineSurface, got {type(surface).__name__}")
         if not isinstance(material, Material):
             raise TypeError(f"material: expected a bsjax.mss.Material, got {type(material).__name__}")
         a, b, c = _checked_shape(shape)
+        closed = _is_closed(surface)
         if thickness is None:
+            if not closed:
+                _checks.fail("thickness", "a shell thickness in m (the surface is open)", None)
+            return cls._volume(surface, (a, b, c), material, fixed, samples, vsofm_options)
+        if closed or surface.periodic_u or surface.periodic_v:
             _checks.fail(
-                "thickness", "a shell thickness in m (closed surfaces' volume lattices: not yet)", None
+                "surface", "an open surface for a shell (a closed one: no thickness)", "a closed one"
             )
-        if surface.periodic_u or surface.periodic_v:
-            _checks.fail("surface", "an open surface (no periodic direction) for a shell", "a periodic one")
+        if samples is not None or vsofm_options:
+            _checks.fail("samples", "None for a shell (its samples are its a × b nodes)", samples)
         r, s = surface.ctrl.shape[:2]
         if a < r or b < s:
             _checks.fail("shape", f"a ≥ {r} and b ≥ {s} (the control net, for the refit)", (a, b, c))
@@ -92,6 +108,37 @@ class Body(eqx.Module):
         lattice = hex_lattice(nodes, material=material, fixed=held)
         node_map = (np.arange(a * b).reshape(a, b) * c + c - 1).astype(np.int32)
         return cls(lattice, surface, SurfaceCoupling.on_nodes(blending, node_map, lattice.n_nodes))
+
+    @classmethod
+    def _volume(cls, surface, shape, material, fixed, samples, vsofm_options) -> Body:
+        """A closed surface's VSOFM volume body (`from_surface`)."""
+        from bsjax import vsofm
+
+        a, b, _ = shape
+        m, n = (2 * a, 2 * b) if samples is None else _checked_samples(samples)
+        r, s = surface.ctrl.shape[:2]
+        if m < r or n < s:
+            _checks.fail("samples", f"m ≥ {r} and n ≥ {s} (the control net, for the refit)", (m, n))
+        blending = surface.blending(m, n)
+        points = blending.points(surface.ctrl).reshape(-1, 3)
+        nodes = vsofm.fit(points, shape, **vsofm_options)
+        held = None if fixed is None else _fixed_mask(fixed, nodes.reshape(-1, 3))
+        lattice = vsofm.lattice(nodes, material=material, fixed=held)
+        return cls(lattice, surface, SurfaceCoupling.embedded(blending, surface.ctrl, lattice))
+
+
+def _is_closed(surface: BSplineSurface) -> bool:
+    """Every side of the net is periodic, or collapsed to one point (a pole)."""
+    u0, u1, v0, v1 = pole_sides(surface.ctrl)
+    return bool((surface.periodic_u or (u0 and u1)) and (surface.periodic_v or (v0 and v1)))
+
+
+def _checked_samples(samples) -> tuple[int, int]:
+    if not (isinstance(samples, (tuple, list)) and len(samples) == 2) or any(
+        isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2 for k in samples
+    ):
+        _checks.fail("samples", "a tuple (m, n) of ints ≥ 2", samples)
+    return int(samples[0]), int(samples[1])
 
 
 def _checked_shape(shape) -> tuple[int, int, int]:
@@ -119,7 +166,7 @@ class Scene(eqx.Module):
     `Sphere`, `Ellipsoid`, `Plane`, `Implicit`, `TriangleMesh`); `gravity (3,)` in m/s² or None;
     `contact`: a `collide.DistributedSprings` (default k = 1e3 N/m per sample, c = 0);
     `reach`: the deepest penetration counted between bodies (m; default: the thinnest body's
-    shell thickness — `surface_penetration`).
+    shell thickness, or half a volume body's smallest extent — `surface_penetration`).
     """
 
     bodies: tuple[Body, ...]
@@ -152,8 +199,11 @@ class Scene(eqx.Module):
 
 
 def _thickness(body: Body) -> float:
-    """A shell body's thickness: the rest distance from its surface node to the innermost one."""
+    """How deep another body may reach into `body`: a shell's thickness (the rest distance from
+    its surface node to the innermost one); half the smallest extent of a volume body."""
     x = np.asarray(body.lattice.rest_positions)
+    if body.coupling.node_map.shape[-1] > 1:  # an embedded surface: a volume lattice
+        return 0.5 * float(np.ptp(x, 0).min())
     shape = body.lattice.grid_shape
     assert shape is not None
     grid = x.reshape(shape + (3,))
@@ -234,17 +284,17 @@ def _tool_pushes(scene: Scene, states):
 
 
 def _contact_forces(scene: Scene, states):
-    """Per-body node forces and per-tool reactions (no checks)."""
+    """Per-body node forces and per-tool reactions (no checks). A body's contact forces act on
+    its refit surface's samples `S(x) = points(ctrl(x))`, the surface the contact sees; they
+    reach the nodes by virtual work, `f_nodes = (∂S/∂x)ᵀ f_samples` (coupling weights and refit
+    together), and the dampers see the samples' velocity `(∂S/∂x) v`."""
     dtype = states[0].position.dtype if states else jnp.result_type(float)
-    sample_f = [jnp.zeros(b.coupling.node_map.shape + (3,), dtype) for b in scene.bodies]
-    velocities = [b.coupling.grid(s.velocity) for b, s in zip(scene.bodies, states)]
+    maps = [_surface_map(b, s) for b, s in zip(scene.bodies, states)]
+    sample_f = [jnp.zeros(b.coupling.node_map.shape[:2] + (3,), dtype) for b in scene.bodies]
     for i, j, ab, ba in _penetrations(scene, states):
-        fi, fj = scene.contact.surface_forces(ab, ba, velocities[i], velocities[j])
+        fi, fj = scene.contact.surface_forces(ab, ba, maps[i][0], maps[j][0])
         sample_f[i], sample_f[j] = sample_f[i] + fi, sample_f[j] + fj
-    node_f = [
-        jax.ops.segment_sum(f.reshape(-1, 3), b.coupling.node_map.reshape(-1), b.lattice.n_nodes)
-        for b, f in zip(scene.bodies, sample_f)
-    ]
+    node_f = [pull(f) for (_, pull), f in zip(maps, sample_f)]
     reactions = [jnp.zeros(3, dtype) for _ in scene.tools]
     for t, k, depth, normal in _tool_pushes(scene, states):
         closing = -jnp.sum(states[k].velocity * normal, -1)  # the tool at rest
@@ -254,12 +304,36 @@ def _contact_forces(scene: Scene, states):
     return tuple(node_f), jnp.stack(reactions) if reactions else jnp.zeros((0, 3), dtype)
 
 
+def _surface_map(body: Body, state: State):
+    """`(sample velocities (m, n, 3), pullback)` of the body's refit surface samples
+    `S(x) = points(ctrl(x))`: `(∂S/∂x) v` and `f ↦ (∂S/∂x)ᵀ f` (a linear map of the nodes)."""
+
+    def surface(x):
+        return body.coupling.blending.points(body.coupling.ctrl(x))
+
+    _, velocity = jax.jvp(surface, (state.position,), (state.velocity,))
+    _, pull = jax.vjp(surface, state.position)
+    return velocity, lambda force: pull(force)[0]
+
+
 def _stable_dt_scene(scene: Scene, dt):
-    """`dt`, checked against every body's explicit limit with the contact's spring and damper."""
+    """`dt`, checked against every body's explicit limit with the contact's spring and damper
+    (`scene_stable_dt`)."""
     k, c = scene.contact.stiffness, scene.contact.damping
     for b in scene.bodies:
-        dt = _checked_dt(b.lattice, dt, k, contact_damping=c)
+        gain = b.coupling.load()
+        dt = _checked_dt(b.lattice, dt, k * gain, contact_damping=c * gain)
     return dt
+
+
+@compiled
+def scene_stable_dt(scene: Scene) -> Float[Array, ""]:
+    """The largest stable step of `simulate_scene` in s: the least over the bodies of
+    `mss.stable_dt(lattice, k · load, c · load)`, with the contact model's `k`, `c` and the
+    coupling's `load()` (a node carrying several samples feels several contact springs)."""
+    k, c = scene.contact.stiffness, scene.contact.damping
+    limits = [stable_dt(b.lattice, k * b.coupling.load(), c * b.coupling.load()) for b in scene.bodies]
+    return jnp.min(jnp.stack(limits)) if limits else jnp.asarray(jnp.inf, scene.reach.dtype)
 
 
 @compiled
@@ -274,8 +348,8 @@ def simulate_scene(
 ) -> tuple[State, ...]:
     """`n_steps` steps of the scene (module docstring) as one `lax.scan`.
 
-    **Arguments:** `scene`; `states` (one per body, `scene_init`); `dt` in s (at most every
-    body's `stable_dt(lattice, contact.stiffness, contact.damping)`); `n_steps` (static int
+    **Arguments:** `scene`; `states` (one per body, `scene_init`); `dt` in s (at most
+    `scene_stable_dt(scene)`); `n_steps` (static int
     ≥ 1); `motion`: per body None or a function `t ↦ (rotation (3, 3), translation (3,))`
     that moves the body's fixed nodes rigidly from their rest positions (a tilt, a shaking
     hand; their velocity is its time derivative, by `jax.jvp`); `progress`: not supported yet (must be None).
