@@ -496,9 +496,9 @@ def _(q):
     return Case(vsofm.report, (pts, som_nodes(q)), f"{q.som}^3, {pts.shape[0]} samples", jit=False)
 
 
-@entry("vsofm.lattice")
+@entry("mss.hex_lattice")
 def _(q):
-    return Case(lambda n: vsofm.lattice(n, material=mss.JELLY), (som_nodes(q),), f"{q.som}^3")
+    return Case(lambda n: mss.hex_lattice(n, material=mss.JELLY), (som_nodes(q),), f"{q.som}^3")
 
 
 # --- running -------------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ discrete-harmonic position of the boundary (Jacobi sweeps during training, conju
 the end), so they spread evenly inside. At the end boundary nodes are projected onto local
 quadric fits of the samples.
 `report` counts inverted hexahedra and measures boundary distance and element quality;
-`lattice` turns the result into an `mss.Lattice`.
+`mss.hex_lattice(nodes, material=...)` turns the result into a lattice.
 
 No inverted hexahedra. A box lattice fitted into a smooth closed surface has cells on
 the box's edges (two faces on the surface) and corners (three faces): at their box-edge corner
@@ -496,15 +496,3 @@ def _quality(nodes, points):
     b = nodes[boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
     dist = _safe.norm(b - _project(b, points, *_patches(points, _neighbours(points, _NEAR)[0])))
     return jnp.sum(bad), jnp.asarray(bad.size), jnp.min(jac), jnp.mean(jac), jnp.max(dist), jnp.mean(dist)
-
-
-@compiled
-def lattice(nodes: Float[ArrayLike, "a b c 3"], material=None, **kwargs):
-    """The fitted nodes `(a, b, c, 3)` as a volumetric `mss.Lattice` (edge, face- and body-diagonal
-    springs, thesis §5.3.2); arguments as `mss.hex_lattice` (compiled at the boundary)."""
-    from bsjax import mss
-
-    _checks.check_ndim(nodes, "nodes", 4, last=3)
-    _checks.check_real(nodes, "nodes")
-    nodes = _checks.finite(jnp.asarray(nodes), "nodes")
-    return mss.hex_lattice(nodes, material=material, **kwargs)

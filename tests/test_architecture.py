@@ -103,7 +103,8 @@ def _reach(graph, start):
         ("bsjax.basis", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.collide", ("bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.merge", ("bsjax.mss", "bsjax.vsofm", "bsjax.device")),
-        ("bsjax.mss", ("bsjax.merge", "bsjax.vsofm", "bsjax.device")),
+        ("bsjax.vsofm", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.device")),
+        ("bsjax.mss", ("bsjax.merge", "bsjax.device")),  # a closed surface's body is fitted by VSOFM
         ("bsjax.batch", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         ("bsjax.construct", ("bsjax.collide", "bsjax.merge", "bsjax.mss", "bsjax.vsofm", "bsjax.device")),
         (

@@ -65,7 +65,7 @@ def test_teardrop_no_inverted_and_lattice_ready_for_mss():
     dense = vsofm.report(revolved_points(surf, 160, 160), nodes)
     assert dense.boundary_mean < 2e-3 and dense.boundary_max < 0.03, dense
     assert rep.sample_max < 0.08  # and within the cloud's sample spacing (~0.1 at the equator)
-    lat = vsofm.lattice(nodes, material=mss.JELLY)
+    lat = mss.hex_lattice(nodes, material=mss.JELLY)
     assert lat.n_nodes == 512 and lat.grid_shape == (8, 8, 8)
     assert float(mss.hex_volume(jnp.asarray(nodes))) > 0
 
@@ -155,12 +155,12 @@ _CLOUD = jnp.asarray(fibonacci_sphere(40))
         (lambda p: vsofm.fit(p, (3, 1, 3)), (_CLOUD,), "shape: expected three lattice sizes >= 2"),
         (lambda p: vsofm.fit(p[:, :2], (3, 3, 3)), (_CLOUD,), "points: expected trailing dimension 3"),
         (
-            lambda x: vsofm.lattice(x, material=mss.JELLY),
+            lambda x: mss.hex_lattice(x, material=mss.JELLY),
             (jnp.full((2, 2, 2, 3), jnp.nan),),
-            "nodes: expected finite",
+            "positions: expected finite",
         ),
         (
-            lambda x: vsofm.lattice(x, stiffness=1.0, damping=0.0, mass=-1.0),
+            lambda x: mss.hex_lattice(x, stiffness=1.0, damping=0.0, mass=-1.0),
             (jnp.zeros((2, 2, 2, 3)),),
             "mass: expected finite values > 0",
         ),
@@ -182,8 +182,8 @@ def test_bad_settings_and_report_inputs():
 
 def test_lattice_same_as_called_and_inside_jit():
     g = np.stack(np.meshgrid(*[np.linspace(0.0, 0.02, 3)] * 3, indexing="ij"), -1)
-    direct = vsofm.lattice(g, material=mss.JELLY)
-    jitted = jax.jit(lambda x: vsofm.lattice(x, material=mss.JELLY))(jnp.asarray(g))
+    direct = mss.hex_lattice(g, material=mss.JELLY)
+    jitted = jax.jit(lambda x: mss.hex_lattice(x, material=mss.JELLY))(jnp.asarray(g))
     for a, b in zip(jax.tree.leaves(direct), jax.tree.leaves(jitted)):
         np.testing.assert_array_equal(a, b)
     assert direct.grid_shape == jitted.grid_shape == (3, 3, 3)

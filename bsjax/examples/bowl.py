@@ -91,7 +91,7 @@ def study(quick: bool = True, tilt_deg: float = 8.0, smoothing: float = 30.0) ->
     gy = np.linspace(lo[1], hi[1], sizes["cells"][1])
     index, weight = _linear_weights(Delaunay(local[:, :2]), np.stack(np.meshgrid(gx, gy, indexing="ij"), -1))
     nodes = _jelly(sizes)
-    lattice = vsofm.lattice(nodes, material=mss.JELLY, node_damping=5e-6)
+    lattice = mss.hex_lattice(nodes, material=mss.JELLY, node_damping=5e-6)
     dt = 0.9 * float(mss.stable_dt(lattice, 2.0))
     steps = max(int(sizes["seconds"] / dt) // 10, 1) * 10
     return BowlStudy(

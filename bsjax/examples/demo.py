@@ -142,7 +142,7 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     # against a central difference of −0.1, and BFGS could not take a step). At ζ = 0.3 the
     # gradient matches the central difference to 2 % at 0°, 3° and 6° of tilt.
     jelly = mss.Material(mss.JELLY.youngs_modulus, mss.JELLY.density, 0.3)
-    lattice = vsofm.lattice(nodes, material=jelly, node_damping=5e-6)
+    lattice = mss.hex_lattice(nodes, material=jelly, node_damping=5e-6)
     dt = 0.9 * float(mss.stable_dt(lattice, 2.0))
     steps = max(int(sizes["seconds"] / dt) // 50, 1) * 50
     print(

@@ -81,7 +81,7 @@ class SurfaceCoupling(eqx.Module):
         cls, blending: Blending, ctrl: Float[ArrayLike, "r s 3"], lattice: Lattice
     ) -> SurfaceCoupling:
         """The surface `blending.points(ctrl)` embedded in the hexahedral `lattice` (a
-        `grid_shape`, e.g. `vsofm.lattice` or `hex_lattice`): each sample gets the trilinear
+        `grid_shape`, e.g. `hex_lattice` on `vsofm.fit` nodes): each sample gets the trilinear
         coordinates of the cell holding it at rest (Newton's method on the trilinear map; a
         sample just outside the lattice — the surface's sag between boundary nodes — in the
         nearest cell, its coordinates slightly beyond [0, 1]), so `grid(rest_positions)` is the

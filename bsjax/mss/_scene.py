@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import _checks, collide
+from bsjax import _checks, collide, vsofm
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
 from bsjax.mss._coupling import SurfaceCoupling, pole_sides
@@ -66,7 +66,7 @@ class Body(eqx.Module):
 
         - A **closed** surface (every side periodic or collapsed to a pole: a sphere, a jelly)
           without `thickness`: a volume lattice of `shape` fitted inside it by the VSOFM
-          (`bsjax.vsofm.fit` on the surface's samples, then `vsofm.lattice`; further keyword
+          (`bsjax.vsofm.fit` on the surface's samples, then `hex_lattice`; further keyword
           arguments go to `vsofm.fit`: `cycles`, `key`, `settings`), the surface embedded in
           it (`SurfaceCoupling.embedded`: each of the `samples = (m, n)` surface samples —
           default `(2a, 2b)` — moves with the trilinear weights of the cell holding it).
@@ -112,8 +112,6 @@ class Body(eqx.Module):
     @classmethod
     def _volume(cls, surface, shape, material, fixed, samples, vsofm_options) -> Body:
         """A closed surface's VSOFM volume body (`from_surface`)."""
-        from bsjax import vsofm
-
         a, b, _ = shape
         m, n = (2 * a, 2 * b) if samples is None else _checked_samples(samples)
         r, s = surface.ctrl.shape[:2]
@@ -123,7 +121,7 @@ class Body(eqx.Module):
         points = blending.points(surface.ctrl).reshape(-1, 3)
         nodes = vsofm.fit(points, shape, **vsofm_options)
         held = None if fixed is None else _fixed_mask(fixed, nodes.reshape(-1, 3))
-        lattice = vsofm.lattice(nodes, material=material, fixed=held)
+        lattice = hex_lattice(nodes, material=material, fixed=held)
         return cls(lattice, surface, SurfaceCoupling.embedded(blending, surface.ctrl, lattice))
 
 
