@@ -61,6 +61,8 @@ if os.environ.get("BSJAX_TEST_PROFILE"):
     def _listen(event: str, duration: float, **_) -> None:
         if event in _PHASES:
             _spent[_PHASES[event]] = _spent.get(_PHASES[event], 0.0) + duration
+            if event.endswith("backend_compile_duration"):
+                _spent["programs"] = _spent.get("programs", 0) + 1
 
     monitoring.register_event_duration_secs_listener(_listen)
 

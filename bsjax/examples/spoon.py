@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import collide, mss
+from bsjax import collide, mss, shapes
 from bsjax.basis import BSplineSurface
 
 GRAVITY = 9.81
@@ -125,7 +125,165 @@ def bowl_frame(handle: BSplineSurface, bowl: BSplineSurface):
     return rot, edge - rot @ bowl.ctrl[0].mean(0)
 
 
-# --- 3. the jelly drop ---------------------------------------------------------------------
+# --- 3. the jelly in the spoon: two deformable bodies (thesis §7.3, Figs 7.14–7.19) -----------
+#: The jelly of the study: `mss.JELLY`'s E and ρ, damped at ζ = 0.3 (at ζ = 0.1 it rings so long
+#: that the tangent `jax.grad` carries back through a rollout grows without bound).
+JELLY = mss.Material(mss.JELLY.youngs_modulus, mss.JELLY.density, 0.3)
+
+
+class Study(eqx.Module):
+    """The jelly resting in the bowl of a steel spoon held by its handle (thesis §7.3).
+
+    **Fields:** `scene`: an `mss.Scene` of two bodies, the spoon (a steel shell lattice of the
+    merged surface, the nodes near the handle's end held: the hand) and the jelly (a VSOFM
+    volume lattice of a B-spline sphere); `rows (R, 4)`: the bowl's footprint at rest, one row
+    per sample row along the spoon, `(x, y_low, y_high, z_rim)`; `neck`, `tip`: the bowl's x range
+    at rest (m).
+    """
+
+    scene: mss.Scene
+    rows: Float[Array, "R 4"]
+    neck: float = eqx.field(static=True)
+    tip: float = eqx.field(static=True)
+
+
+def study(
+    spoon: BSplineSurface,
+    *,
+    lattice: int = 12,
+    jelly_samples: tuple[int, int] = (24, 24),
+    radius: float = 0.007,
+    spoon_shape: tuple[int, int, int] = (40, 10, 2),
+    thickness: float = 0.001,
+    hand: float = 0.015,
+    neck: float = 0.0,
+    contact: collide.DistributedSprings | None = None,
+    cycles: int = 300,
+) -> Study:
+    """Build the study: the spoon surface (x along the handle towards the bowl, z up, the bowl's
+    neck at `x = neck`) as a steel shell lattice of `spoon_shape` nodes through `thickness`,
+    held along its first `hand` metres; a jelly sphere of `radius` on a `lattice³` VSOFM lattice
+    (`cycles` training cycles, `jelly_samples` surface samples) resting just above the bowl's
+    lowest point; the contact `collide.DistributedSprings` (default k = 20 N/m per sample,
+    c = 0.01 N·s/m)."""
+    start = float(np.asarray(spoon.ctrl)[..., 0].min())
+    steel = mss.Body.from_surface(
+        spoon, spoon_shape, mss.STEEL, thickness=thickness, fixed=lambda x: x[:, 0] < start + hand
+    )
+    rest = np.asarray(steel.coupling.blending.points(spoon.ctrl))
+    bowl = rest[rest[..., 0].mean(1) >= neck]
+    rows = np.stack(
+        [bowl[..., 0].mean(1), bowl[:, 0, 1], bowl[:, -1, 1], 0.5 * (bowl[:, 0, 2] + bowl[:, -1, 2])], 1
+    )
+    rows[:, 1:3] = np.sort(rows[:, 1:3], 1)
+    lowest = bowl.reshape(-1, 3)[np.argmin(bowl[..., 2])]
+    ball = shapes.sphere(radius, dtype=spoon.ctrl.dtype)
+    centre = jnp.asarray(lowest + np.array([0.0, 0.0, radius + 0.2 * thickness]), spoon.ctrl.dtype)
+    jelly = mss.Body.from_surface(
+        ball.with_ctrl(ball.ctrl + centre[None, None]),
+        (lattice,) * 3,
+        JELLY,
+        samples=jelly_samples,
+        cycles=cycles,
+    )
+    contact = collide.DistributedSprings(20.0, 0.01) if contact is None else contact
+    scene = mss.Scene((steel, jelly), gravity=jnp.array([0.0, 0.0, -GRAVITY]), contact=contact)
+    return Study(scene, jnp.asarray(rows), float(neck), float(rows[:, 0].max()))
+
+
+#: Each body's integrator: the steel spoon by backward Euler (its explicit limit is ~100 times
+#: smaller than the jelly's), the jelly by symplectic Euler; the contact explicitly.
+METHODS = ("implicit", "semi_implicit")
+
+
+def tilted(s: Study, tilt_deg) -> mss.Scene:
+    """The study's scene with the spoon pitched by `tilt_deg` degrees about the handle's
+    crosswise axis, positive backwards (the tip up): in the spoon's frame a steady tilt is
+    gravity turned, `g (−sin θ, 0, −cos θ)` (differentiable in θ)."""
+    theta = jnp.deg2rad(jnp.asarray(tilt_deg, s.rows.dtype))
+    g = GRAVITY * jnp.stack([-jnp.sin(theta), jnp.zeros_like(theta), -jnp.cos(theta)])
+    return eqx.tree_at(lambda scene: scene.gravity, s.scene, g)
+
+
+class Hand(eqx.Module):
+    """A shaking hand, the held nodes' motion `t ↦ (I, T(t))`: `T(t) = amplitude · sin(2π f t)
+    · axis`, eased in over the first period (smoothstep), so the spoon's acceleration
+    oscillates with amplitude `amplitude (2π f)²`."""
+
+    axis: Float[Array, " 3"]
+    amplitude: Float[Array, ""]
+    frequency: Float[Array, ""]
+
+    def __call__(self, t):
+        e = jnp.clip(t * self.frequency, 0.0, 1.0)
+        offset = self.amplitude * e * e * (3.0 - 2.0 * e) * jnp.sin(2.0 * jnp.pi * self.frequency * t)
+        return jnp.eye(3, dtype=self.axis.dtype), offset * self.axis
+
+
+#: Shaking axes of `shake`: along the handle (x) or across it (y).
+AXES = {"handle": (1.0, 0.0, 0.0), "across": (0.0, 1.0, 0.0)}
+
+
+def shake(s: Study, axis: str = "handle", amplitude=0.0, frequency=1.0) -> Hand:
+    """The `Hand` shaking the spoon along `axis` (`AXES`) by `amplitude` m at `frequency` Hz."""
+    if axis not in AXES:
+        raise ValueError(f"shake_axis: expected one of {sorted(AXES)}, got {axis!r}")
+    dtype = s.rows.dtype
+    return Hand(jnp.asarray(AXES[axis], dtype), jnp.asarray(amplitude, dtype), jnp.asarray(frequency, dtype))
+
+
+def run(s: Study, tilt_deg=0.0, hand: Hand | None = None, seconds: float = 0.3, dt=None, progress=None):
+    """The study's scene from rest, tilted by `tilt_deg`, the hand shaking (`hand`, or held
+    still) for `seconds`: `(states, t_end)`, the step 0.9 × `mss.scene_stable_dt(scene,
+    METHODS)` unless `dt` is given."""
+    scene = tilted(s, tilt_deg)
+    dt = 0.9 * float(mss.scene_stable_dt(scene, METHODS)) if dt is None else dt
+    n = max(int(round(seconds / dt)), 1)
+    states = mss.simulate_scene(
+        scene, mss.scene_init(scene), dt, n, motion=(hand, None), method=METHODS, progress=progress
+    )
+    return states, n * dt
+
+
+def _in_hand_frame(hand: Hand | None, t, x):
+    """Positions `x (N, 3)` at time `t` in the spoon's rest frame: `x − T(t)`."""
+    return x if hand is None else x - hand(t)[1][None]
+
+
+def _margins(s: Study, x):
+    """Signed distances (m, positive inside) `(N, 3)` of rest-frame points `x (N, 3)` to the
+    bowl's footprint: to the tip, to the neck, and across (`y_low(x)`..`y_high(x)`)."""
+    lo = jnp.interp(x[:, 0], s.rows[:, 0], s.rows[:, 1])
+    hi = jnp.interp(x[:, 0], s.rows[:, 0], s.rows[:, 2])
+    return jnp.stack([s.tip - x[:, 0], x[:, 0] - s.neck, jnp.minimum(x[:, 1] - lo, hi - x[:, 1])], -1)
+
+
+#: Where a spilled node left the bowl, by the footprint side it is furthest beyond.
+EXITS = ("front", "back", "side")
+
+
+def spilled(s: Study, position, t=0.0, hand: Hand | None = None) -> dict:
+    """Mass fraction of the jelly outside the bowl's footprint at time `t` (node positions
+    `(N, 3)`, in the rest frame of the spoon moved by `hand`), in total and by where it left (`EXITS`)."""
+    mass = np.asarray(s.scene.bodies[1].lattice.mass)
+    margins = np.asarray(_margins(s, _in_hand_frame(hand, t, position)))
+    out = margins.min(1) < 0
+    side = np.argmin(margins, 1)
+    total = mass.sum()
+    where = {name: float(mass[out & (side == k)].sum() / total) for k, name in enumerate(EXITS)}
+    return {"spilled": float(mass[out].sum() / total), **where}
+
+
+def spill_risk(s: Study, position, t=0.0, hand: Hand | None = None, scale: float = 0.002):
+    """Smooth spill risk: the mass-weighted mean over the jelly's nodes of `σ(−margin / scale)`
+    (½ on the rim, → 1 beyond it, → 0 deep inside), differentiable in the positions and the
+    motion."""
+    mass = s.scene.bodies[1].lattice.mass
+    margin = jnp.min(_margins(s, _in_hand_frame(hand, t, position)), 1)
+    return jnp.sum(mass * jax.nn.sigmoid(-margin / scale)) / jnp.sum(mass)
+
+
+# --- the jelly drop on a height map (the demo's, until it moves onto the study above) ------------
 class HeightMap(eqx.Module):
     """A surface sampled once on a regular (x, y) grid of the bowl frame: heights `z`, a
     coverage mask (1 on the surface's footprint, 0 outside) and the slopes, for O(1) contact

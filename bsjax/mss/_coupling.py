@@ -20,12 +20,10 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from bsjax import _checks
 from bsjax._boundary import compiled
 from bsjax.basis import Blending
-from bsjax.mss._integrators import Contact, implicit_step, step
+from bsjax.mss._integrators import Contact, _check_method, implicit_step, step
 from bsjax.mss._lattice import Lattice, State, from_material, grid_edges, merge_coincident
 from bsjax.mss._materials import Material
 from bsjax.mss._rollout import trajectory
-
-METHODS = ("semi_implicit", "implicit")
 
 
 class SurfaceCoupling(eqx.Module):
@@ -257,8 +255,7 @@ def coupled_step(
 
     **Returns:** `(state, ctrl)`: the new state and the control net `(r, s, 3)` of its surface.
     """
-    if method not in METHODS:
-        _checks.fail("method", f"one of {METHODS}", repr(method))
+    _check_method(method)
     tools = tuple(tools)
     if method == "semi_implicit":
         state = step(

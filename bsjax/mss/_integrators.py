@@ -23,6 +23,12 @@ from bsjax.mss._lattice import Lattice, State
 METHODS = ("semi_implicit", "implicit")
 
 
+def _check_method(method) -> None:
+    """`method`: one of `METHODS`."""
+    if method not in METHODS:
+        _checks.fail("method", f"one of {METHODS}", repr(method))
+
+
 class Contact(eqx.Module):
     """Penalty contact settings: `stiffness` in N/m per unit depth, `damping` in N·s/m (both ≥ 0)."""
 
@@ -137,10 +143,11 @@ def energy(
 # --- stability ----------------------------------------------------------------------------------------
 
 
-def _bounds(lattice: Lattice, contact_stiffness, contact_damping=0.0) -> tuple[Array, Array]:
+def _bounds(lattice: Lattice, contact_stiffness, contact_damping=0.0, springs=True) -> tuple[Array, Array]:
     """Block-Gershgorin bounds `(ω², c)` of the largest eigenvalues of `M⁻¹K` and `M⁻¹C` over the
     free nodes: `max_i Σ_j K_ij (1/m_i + 1/√(m_i m_j)) + k_c/m_i`, the same with the damping
-    (node damping plus the contact damper `c_c` of a node in contact).
+    (node damping plus the contact damper `c_c` of a node in contact). `springs=False`: the
+    contact terms alone (a lattice integrated implicitly, its contact forces explicitly).
 
     Terms with a zero coefficient contribute 0 (never `0·inf`), and `1/√(m_i m_j)` is formed as
     `(1/√m_i)(1/√m_j)`, so extreme but finite masses give `inf`, never NaN.
@@ -163,12 +170,15 @@ def _bounds(lattice: Lattice, contact_stiffness, contact_damping=0.0) -> tuple[A
         return jnp.max(jnp.where(lattice.fixed, 0.0, b), initial=0.0)
 
     k_c = jnp.broadcast_to(jnp.asarray(contact_stiffness, dtype=m.dtype), m.shape)
-    c_c = jnp.asarray(contact_damping, dtype=m.dtype)
+    c_c = jnp.broadcast_to(jnp.asarray(contact_damping, dtype=m.dtype), m.shape)
+    if not springs:
+        none = jnp.zeros_like(lattice.stiffness)
+        return bound(none, k_c), bound(none, c_c)
     return bound(lattice.stiffness, k_c), bound(lattice.damping, lattice.node_damping + c_c)
 
 
-def _stable_dt(lattice: Lattice, contact_stiffness, contact_damping=0.0) -> Array:
-    w2, c = _bounds(lattice, contact_stiffness, contact_damping)
+def _stable_dt(lattice: Lattice, contact_stiffness, contact_damping=0.0, springs=True) -> Array:
+    w2, c = _bounds(lattice, contact_stiffness, contact_damping, springs)
     # h = (√(c² + 4ω²) − c)/ω² written as 4/(√(c² + 4ω²) + c): no 0/0 at ω² = 0 (→ 2/c, or inf
     # when also c = 0), no inf/inf at ω² = inf (→ 0); the root is a scaled norm (no overflow of c²)
     ok = jnp.isfinite(w2) & jnp.isfinite(c)
@@ -212,16 +222,16 @@ _UNSTABLE = (
 
 
 def _checked_dt(
-    lattice: Lattice, dt, contact_stiffness=0.0, stability: bool = True, contact_damping=0.0
+    lattice: Lattice, dt, contact_stiffness=0.0, stability: bool = True, contact_damping=0.0, springs=True
 ) -> Array:
     """`dt` as an array of the lattice's dtype, checked finite and > 0, and (`stability`) not above
-    the semi-implicit Euler limit `_stable_dt` — raised at once when concrete, `eqx.error_if`
-    when traced."""
+    the semi-implicit Euler limit `_stable_dt` (of the contact terms alone, `springs=False`) —
+    raised at once when concrete, `eqx.error_if` when traced."""
     dt = _checks.positive(jnp.asarray(dt, dtype=lattice.mass.dtype), "dt")
     if np.ndim(dt) != 0:
         _checks.fail("dt", "a scalar time step", f"shape {np.shape(dt)}")
     if stability:
-        limit = _stable_dt(lattice, contact_stiffness, contact_damping)
+        limit = _stable_dt(lattice, contact_stiffness, contact_damping, springs)
         dt = _checks.check(dt, dt > limit, "dt", _UNSTABLE, "a larger one")
     return dt
 

@@ -19,9 +19,9 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from bsjax import _checks, _safe, batch
 from bsjax._boundary import compiled
 from bsjax.mss._integrators import (
-    METHODS,
     Contact,
     Plasticity,
+    _check_method,
     _checked_dt,
     _checked_implicit_dt,
     _checked_inputs,
@@ -60,11 +60,6 @@ def yield_rest_lengths(
         _checks.fail("position", f"shape ({lattice.n_nodes}, 3)", np.shape(position))
     rest = lattice.rest_length if rest_length is None else rest_length
     return _yield(lattice, _checks.finite(jnp.asarray(position), "position"), plasticity, rest)
-
-
-def _check_method(method):
-    if method not in METHODS:
-        _checks.fail("method", f"one of {METHODS}", repr(method))
 
 
 def _per_step_force(external_force, n_steps, n_nodes):

@@ -16,8 +16,9 @@ contact model (`collide.DistributedSprings`). Each step of `simulate_scene`:
 4. the forces act on the refit surfaces' samples `S(x)` (what the contact sees) and reach the
    nodes by virtual work, `(∂S/∂x)ᵀ f` (coupling weights and refit together; the dampers see
    `(∂S/∂x) v`), so the contact does no work the bodies do not feel; every body takes one
-   semi-implicit Euler step (`mss.step`) with gravity, and the prescribed `motion` moves its fixed
-   nodes.
+   step with gravity — semi-implicit Euler (`mss.step`), or linearised backward Euler for a
+   stiff body (`method="implicit"`: its springs implicit, the contact forces explicit) — and the
+   prescribed `motion` moves its fixed nodes.
 
 So Σ of the contact forces over all bodies plus the tools' reactions is zero to rounding.
 """
@@ -37,9 +38,18 @@ from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
 from bsjax.mss._coupling import SurfaceCoupling, pole_sides
 from bsjax.mss._forces import tool_contacts
-from bsjax.mss._integrators import _checked_dt, _explicit, energy, stable_dt
+from bsjax.mss._integrators import (
+    _check_method,
+    _checked_dt,
+    _checked_implicit_dt,
+    _explicit,
+    _implicit,
+    _stable_dt,
+    energy,
+)
 from bsjax.mss._lattice import Lattice, State, hex_lattice
 from bsjax.mss._materials import Material
+from bsjax.mss._rollout import _check_progress, _scan
 
 
 class Body(eqx.Module):
@@ -314,23 +324,44 @@ def _surface_map(body: Body, state: State):
     return velocity, lambda force: pull(force)[0]
 
 
-def _stable_dt_scene(scene: Scene, dt):
-    """`dt`, checked against every body's explicit limit with the contact's spring and damper
-    (`scene_stable_dt`)."""
-    k, c = scene.contact.stiffness, scene.contact.damping
-    for b in scene.bodies:
-        gain = b.coupling.load()
-        dt = _checked_dt(b.lattice, dt, k * gain, contact_damping=c * gain)
+def _methods(scene: Scene, method) -> tuple[str, ...]:
+    """`method`: one of `mss.METHODS` for every body, or a sequence of them, one per body."""
+    methods = (method,) * len(scene.bodies) if isinstance(method, str) else tuple(method)
+    if len(methods) != len(scene.bodies):
+        _checks.fail("method", f"a method, or {len(scene.bodies)} (one per body)", f"{len(methods)} methods")
+    for m in methods:
+        _check_method(m)
+    return methods
+
+
+def _body_limit(body: Body, scene: Scene, method: str) -> tuple[Array, Array, bool]:
+    """`(k, c, springs)` of `body`'s explicit limit in the scene: the contact's spring and
+    damper times the coupling's load; the lattice's own springs only when it steps explicitly
+    (an implicit body takes its contact forces explicitly, its springs implicitly)."""
+    gain = body.coupling.load()
+    return scene.contact.stiffness * gain, scene.contact.damping * gain, method == "semi_implicit"
+
+
+def _stable_dt_scene(scene: Scene, dt, methods):
+    """`dt`, checked against every body's explicit limit (`scene_stable_dt`) and, for a body
+    stepped implicitly, against the overflow of its implicit system."""
+    for b, m in zip(scene.bodies, methods):
+        k, c, springs = _body_limit(b, scene, m)
+        dt = _checked_dt(b.lattice, dt, k, contact_damping=c, springs=springs)
+        if not springs:
+            dt = _checked_implicit_dt(b.lattice, dt, k)
     return dt
 
 
 @compiled
-def scene_stable_dt(scene: Scene) -> Float[Array, ""]:
+def scene_stable_dt(scene: Scene, method: str | Sequence[str] = "semi_implicit") -> Float[Array, ""]:
     """The largest stable step of `simulate_scene` in s: the least over the bodies of
     `mss.stable_dt(lattice, k · load, c · load)`, with the contact model's `k`, `c` and the
-    coupling's `load()` (a node carrying several samples feels several contact springs)."""
-    k, c = scene.contact.stiffness, scene.contact.damping
-    limits = [stable_dt(b.lattice, k * b.coupling.load(), c * b.coupling.load()) for b in scene.bodies]
+    coupling's `load()` (a node carrying several samples feels several contact springs). A body
+    stepped with `method="implicit"` counts its contact springs alone (its lattice's springs
+    are integrated implicitly: steel, say)."""
+    methods = _methods(scene, method)
+    limits = [_stable_dt(b.lattice, *_body_limit(b, scene, m)) for b, m in zip(scene.bodies, methods)]
     return jnp.min(jnp.stack(limits)) if limits else jnp.asarray(jnp.inf, scene.reach.dtype)
 
 
@@ -342,41 +373,57 @@ def simulate_scene(
     n_steps: int,
     *,
     motion: Sequence[Callable | None] | None = None,
-    progress=None,
+    method: str | Sequence[str] = "semi_implicit",
+    cg_iterations: int = 20,
+    checkpoint_every: int | None = None,
+    progress: Callable[[int, int], object] | None = None,
 ) -> tuple[State, ...]:
     """`n_steps` steps of the scene (module docstring) as one `lax.scan`.
 
-    **Arguments:** `scene`; `states` (one per body, `scene_init`); `dt` in s (at most
-    `scene_stable_dt(scene)`); `n_steps` (static int
-    ≥ 1); `motion`: per body None or a function `t ↦ (rotation (3, 3), translation (3,))`
-    that moves the body's fixed nodes rigidly from their rest positions (a tilt, a shaking
-    hand; their velocity is its time derivative, by `jax.jvp`); `progress`: not supported yet (must be None).
+    **Arguments:**
+    - `scene`; `states` (one per body, `scene_init`); `dt` in s (at most
+      `scene_stable_dt(scene, method)`); `n_steps` (static int ≥ 1).
+    - `motion`: per body None or a function `t ↦ (rotation (3, 3), translation (3,))` that
+      moves the body's fixed nodes rigidly from their rest positions (a tilt, a shaking hand;
+      their velocity is its time derivative, by `jax.jvp`).
+    - `method`: `"semi_implicit"` (symplectic Euler, `mss.step`) or `"implicit"` (linearised
+      backward Euler, `mss.implicit_step` with `cg_iterations`), for all bodies or one per body:
+      an implicit body takes its lattice's springs implicitly and the contact forces of the
+      step's start explicitly (IMEX), so a stiff body (a steel bowl) does not set the step.
+    - `checkpoint_every`: rematerialise chunks of this many steps in the backward pass (memory
+      O(n/c + c) states, as `mss.simulate`).
+    - `progress`: an optional callback `progress(done, n_steps)` on the host (`mss.simulate`).
 
     **Returns:** the states after `n_steps`.
     """
     states = _checked_states(scene, states)
     n_steps = _checks.check_count(n_steps, "n_steps")
-    if progress is not None:
-        _checks.fail("progress", "None (progress reports for scenes are not supported yet)", progress)
+    _check_progress(progress)
+    methods = _methods(scene, method)
+    cg_iterations = _checks.check_count(cg_iterations, "cg_iterations")
+    if checkpoint_every is not None:
+        _checks.check_count(checkpoint_every, "checkpoint_every")
     motion = (None,) * len(scene.bodies) if motion is None else tuple(motion)
     if len(motion) != len(scene.bodies):
         expected = f"{len(scene.bodies)} entries (one per body, None for no motion)"
         _checks.fail("motion", expected, len(motion))
     if not scene.bodies:
         return states
-    step = _stable_dt_scene(scene, dt)
+    h = _stable_dt_scene(scene, dt, methods)
 
     def advance(carry, k):
         node_f, _ = _contact_forces(scene, carry)
-        t = (k + 1).astype(step.dtype) * step
+        t = (k + 1).astype(h.dtype) * h
         out = []
-        for b, s, f, move in zip(scene.bodies, carry, node_f, motion):
-            s = _explicit(b.lattice, s, step, f, scene.gravity)
+        for b, s, f, move, m in zip(scene.bodies, carry, node_f, motion, methods):
+            if m == "implicit":
+                s = _implicit(b.lattice, s, h, f, scene.gravity, cg_iterations=cg_iterations)
+            else:
+                s = _explicit(b.lattice, s, h, f, scene.gravity)
             out.append(s if move is None else _prescribed(b.lattice, s, move, t))
         return tuple(out), None
 
-    final, _ = jax.lax.scan(advance, states, jnp.arange(n_steps))
-    return final
+    return _scan(advance, states, jnp.arange(n_steps), n_steps, checkpoint_every, progress)
 
 
 def _prescribed(lattice: Lattice, state: State, move, t) -> State:
