@@ -6,7 +6,7 @@ beside them. float32 (no x64), like a haptic loop.
 
     .venv/bin/python benchmarks/physics.py                 # everything (a few minutes)
     .venv/bin/python benchmarks/physics.py --quick         # small sizes only
-    .venv/bin/python benchmarks/physics.py --only vsofm    # one section (lattice, contact, haptic, vsofm)
+    .venv/bin/python benchmarks/physics.py --only vsofm    # one section (lattice, contact, scene, haptic, vsofm)
     .venv/bin/python benchmarks/physics.py --only vsofm --sizes 40   # issue #11's 40³ VSOFM row
     .venv/bin/python benchmarks/physics.py --only haptic --x64   # issue #11's haptic row, float64
 """
@@ -20,6 +20,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _timing import paired
 
 from bsjax import mss, shapes, vsofm
 
@@ -246,6 +247,54 @@ def contact_section(calls):
         )
 
 
+def scene_section(calls, lattice=12, chunk=50):
+    """The jelly-in-spoon scene (`bsjax.examples.spoon.study`): a `lattice³` VSOFM jelly with
+    24 × 24 surface samples resting in a 40 × 10 × 2 steel shell spoon, surface–surface
+    contact; the steel by backward Euler, the jelly by symplectic Euler. Per scene step against
+    the jelly's lattice stepping alone (`mss.simulate`, same dt), timed in alternation; the
+    thesis's real-time claim is ≥ 30 steps per second."""
+    from bsjax import merge
+    from bsjax.examples import spoon
+
+    print(f"\n== scene: {lattice}³ jelly in a steel spoon, surface–surface contact ({chunk} steps per call)")
+    merged = merge.merge([shapes.spoon_handle(), shapes.spoon_bowl()], direction="u", continuity=1)
+    t = time.perf_counter()
+    study = spoon.study(merged, lattice=lattice)
+    build = time.perf_counter() - t
+    scene = spoon.tilted(study, 0.0)
+    dt = 0.9 * float(mss.scene_stable_dt(scene, spoon.METHODS))
+    jelly = scene.bodies[1].lattice
+    box = [mss.scene_init(scene), mss.init(jelly)]
+
+    def scene_call():  # as a user calls it: no jax.jit here
+        box[0] = mss.simulate_scene(scene, box[0], dt, chunk, method=spoon.METHODS)
+        jax.block_until_ready(box[0])
+
+    def lattice_call():
+        box[1] = mss.simulate(jelly, box[1], dt, chunk)
+        jax.block_until_ready(box[1])
+
+    t = time.perf_counter()
+    scene_call()
+    first = time.perf_counter() - t
+    lattice_call()
+    med, p99, alone, alone_p99 = paired(scene_call, lattice_call, calls)
+    step_ms, alone_ms = 1e3 * med / chunk, 1e3 * alone / chunk
+    print(
+        f"  bodies built in {build:.1f} s; {jelly.n_nodes} + {scene.bodies[0].lattice.n_nodes} nodes; "
+        f"dt {1e6 * dt:.1f} µs (the jelly's explicit limit with the contact)"
+    )
+    print(f"  first call ({chunk} steps, compile included) {first:.1f} s")
+    print(
+        f"  scene step median {step_ms:.2f} ms  p99 {1e3 * p99 / chunk:.2f} ms  → {1e3 / step_ms:.0f} steps/s"
+        f" (thesis ≥ 30: {'yes' if 1e3 / step_ms >= 30 else 'NO'}), {dt * 1e3 / step_ms:.4f} simulated s per s"
+    )
+    print(
+        f"  jelly lattice alone median {alone_ms:.3f} ms  p99 {1e3 * alone_p99 / chunk:.3f} ms;"
+        f" scene / lattice {step_ms / alone_ms:.0f}×"
+    )
+
+
 def stylus_samples(count: int, centre, period: int = 150):
     """`DeviceSample`s of a stylus that presses into the body from outside (+x) for `period` ticks
     with the button held, then releases (plastic set) and hovers for `period` ticks, and so on."""
@@ -381,7 +430,9 @@ def main():
     )
     parser.add_argument("--quick", action="store_true", help="small sizes only")
     parser.add_argument("--calls", type=int, default=20)
-    parser.add_argument("--only", choices=("lattice", "contact", "haptic", "vsofm"), help="run one section")
+    parser.add_argument(
+        "--only", choices=("lattice", "contact", "scene", "haptic", "vsofm"), help="run one section"
+    )
     parser.add_argument("--x64", action="store_true", help="float64 (the haptic row's dtype in issue #11)")
     parser.add_argument("--sizes", type=int, nargs="+", help="VSOFM lattice sizes (e.g. --sizes 12 40)")
     args = parser.parse_args()
@@ -392,6 +443,8 @@ def main():
         lattice_section((10, 15) if args.quick else (10, 15, 20, 30), args.calls)
     if args.only in (None, "contact"):
         contact_section(args.calls)
+    if args.only in (None, "scene"):
+        scene_section(max(args.calls // 4, 3), lattice=6 if args.quick else 12)
     if args.only in (None, "haptic"):
         haptic_section(args.calls)
     if args.only in (None, "vsofm"):
