@@ -27,7 +27,7 @@ TOP = dict(yaw=-math.pi / 2, pitch=1.5, dist=4.0, target=[0.0, 0.0, 0.0])  # z =
 
 # how long the page waits for the server: a liveness bound, not a speed check (the server may
 # compile a program first, which takes tens of seconds under CI load)
-_REPLY_MS = 120_000
+_REPLY_MS = 300_000  # 120 s was exceeded once with two workers and another process compiling
 
 
 # --- strokes in pixels (the page's canvas), deterministic --------------------------------------
