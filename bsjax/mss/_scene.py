@@ -42,14 +42,12 @@ from bsjax.mss._integrators import (
     _check_method,
     _checked_dt,
     _checked_implicit_dt,
-    _explicit,
-    _implicit,
     _stable_dt,
     energy,
 )
 from bsjax.mss._lattice import Lattice, State, hex_lattice
 from bsjax.mss._materials import Material
-from bsjax.mss._rollout import _check_progress, _scan
+from bsjax.mss._rollout import _check_progress, _kernel, _scan
 
 
 class Body(eqx.Module):
@@ -410,16 +408,14 @@ def simulate_scene(
     if not scene.bodies:
         return states
     h = _stable_dt_scene(scene, dt, methods)
+    kernels = [_kernel(m, cg_iterations) for m in methods]
 
     def advance(carry, k):
         node_f, _ = _contact_forces(scene, carry)
         t = (k + 1).astype(h.dtype) * h
         out = []
-        for b, s, f, move, m in zip(scene.bodies, carry, node_f, motion, methods):
-            if m == "implicit":
-                s = _implicit(b.lattice, s, h, f, scene.gravity, cg_iterations=cg_iterations)
-            else:
-                s = _explicit(b.lattice, s, h, f, scene.gravity)
+        for b, s, f, move, step in zip(scene.bodies, carry, node_f, motion, kernels):
+            s = step(b.lattice, s, h, f, scene.gravity, (), None, None)  # no tools, rest lengths as built
             out.append(s if move is None else _prescribed(b.lattice, s, move, t))
         return tuple(out), None
 
