@@ -205,6 +205,7 @@ class _Compiled:
                     out = fn(*args, **kwargs)
                     return out, failures.code()
 
+            core.__name__ = core.__qualname__ = self.__qualname__  # compile logs name the entry
             jitted = self._cache[key] = jax.jit(core)
         return jitted
 

@@ -8,7 +8,10 @@ Two kinds of checks (STYLE "Checks and numerics"):
   `monotone`, `clamped_knots`, `check` — each returns its (checked) input, which the caller
   must use in place of the original. On concrete values they raise `ValueError` at once; on
   traced values (inside `jit`, `vmap`, `grad`, or the compiled public boundary) they attach an
-  `eqx.error_if` with the *same* message, so the check never switches itself off.
+  `eqx.error_if` with the *same* message, so the check never switches itself off. Inside the
+  compiled boundary's own program they become its failure code instead (`collecting`), and in
+  the loop bodies and branches of a program that re-call public methods on values its entry
+  checked they are not built at all (`trusted`).
 """
 
 from __future__ import annotations
@@ -129,9 +132,29 @@ def collecting_now() -> bool:
     return _collector.get() is not None
 
 
+_trusted: contextvars.ContextVar[bool] = contextvars.ContextVar("bsjax_trusted", default=False)
+
+
+@contextlib.contextmanager
+def trusted() -> Iterator[None]:
+    """Inside, traced value checks are not built: for the body of a loop or branch of a compiled
+    program (`lax.scan`/`while_loop`/`cond`) that calls public methods on values the program's
+    entry already checked (or computed from checked values). There a check could only become an
+    `eqx.error_if` — a host callback, so the program could never be stored on disk — for a
+    failure the entry rules out. Structure checks (shapes, types) still raise while tracing."""
+    token = _trusted.set(True)
+    try:
+        yield
+    finally:
+        _trusted.reset(token)
+
+
 def report(x, failed, text: str):
     """`x`, with the traced scalar `failed` reported as the failure `text`: added to the program's
-    failure code when collecting in the program's own trace, else an `eqx.error_if`."""
+    failure code when collecting in the program's own trace, else an `eqx.error_if` (nothing
+    inside `trusted`)."""
+    if _trusted.get():
+        return x
     collector = _collector.get()
     if collector is not None and collector.here():
         collector.codes.append(jnp.where(failed, _message_id(text), 0).astype(jnp.int32))

@@ -474,7 +474,8 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
     b = nodes[boundary_mask(nodes.shape[:3])]
     near = cKDTree(pts).query(b)[0]
     p = jnp.asarray(pts)
-    measures = _quality(jnp.asarray(nodes), p)
+    near_samples = _kd_neighbours(pts, min(_NEAR, len(pts)), distinct=True)[0]  # on the host, as above
+    measures = _quality(jnp.asarray(nodes), p, jnp.asarray(near_samples))
     inverted, n_elements, jmin, jmean, dmax, dmean = (np.asarray(m) for m in measures)
     return Report(
         int(inverted),
@@ -488,11 +489,12 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
 
 
 @compiled
-def _quality(nodes, points):
+def _quality(nodes, points, near):
     """`(inverted, n_elements, min and mean scaled Jacobian, max and mean boundary distance to the
-    quadric patches)` of `report`, as arrays."""
+    quadric patches)` of `report`, as arrays; `near (P, k)`: each sample's nearest samples (the
+    host's k-d tree, so the program holds no host callback and is stored on disk)."""
     jac = corner_jacobians(nodes)
     bad = jnp.any(jac <= 0, axis=-1)
     b = nodes[boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
-    dist = _safe.norm(b - _project(b, points, *_patches(points, _neighbours(points, _NEAR)[0])))
+    dist = _safe.norm(b - _project(b, points, *_patches(points, near)))
     return jnp.sum(bad), jnp.asarray(bad.size), jnp.min(jac), jnp.mean(jac), jnp.max(dist), jnp.mean(dist)

@@ -56,13 +56,15 @@ if os.environ.get("BSJAX_TEST_PROFILE"):
         "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
         "/jax/core/compile/backend_compile_duration": "compile_s",
     }
-    _spent: dict[str, float] = {}
+    _spent: dict = {}
 
-    def _listen(event: str, duration: float, **_) -> None:
+    def _listen(event: str, duration: float, fun_name: str = "?", **_) -> None:
         if event in _PHASES:
             _spent[_PHASES[event]] = _spent.get(_PHASES[event], 0.0) + duration
             if event.endswith("backend_compile_duration"):
                 _spent["programs"] = _spent.get("programs", 0) + 1
+                by_name = _spent.setdefault("compiled", {})  # seconds per compiled function
+                by_name[fun_name] = by_name.get(fun_name, 0.0) + duration
 
     monitoring.register_event_duration_secs_listener(_listen)
 

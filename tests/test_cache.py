@@ -135,3 +135,105 @@ def test_a_direct_call_holds_no_host_callback():
     assert set(texts) == {True, False}
     assert "callback" not in texts[True]
     assert "callback" in texts[False]
+
+
+def _plates():
+    from bsjax import shapes
+
+    flat = shapes.plate(5, 5)
+    tilted = flat.with_ctrl(flat.ctrl.at[..., 2].set(0.3 * (flat.ctrl[..., 0] - 0.5)))
+    return flat, tilted
+
+
+def _surface_contacts():
+    from bsjax import collide
+
+    flat, tilted = _plates()
+    b = flat.blending(16, 16)
+    # capacity 4 overflows: the exact pass, then the flat pass (two programs)
+    collide.surface_contacts(b, flat.ctrl, b, tilted.ctrl, capacity=4)
+
+
+def _surface_penetration():
+    from bsjax import collide
+
+    flat, tilted = _plates()
+    b = flat.blending(16, 16)
+    collide.surface_penetration(b, flat.ctrl, b, tilted.ctrl, reach=0.1)
+
+
+def _merge_refit():
+    from bsjax import merge
+
+    flat, _ = _plates()
+    nets = [flat.ctrl, flat.ctrl.at[..., 0].add(1.0)]
+    layout = merge.plan([flat.with_ctrl(c) for c in nets], "u", 0, samples=8)
+    merge.refit(layout, nets)
+
+
+def _simulate_coupled():
+    from bsjax import mss
+
+    flat, _ = _plates()
+    lattice, coupling = mss.surface_lattice(flat.blending(6, 6), flat.ctrl, mss.JELLY)
+    state = mss.State(lattice.rest_positions, jnp.zeros_like(lattice.rest_positions))
+    mss.simulate_coupled(lattice, coupling, state, 1e-5, 4, 2)
+
+
+def _simulate_scene():
+    from bsjax import mss
+
+    flat, tilted = _plates()
+    bodies = [mss.Body.from_surface(s, (5, 5, 2), mss.JELLY, thickness=0.01) for s in (flat, tilted)]
+    scene = mss.Scene(tuple(bodies))
+    mss.simulate_scene(scene, mss.scene_init(scene), 1e-6, 3)
+
+
+def _vsofm_report():
+    from bsjax import shapes, vsofm
+
+    ball = shapes.sphere(1.0)
+    pts = ball.blending(12, 12).points(ball.ctrl).reshape(-1, 3)
+    vsofm.report(pts, vsofm.fit(pts, (4, 4, 4), cycles=5))
+
+
+_LOOPS_AND_BRANCHES = [
+    _surface_contacts,
+    _surface_penetration,
+    _merge_refit,
+    _simulate_coupled,
+    _simulate_scene,
+    _vsofm_report,
+]
+
+
+@pytest.mark.parametrize("call", _LOOPS_AND_BRANCHES, ids=lambda f: f.__name__.strip("_"))
+def test_the_loops_and_branches_of_a_direct_call_hold_no_host_callback(monkeypatch, call):
+    """Direct calls whose programs call public methods in a loop body or a branch (there under
+    `_checks.trusted`, or through their kernels) hold no `eqx.error_if`, so JAX can store every
+    program of theirs on disk."""
+    from bsjax import _boundary
+
+    ran = []
+    run = _boundary._Compiled._run
+    record = lambda jitted, dynamic, functional: (
+        ran.append((jitted, dynamic)) or run(jitted, dynamic, functional)
+    )
+    monkeypatch.setattr(_boundary._Compiled, "_run", staticmethod(record))
+    call()
+    assert ran  # the calls went through the boundary
+    with_callback = [
+        jitted.__name__ for jitted, dynamic in ran if "callback" in jitted.lower(dynamic).as_text()
+    ]
+    assert not with_callback
+
+
+def test_checks_are_not_built_inside_trusted():
+    @compiled
+    def f(x):
+        with _checks.trusted():
+            return jax.lax.cond(x[0] > 0, lambda: _checks.positive(x, "x"), lambda: x)
+
+    np.testing.assert_allclose(f(jnp.array([1.0, -1.0])), [1.0, -1.0])  # not checked: as built
+    (jitted,) = f._cache.values()
+    assert "callback" not in jitted.lower([jnp.array([1.0, -1.0])]).as_text()

@@ -288,7 +288,7 @@ def test_surface_contacts_direct_jit_vmap_and_retry():
     for name in ("mask_a", "mask_b", "pair_hit", "hit", "apart", "overflow"):
         for k in range(3):
             got, want = getattr(batched, name)[k], getattr(direct[k], name)
-            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want), err_msg=f"{name} {k}")
     # retry: a capacity of 8 overflows along the crossing curve; the host retries with 512
     tried = []
     for capacity in (8, 512):
@@ -369,7 +369,7 @@ def test_normal_cones_bound_every_triangle_normal():
     normals = np.cross(tris[..., 1, :] - tris[..., 0, :], tris[..., 2, :] - tris[..., 0, :])
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)  # (m-1, n-1, 2, 3)
     rows, cols = block_order(levels)
-    cones = normal_cones(points, levels)
+    cones = jax.jit(normal_cones, static_argnums=1)(points, levels)  # one program, not one per operation
     for level, (axis, half) in enumerate(cones):
         per = 9**level
         for q in range(0, len(half), 7):
@@ -382,7 +382,7 @@ def test_normal_cones_bound_every_triangle_normal():
             if level == levels:
                 assert float(half[q]) < np.pi  # a bumpy sheet, not everything
     plate = PLATE.blending(10, 10).points(PLATE.ctrl)
-    assert max(float(jnp.max(h)) for _, h in normal_cones(plate, 2)) < 1e-6
+    assert max(float(jnp.max(h)) for _, h in jax.jit(normal_cones, static_argnums=1)(plate, 2)) < 1e-6
 
 
 # --- jit / vmap / gradients -------------------------------------------------------------------

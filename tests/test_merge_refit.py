@@ -7,6 +7,8 @@ merge's own deviation on the thesis's harder cases (the refit must lower it).
 
 from __future__ import annotations
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
@@ -68,10 +70,12 @@ def test_normal_matrix_matches_dense_collocation(shape):
     r, s, k, l = shape
     surf = random_surface(np.random.default_rng(1), r, s, k, l)
     uv = jnp.asarray(np.random.default_rng(2).uniform(size=(300, 2)))
-    dense = _nonlinear.collocation(surf, uv)
-    banded = _nonlinear.normal_matrix(surf.rows("u", uv[:, 0]), surf.rows("v", uv[:, 1]), k, l)
+    # the kernels as one program each (called eagerly, every operation would be its own)
+    dense = eqx.filter_jit(_nonlinear.collocation)(surf, uv)
+    normal = jax.jit(_nonlinear.normal_matrix, static_argnums=(2, 3))
+    banded = normal(surf.rows("u", uv[:, 0]), surf.rows("v", uv[:, 1]), k, l)
     np.testing.assert_allclose(banded, dense.T @ dense, atol=1e-12)
-    ctrl, d = _nonlinear.fit_scattered(surf, uv, surf.evaluate(uv[:, 0], uv[:, 1]))
+    ctrl, d = eqx.filter_jit(_nonlinear.fit_scattered)(surf, uv, surf.evaluate(uv[:, 0], uv[:, 1]))
     np.testing.assert_allclose(ctrl, surf.ctrl, atol=1e-8)  # points of the basis: exact round trip
     assert float(jnp.max(d)) < 1e-8
 

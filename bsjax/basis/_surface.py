@@ -110,6 +110,7 @@ class BSplineSurface(eqx.Module):
         """Control-net size `(r, s)`."""
         return self.ctrl.shape[0], self.ctrl.shape[1]
 
+    @compiled
     def rows(self, direction: str, params, nu: int = 0):
         """Blending matrix of one direction (`"u"` or `"v"`) at `params`, derivative order `nu`."""
         return self.direction(direction).matrix(jnp.asarray(params, self.ctrl.dtype), nu)

@@ -108,9 +108,10 @@ def _unless_apart(apart, query, *args):
     `lax.cond` skips the narrow phase at run time (the early exit of thesis §3.3.3.1); under
     `vmap` both branches run and the result is selected.
     """
-    shapes = jax.eval_shape(query, *args)
-    empty = lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-    out = jax.lax.cond(apart, empty, query, *args)
+    with _checks.trusted():  # the entry checked `args`: no check (host callback) in a branch
+        shapes = jax.eval_shape(query, *args)
+        empty = lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+        out = jax.lax.cond(apart, empty, query, *args)
     return eqx.tree_at(lambda c: c.apart, out, apart)
 
 

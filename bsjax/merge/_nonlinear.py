@@ -39,7 +39,8 @@ from jaxtyping import Array, Float, Int
 from bsjax import _checks, batch
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface
-from bsjax.merge._project import ProjectionSolver, closest_points
+from bsjax.basis._project import closest_from
+from bsjax.merge._project import ProjectionSolver
 
 
 class RefitSolver(eqx.Module):
@@ -173,8 +174,10 @@ def _refit(
 
     def body(carry):
         ctrl, uv, hist, i, _ = carry
-        current = surface.with_ctrl(ctrl)
-        proj = closest_points(current, points, uv, projection)
+        # kernels, not the checked entry points: a check in a loop body is a host callback,
+        # and a program holding one is never stored on disk
+        current = eqx.tree_at(lambda s: s.ctrl, surface, ctrl)
+        proj = closest_from(current, points, uv[:, None], projection)
         ctrl, d = fit_scattered(current, proj.params, points)
         batch.report(progress, i + 1, rounds, after=ctrl)
         return ctrl, proj.params, hist.at[i + 1].set(_rms(d)), i + 1, proj.result

@@ -290,10 +290,16 @@ def _tool_pushes(scene: Scene, states):
 
 
 def _contact_forces(scene: Scene, states):
-    """Per-body node forces and per-tool reactions (no checks). A body's contact forces act on
-    its refit surface's samples `S(x) = points(ctrl(x))`, the surface the contact sees; they
-    reach the nodes by virtual work, `f_nodes = (∂S/∂x)ᵀ f_samples` (coupling weights and refit
-    together), and the dampers see the samples' velocity `(∂S/∂x) v`."""
+    """Per-body node forces and per-tool reactions (no checks: `_checks.trusted`, the states
+    were checked at the entry and a rollout's step is traced in its loop body). A body's contact
+    forces act on its refit surface's samples `S(x) = points(ctrl(x))`, the surface the contact
+    sees; they reach the nodes by virtual work, `f_nodes = (∂S/∂x)ᵀ f_samples` (coupling weights
+    and refit together), and the dampers see the samples' velocity `(∂S/∂x) v`."""
+    with _checks.trusted():
+        return _unchecked_contact_forces(scene, states)
+
+
+def _unchecked_contact_forces(scene: Scene, states):
     dtype = states[0].position.dtype if states else jnp.result_type(float)
     maps = [_surface_map(b, s) for b, s in zip(scene.bodies, states)]
     sample_f = [jnp.zeros(b.coupling.node_map.shape[:2] + (3,), dtype) for b in scene.bodies]
