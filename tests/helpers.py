@@ -33,9 +33,13 @@ def random_surface(rng, r=6, s=5, k=3, l=2, uniform=False, weights=False) -> BSp
 
 
 def check_grad(f, x, eps: float = 1e-6, rtol: float = 1e-5, atol: float = 1e-7, n_dirs: int = 4, seed=0):
-    """Compare `jax.grad(f)(x)` with central differences along random directions."""
+    """Compare `jax.grad(f)(x)` with central differences along random directions.
+
+    `f` and its gradient run as one compiled program each (eagerly, every operation of `f`, of
+    its derivative and of each difference would be a program of its own)."""
     x = jnp.asarray(x)
-    g = jax.grad(f)(x)
+    g = jax.jit(jax.grad(f))(x)
+    f = jax.jit(f)
     assert bool(jnp.all(jnp.isfinite(g))), "gradient has non-finite entries"
     rng = np.random.default_rng(seed)
     for _ in range(n_dirs):
