@@ -34,7 +34,7 @@ from bsjax._boundary import compiled
 from bsjax.basis import Blending
 from bsjax.collide import _soa
 from bsjax.collide.broad import _blocks, _hulls_apart, _parametric_window, support_start
-from bsjax.collide.flat import flat_pairs, normal_cones, resolve_flat_pairs
+from bsjax.collide.flat import block_planes, flat_pairs, flat_slots, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
     _cell_triangles,
     _sphere_hierarchy,
@@ -42,6 +42,7 @@ from bsjax.collide.hierarchy import (
     candidate_triangles,
     levels_for,
     traverse,
+    vertex_mask,
 )
 from bsjax.collide.tools import AbstractTool, Point
 from bsjax.collide.triangles import (
@@ -481,12 +482,6 @@ def _surface_contacts(
     return _unless_apart(apart, query, blending_a, ctrl_a, blending_b, ctrl_b)
 
 
-def _vertex_mask(faces, tri_hit, shape):
-    """Mark the grid vertices of the triangles that hit: `faces (..., 3)`, `tri_hit (...)`."""
-    flags = jnp.broadcast_to(tri_hit[..., None], faces.shape).reshape(-1)
-    return jnp.zeros(shape[0] * shape[1], bool).at[faces.reshape(-1)].max(flags).reshape(shape)
-
-
 def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_angle, passes="cond"):
     """Refine every candidate pair down to triangles; only when that overflows the capacity
     (flat contact: every sphere intersects) run again with flat pairs resolved by planes, so
@@ -506,24 +501,26 @@ def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_a
 
 
 def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
-    cones = flat = None
+    planes = flat = None
     if flat_angle is not None:
-        cones = (normal_cones(pa, lev_a), normal_cones(pb, lev_b))
-        flat = functools.partial(flat_pairs, *cones, flat_angle)
-    leaf_a, leaf_b, valid, overflow, count, flat_steps = traverse(*spheres, capacity, flat)
+        planes = (block_planes(pa, lev_a), block_planes(pb, lev_b))
+        flat = functools.partial(flat_pairs, *planes, flat_angle)
+    leaf_a, leaf_b, valid, overflow, count, pairs = traverse(*spheres, capacity, flat)
     cell_a = _cells(leaf_a, lev_a, pa.shape)
     cell_b = _cells(leaf_b, lev_b, pb.shape)
     tri_a, face_a = candidate_triangles(pa, cell_a)  # (K, 2, 3, 3): only the candidate cells
     tri_b, face_b = candidate_triangles(pb, cell_b)
     hits = candidate_pairs_intersect(tri_a[:, :, None], tri_b[:, None, :], valid[:, None, None])
-    mask_a = _vertex_mask(face_a, jnp.any(hits, 2), pa.shape[:2])
-    mask_b = _vertex_mask(face_b, jnp.any(hits, 1), pb.shape[:2])
+    mask_a = vertex_mask(face_a, jnp.any(hits, 2), pa.shape[:2])
+    mask_b = vertex_mask(face_b, jnp.any(hits, 1), pb.shape[:2])
     pair_hit = jnp.any(hits, (1, 2))
-    if flat_steps:
-        step_a, step_b, flat_hit = _flat_contacts(pa, lev_a, pb, lev_b, flat_steps, cones)
-        mask_a, mask_b = mask_a | step_a, mask_b | step_b
-    else:
-        flat_hit = jnp.zeros((), jnp.int32)
+    flat_hit = jnp.zeros((), jnp.int32)
+    if pairs is not None and planes is not None:
+        size = valid.shape[0]
+        flat_a, flat_b, flat_hit, flat_overflow = resolve_flat_pairs(
+            pa, planes[0], pb, planes[1], pairs, flat_slots(size, lev_a), flat_slots(size, lev_b)
+        )
+        mask_a, mask_b, overflow = mask_a | flat_a, mask_b | flat_b, overflow | flat_overflow
     return SurfaceContact(
         hit=jnp.any(pair_hit) | (flat_hit > 0),
         mask_a=mask_a,
@@ -536,31 +533,6 @@ def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
         flat_pairs=flat_hit,
         apart=jnp.zeros((), bool),
     )
-
-
-def _flat_contacts(pa, lev_a, pb, lev_b, flat_steps, cones):
-    """Vertex masks and number of flat pairs in contact over the traversal's `flat_steps`
-    (`collide.flat`); each step is skipped at run time (`lax.cond`) when it set no pair aside."""
-    mask_a, mask_b = jnp.zeros(pa.shape[:2], bool), jnp.zeros(pb.shape[:2], bool)
-    count = jnp.zeros((), jnp.int32)
-    for la, lb, ia, ib, is_flat in flat_steps:
-
-        def resolve(la=la, lb=lb, ia=ia, ib=ib, is_flat=is_flat):
-            corners_a, hit_a, corners_b, hit_b = resolve_flat_pairs(
-                pa, lev_a, la, ia, pb, lev_b, lb, ib, is_flat, *cones
-            )
-            return (
-                _vertex_mask(corners_a, hit_a, pa.shape[:2]),
-                _vertex_mask(corners_b, hit_b, pb.shape[:2]),
-                jnp.any(hit_a, 1).sum(dtype=jnp.int32),
-            )
-
-        def skip():
-            return jnp.zeros(pa.shape[:2], bool), jnp.zeros(pb.shape[:2], bool), jnp.zeros((), jnp.int32)
-
-        step_a, step_b, step_count = jax.lax.cond(jnp.any(is_flat), resolve, skip)
-        mask_a, mask_b, count = mask_a | step_a, mask_b | step_b, count + step_count
-    return mask_a, mask_b, count
 
 
 def _cells(leaf, levels, shape):
@@ -576,8 +548,8 @@ def _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b):
     tb, fb = _cell_triangles(pb)
     ta, fa, tb, fb = ta.reshape(-1, 3, 3), fa.reshape(-1, 3), tb.reshape(-1, 3, 3), fb.reshape(-1, 3)
     hits = _triangles_intersect(ta[:, None], tb[None, :])
-    mask_a = _vertex_mask(fa, jnp.any(hits, 1), pa.shape[:2])
-    mask_b = _vertex_mask(fb, jnp.any(hits, 0), pb.shape[:2])
+    mask_a = vertex_mask(fa, jnp.any(hits, 1), pa.shape[:2])
+    mask_b = vertex_mask(fb, jnp.any(hits, 0), pb.shape[:2])
     empty = jnp.zeros((0, 2), jnp.int32)
     return SurfaceContact(
         hit=jnp.any(hits),

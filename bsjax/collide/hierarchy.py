@@ -9,8 +9,10 @@ triangles of its cells and pruning never loses a contact.
 
 The pair traversal is the thesis's alternating refinement with static shapes: a fixed-capacity
 list of candidate (block_a, block_b) pairs; each step splits the blocks of one surface into
-their 3 × 3 children, keeps the pairs whose spheres intersect (`jnp.nonzero(size=capacity)`)
-and reports overflow when more than `capacity` pairs intersect.
+their 3 × 3 children, keeps the pairs whose spheres intersect (compacted without a scatter) and
+reports overflow when more than `capacity` pairs intersect. The steps are one `lax.fori_loop`
+over the levels concatenated into one table (`level_table`, `schedule`), so the program holds
+one step whatever the hierarchy's depth.
 
 `sphere_hierarchy`, `cell_triangles` and `tessellate` are compiled at the public boundary
 (`bsjax._boundary.compiled`); the queries call their private kernels, and `traverse`,
@@ -21,11 +23,12 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from bsjax import _checks
 from bsjax._boundary import compiled
@@ -213,6 +216,13 @@ def tessellate(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[
     return points.reshape(-1, 3), faces.reshape(-1, 3)
 
 
+def vertex_mask(faces, hit, shape) -> Array:
+    """The grid vertices `(m, n)` of the faces or cells that hit: vertex indices `faces (..., k)`
+    into the flattened grid, `hit (...)`."""
+    flags = jnp.broadcast_to(hit[..., None], faces.shape).reshape(-1)
+    return jnp.zeros(shape[0] * shape[1], bool).at[faces.reshape(-1)].max(flags).reshape(shape)
+
+
 def _overlap(ca, ra, cb, rb):
     both = (ra >= 0) & (rb >= 0)  # padding blocks have radius -inf
     d2 = (ca[0] - cb[0]) ** 2 + (ca[1] - cb[1]) ** 2 + (ca[2] - cb[2]) ** 2
@@ -236,52 +246,134 @@ def _compact(hit, size):
     return parent, child, j < ends[-1]
 
 
+def level_table(levels, axes) -> tuple[tuple[Array, ...], Array]:
+    """Per-level arrays concatenated along their block axis, and where each level starts.
+
+    **Arguments:** `levels`, a list over levels of tuples of arrays (`sphere_hierarchy`'s
+    `(centres (3, N_l), radii (N_l,))`, `collide.flat.normal_cones`' `(axes (N_l, 3), half
+    angles (N_l,))`); `axes`, the block axis of each array of the tuple.
+
+    **Returns:** `(arrays, offsets)`: each array concatenated over the levels, and
+    `offsets (L + 2,)` int32 — block `q` of level `l` is entry `offsets[l] + q`, so a loop can
+    index a level chosen at run time.
+    """
+    sizes = [level[0].shape[axes[0]] for level in levels]
+    offsets = jnp.asarray(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32))
+    arrays = tuple(jnp.concatenate([level[k] for level in levels], axis) for k, axis in enumerate(axes))
+    return arrays, offsets
+
+
+def schedule(levels_a: int, levels_b: int) -> np.ndarray:
+    """The alternating refinement order: one row `(level_a, level_b, refine_a)` per step.
+
+    Levels are those of the pair before the step; the surfaces take turns, starting with `a`,
+    and one that reached its cells leaves the remaining steps to the other (thesis §3.3.3.4).
+    """
+    rows, turn_a = [], True
+    while levels_a > 0 or levels_b > 0:
+        refine_a = (turn_a and levels_a > 0) or levels_b == 0
+        rows.append((levels_a, levels_b, int(refine_a)))
+        levels_a, levels_b = levels_a - refine_a, levels_b - (not refine_a)
+        turn_a = not turn_a
+    return np.asarray(rows, np.int32).reshape(-1, 3)
+
+
+class FlatPairs(NamedTuple):
+    """Candidate pairs the traversal set aside as flat (`collide.flat`), a fixed-capacity list:
+    block `ia (F,)` at level `la (F,)` of surface a against block `ib` at `lb` of b; `valid (F,)`."""
+
+    la: Int[Array, " F"]
+    ia: Int[Array, " F"]
+    lb: Int[Array, " F"]
+    ib: Int[Array, " F"]
+    valid: Bool[Array, " F"]
+
+
+def _set_aside(pairs: FlatPairs, count, take, la, ia, lb, ib) -> tuple[FlatPairs, Array]:
+    """Append the candidates `take (C,)` to the flat list (those past its capacity are dropped:
+    the returned running `count` then exceeds the capacity, which the caller reports)."""
+    size = pairs.valid.shape[0]
+    slot = jnp.where(take, count + jnp.cumsum(take, dtype=jnp.int32) - 1, size)
+    put = lambda field, value: field.at[slot].set(value, mode="drop")
+    full = lambda x: jnp.broadcast_to(x, take.shape)
+    pairs = FlatPairs(
+        put(pairs.la, full(la)),
+        put(pairs.ia, ia),
+        put(pairs.lb, full(lb)),
+        put(pairs.ib, ib),
+        put(pairs.valid, take),
+    )
+    return pairs, count + take.sum(dtype=jnp.int32)
+
+
 def traverse(levels_a, levels_b, capacity: int, flat=None):
     """Alternating refinement of candidate pairs down to cell pairs (thesis §3.3.3.4).
 
     **Arguments:** the sphere levels of both surfaces (`sphere_hierarchy`); `capacity` (static);
-    `flat`: `None`, or `flat(la, lb, blocks_a, blocks_b, valid) → is_flat` (e.g. a partial of
-    `collide.flat.flat_pairs`) to take flat pairs of blocks (both at level ≥ 1) out of the
-    refinement; they are resolved by the caller.
+    `flat`: `None`, or `flat(la, lb, ia, ib, valid) → is_flat` (levels and blocks as arrays,
+    e.g. a partial of `collide.flat.flat_pairs`) to take flat pairs of blocks (both at level
+    ≥ 1) out of the refinement; they are resolved by the caller.
 
-    **Returns:** `(leaf_a (K,), leaf_b (K,), valid (K,), overflow, count, flat_steps)`:
-    block-major leaf indices of candidate cell pairs whose spheres intersect, and per step that
-    set flat pairs aside `(la, lb, blocks_a, blocks_b, is_flat)` with static levels.
+    One `lax.fori_loop` over the steps of `schedule`: every step holds `C = min(capacity,
+    9^(La + Lb))` candidate pairs, splits the blocks of one surface into their 3 × 3 children
+    (the levels live in one `level_table`, indexed by the step's level) and keeps the pairs whose
+    spheres intersect; one program body whatever the depth.
+
+    **Returns:** `(leaf_a (C,), leaf_b (C,), valid (C,), overflow, count, flat_pairs)`:
+    block-major leaf indices of candidate cell pairs whose spheres intersect, whether some step
+    (or the flat list) held more than `C`, the last step's number of intersecting pairs, and the
+    `FlatPairs (C,)` set aside (`None` without `flat`).
     """
-    la, lb = len(levels_a) - 1, len(levels_b) - 1
-    ia = jnp.zeros((1,), jnp.int32)
-    ib = jnp.zeros((1,), jnp.int32)
-    (ca, ra), (cb, rb) = levels_a[la], levels_b[lb]
-    valid = _overlap(ca[:, :1], ra[:1], cb[:, :1], rb[:1])
-    overflow = jnp.zeros((), bool)
-    count = valid.sum(dtype=jnp.int32)
-    turn_a, steps, step = True, la + lb, 0
-    kids = jnp.arange(BRANCH * BRANCH, dtype=jnp.int32)
-    flat_steps = []
-    while la > 0 or lb > 0:
-        if flat is not None and la > 0 and lb > 0:
-            is_flat = flat(la, lb, ia, ib, valid)
-            flat_steps.append((la, lb, ia, ib, is_flat))
-            valid = valid & ~is_flat
-        step += 1
-        refine_a = (turn_a and la > 0) or lb == 0
-        if refine_a:
-            la -= 1
-            ja, jb = ia[:, None] * 9 + kids[None, :], ib[:, None]
-        else:
-            lb -= 1
-            ja, jb = ia[:, None], ib[:, None] * 9 + kids[None, :]
-        (ca, ra), (cb, rb) = levels_a[la], levels_b[lb]
-        hit = valid[:, None] & _overlap(ca[:, ja], ra[ja], cb[:, jb], rb[jb])
-        # capacity schedule: the full capacity for the last two steps, a third of it for the
-        # two before, … (along a contact curve pairs grow about ninefold per two steps)
-        size = min(hit.size, max(capacity // BRANCH ** ((steps - step) // 2), min(capacity, 64)))
+    top_a, top_b = len(levels_a) - 1, len(levels_b) - 1
+    (centres_a, radii_a), off_a = level_table(levels_a, (1, 0))
+    (centres_b, radii_b), off_b = level_table(levels_b, (1, 0))
+    size = min(capacity, BRANCH ** (2 * (top_a + top_b)))
+    first = _overlap(
+        levels_a[top_a][0][:, :1], levels_a[top_a][1][:1], levels_b[top_b][0][:, :1], levels_b[top_b][1][:1]
+    )
+    zeros = jnp.zeros(size, jnp.int32)
+    valid = jnp.zeros(size, bool).at[0].set(first[0])
+    pairs = None if flat is None else FlatPairs(zeros, zeros, zeros, zeros, jnp.zeros(size, bool))
+    state = (
+        zeros,
+        zeros,
+        valid,
+        jnp.zeros((), bool),
+        valid.sum(dtype=jnp.int32),
+        pairs,
+        jnp.zeros((), jnp.int32),
+    )
+    steps = jnp.asarray(schedule(top_a, top_b))
+    kids = jnp.arange(BRANCH * BRANCH, dtype=jnp.int32)[None, :]
+
+    def step(s, state):
+        ia, ib, valid, overflow, _, pairs, flat_count = state
+        la, lb, a_side = steps[s, 0], steps[s, 1], steps[s, 2]
+        refine_a = a_side == 1
+        if flat is not None:
+            take = flat(la, lb, ia, ib, valid) & (la > 0) & (lb > 0)
+            pairs, flat_count = _set_aside(pairs, flat_count, take, la, ia, lb, ib)
+            valid = valid & ~take
+        ja = jnp.where(refine_a, ia[:, None] * 9 + kids, ia[:, None])  # (C, 9) children of one side
+        jb = jnp.where(refine_a, ib[:, None], ib[:, None] * 9 + kids)
+        ka = off_a[la - a_side] + ja
+        kb = off_b[lb - (1 - a_side)] + jb
+        hit = valid[:, None] & _overlap(centres_a[:, ka], radii_a[ka], centres_b[:, kb], radii_b[kb])
         count = hit.sum(dtype=jnp.int32)
-        overflow = overflow | (count > size)
         parent, child, valid = _compact(hit, size)
-        if refine_a:
-            ia, ib = ia[parent] * 9 + child, ib[parent]
-        else:
-            ia, ib = ia[parent], ib[parent] * 9 + child
-        turn_a = not turn_a
-    return ia, ib, valid, overflow, count, flat_steps
+        return (
+            ja[parent, child],
+            jb[parent, child],
+            valid,
+            overflow | (count > size),
+            count,
+            pairs,
+            flat_count,
+        )
+
+    if len(steps):
+        state = jax.lax.fori_loop(0, len(steps), step, state)
+    ia, ib, valid, overflow, count, pairs, flat_count = state
+    if pairs is not None:
+        overflow = overflow | (flat_count > size)
+    return ia, ib, valid, overflow, count, pairs
