@@ -31,8 +31,8 @@ from bsjax.collide import (
     surface_contacts,
     tessellate,
 )
-from bsjax.collide.flat import normal_cones
-from bsjax.collide.hierarchy import block_order, traverse
+from bsjax.collide.flat import block_planes, normal_cones, resolve_flat_pairs
+from bsjax.collide.hierarchy import FlatPairs, block_order, levels_for, traverse
 from tests.helpers import check_grad, raises_both, random_surface
 
 # the queries are compiled at their public boundary: the tests call them as users do
@@ -359,6 +359,26 @@ def test_flat_contact_resolved_by_planes_without_overflow(kind):
             assert any(
                 np.all(cell.min(0) < hi) and np.all(cell.max(0) > lo) for cell in cells if len(cell) == 4
             ), (i, j)
+
+
+def test_flat_pass_reports_more_cells_than_slots():
+    """The flat pass tests a fixed number of cell slots: a flat pair with more cells than that is
+    reported as overflow (so the direct call's caller retries), never silently cut."""
+    b, ca, _, cb = _sheets("coplanar")
+    pa, pb = b.points(ca), b.points(cb)
+    levels = levels_for(21)  # 22 samples, 21 cells: one top block of 27 x 27 leaves
+    planes_a, planes_b = block_planes(pa, levels), block_planes(pb, levels)
+    one = lambda v: jnp.array([v], jnp.int32)
+    top = FlatPairs(one(levels), one(0), one(levels), one(0), jnp.array([True]))  # the whole sheets
+    run = jax.jit(resolve_flat_pairs, static_argnums=(5, 6))
+    leaves = 9**levels
+    mask_a, mask_b, in_contact, overflow = run(pa, planes_a, pb, planes_b, top, leaves, leaves)
+    assert not bool(overflow) and int(in_contact) == 1
+    dense = _surfaces(b, ca, b, cb, method="dense")
+    for got, want in ((mask_a, dense.mask_a), (mask_b, dense.mask_b)):  # every contact vertex found
+        assert not np.any(np.asarray(want) & ~np.asarray(got))
+    assert bool(run(pa, planes_a, pb, planes_b, top, leaves - 1, leaves)[3])
+    assert bool(run(pa, planes_a, pb, planes_b, top, leaves, leaves - 1)[3])
 
 
 def test_normal_cones_bound_every_triangle_normal():

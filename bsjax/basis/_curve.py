@@ -139,12 +139,12 @@ class BSplineCurve(eqx.Module):
         d1, d2 = _derivatives(self, t.reshape(-1), (1, 2))
         return _curvature(d1, d2).reshape(t.shape)
 
-    @compiled
     def blending(self, m: int = 82, params: ArrayLike | None = None) -> CurveBlending:
         """Pre-computed blending matrices at `m` samples (default `linspace(0, 1, m)`) or at the
         given `params (m,)`, and their least-squares inverse (thesis eqs. 3.6–3.7).
 
-        Compiled once per (control count, degree, sample count): a rebuild is one XLA call.
+        One compiled program per (control count, degree, sample count) — `sampled`, shared with
+        every surface direction of the same basis and sample count: a rebuild is one XLA call.
         """
         if params is None:
             _checks.check_count(m, "m", 2)
@@ -279,10 +279,25 @@ class CurveBlending(eqx.Module):
 _REFIT_NEEDS = "at least as many samples as control points, with a full-column-rank blending matrix"
 
 
-@compiled
 def _blending(direction: SplineDirection, params, weights) -> CurveBlending:
-    a = direction.matrices(params, tuple(range(_ORDERS)))
-    refit, ok = _tensor.pseudo_inverse(a[0])
+    a, refit, ok, _, _ = sampled(direction, params)
     return CurveBlending(
         params=params, a=a, refit_matrix=refit, full_rank=ok, weights=weights, direction=direction
     )
+
+
+@compiled
+def sampled(direction: SplineDirection, params: Float[Array, " m"]) -> tuple:
+    """The blending of one direction at checked `params (m,)` (thesis eqs. 3.6–3.7): the kernel of
+    curve and surface blendings, one program per (control count, degree, periodicity, m) that
+    both directions of a surface and every curve of that basis share.
+
+    **Returns:** `(a (3, m, n), refit (n, m) or None, full_rank (), support (m, k+1),
+    band (3, m, k+1))`: the basis, first- and second-derivative matrices, the pseudo-inverse of
+    `a[0]` and whether `a[0]` has full column rank, and the band of `a` — the `k + 1` columns
+    that can be non-zero in each row (`SplineDirection.support`) and their entries.
+    """
+    a = direction.matrices(params, tuple(range(_ORDERS)))
+    refit, ok = _tensor.pseudo_inverse(a[0])
+    support = direction.support(params)
+    return a, refit, ok, support, jnp.take_along_axis(a, support[None], axis=2)

@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import cast
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
@@ -21,7 +22,7 @@ from bsjax import _checks
 from bsjax._boundary import compiled
 from bsjax._typing import ArrayLike
 from bsjax.basis import _tensor
-from bsjax.basis._curve import BSplineCurve
+from bsjax.basis._curve import BSplineCurve, sampled
 from bsjax.basis._direction import SplineDirection
 from bsjax.basis._functions import check_order
 from bsjax.basis._knots import float_dtype
@@ -139,11 +140,12 @@ class BSplineSurface(eqx.Module):
         _checks.check_real(x, name)
         return jnp.asarray(x, self.ctrl.dtype)
 
-    @compiled
     def blending(self, m: int = 82, n: int = 82, params_u=None, params_v=None) -> Blending:
         """Pre-computed blending matrices for an `m × n` sample grid (default `linspace(0, 1, ·)`).
 
-        Compiled once per (net size, degrees, grid size): a rebuild is one XLA call.
+        One compiled program per direction (`basis._curve.sampled`, per control count, degree and
+        sample count: a square net sampled on a square grid compiles one): a rebuild is two
+        XLA calls.
         """
         pu = _grid_params(params_u, m, "params_u", "m", self.ctrl.dtype)
         pv = _grid_params(params_v, n, "params_v", "n", self.ctrl.dtype)
@@ -408,20 +410,22 @@ _REFIT_NEEDS = (
 )
 
 
-@compiled
 def _blending(du: SplineDirection, dv: SplineDirection, pu, pv, weights) -> Blending:
     pu, pv = du.check_params(pu, "params_u"), dv.check_params(pv, "params_v")
-    a_u, a_v = du.matrices(pu, tuple(range(_ORDERS))), dv.matrices(pv, tuple(range(_ORDERS)))
-    (refit_u, ok_u), (refit_v, ok_v) = _tensor.pseudo_inverse(a_u[0]), _tensor.pseudo_inverse(a_v[0])
-    support_u = du.support(pu)
+    a_u, refit_u, ok_u, support_u, band_u = sampled(du, pu)
+    a_v, refit_v, ok_v, _, _ = sampled(dv, pv)
     (m, r), (n, s) = a_u.shape[1:], a_v.shape[1:]
     return Blending(
         params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
-        full_rank=ok_u & ok_v, weights=weights, direction_u=du, direction_v=dv,
-        index_u=jnp.arange(pu.shape[0]), index_v=jnp.arange(pv.shape[0]),
-        support_u=support_u, band_u=jnp.take_along_axis(a_u, support_u[None], axis=2),
-        banded=_tensor.prefer_banded(m, n, r, s, du.degree),
+        full_rank=jnp.logical_and(ok_u, ok_v), weights=weights, direction_u=du, direction_v=dv,
+        index_u=_index(m), index_v=_index(n),
+        support_u=support_u, band_u=band_u, banded=_tensor.prefer_banded(m, n, r, s, du.degree),
     )  # fmt: skip
+
+
+def _index(count: int):
+    """`arange(count)` in JAX's default int dtype, from the host (no program to compile)."""
+    return jnp.asarray(np.arange(count, dtype=jax.dtypes.canonicalize_dtype(int)))
 
 
 def _grid_params(params, count, name, count_name, dtype):
