@@ -114,17 +114,17 @@ def deviation(
         _checks.fail("tolerance", "a finite value > 0", tolerance)
     windows = _check_windows(windows, len(originals))
     dtype = merged.ctrl.dtype
-    dists = []
+    points = []
     for i, (s, w) in enumerate(zip(originals, windows)):
         if not isinstance(s, BSplineSurface):
             raise TypeError(f"originals[{i}]: expected a BSplineSurface, got {type(s).__name__}")
         pu, pv = _window_params(w, samples, s.ctrl.dtype)
         uu, vv = jnp.meshgrid(pu, pv, indexing="ij")
         pts = s.evaluate(uu, vv).astype(dtype)
-        pts = _checks.finite(pts, f"originals[{i}]")
-        _, d = closest_parameters(merged, pts.reshape(-1, 3), candidates)
-        dists.append(d.reshape(samples, samples))
-    return summarize(dists, tolerance)
+        points.append(_checks.finite(pts, f"originals[{i}]").reshape(-1, 3))
+    # one projection of every original's samples: one search in the program, not one per original
+    _, d = closest_parameters(merged, jnp.concatenate(points), candidates)
+    return summarize(list(d.reshape(len(points), samples, samples)), tolerance)
 
 
 def summarize(dists: Sequence[Float[Array, "m n"]], tolerance: float) -> Deviation:
