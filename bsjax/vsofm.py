@@ -419,22 +419,21 @@ def corner_jacobians(
     _checks.check_ndim(nodes, "nodes", 4, last=3)
     p = jnp.asarray(nodes)
     a, b, c = (s - 1 for s in p.shape[:3])
+    # the 8 corners of every cell as one leading axis, so the program computes one determinant
+    # expression over (8, a, b, c), not eight copies of it
+    o = jnp.stack([p[i : i + a, j : j + b, k : k + c] for i, j, k in _CORNERS])
+    index = {corner: n for n, corner in enumerate(_CORNERS)}
+    sign = np.array([[1 - 2 * bit for bit in corner] for corner in _CORNERS], p.dtype)  # (8, 3)
 
-    def corner(i, j, k):
-        return p[i : i + a, j : j + b, k : k + c]
+    def edge(axis):
+        other = [index[tuple(1 - x if d == axis else x for d, x in enumerate(corner))] for corner in _CORNERS]
+        return (o[np.asarray(other)] - o) * sign[:, axis].reshape(8, 1, 1, 1, 1)
 
-    out = []
-    for i, j, k in _CORNERS:
-        o = corner(i, j, k)
-        si, sj, sk = (1 - 2 * i), (1 - 2 * j), (1 - 2 * k)
-        e1 = (corner(1 - i, j, k) - o) * si
-        e2 = (corner(i, 1 - j, k) - o) * sj
-        e3 = (corner(i, j, 1 - k) - o) * sk
-        det = jnp.sum(e1 * jnp.cross(e2, e3), axis=-1)
-        if scaled:
-            det = _safe.ratio(det, _safe.norm(e1) * _safe.norm(e2) * _safe.norm(e3))
-        out.append(det)
-    return jnp.stack(out, axis=-1)
+    e1, e2, e3 = edge(0), edge(1), edge(2)
+    det = jnp.sum(e1 * jnp.cross(e2, e3), axis=-1)
+    if scaled:
+        det = _safe.ratio(det, _safe.norm(e1) * _safe.norm(e2) * _safe.norm(e3))
+    return jnp.moveaxis(det, 0, -1)
 
 
 class Report(eqx.Module):
