@@ -12,6 +12,8 @@ The simulated device and the servo loop need only the core; `SerialDevice` and `
 the `haptics` extra (pyserial, hidapi), `plot_recording` the `plot` extra.
 """
 
+from typing import TYPE_CHECKING
+
 from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
 from bsjax.device.hid import HidDevice, HidField, HidLayout
 from bsjax.device.protocol import (
@@ -28,6 +30,10 @@ from bsjax.device.serial import SerialDevice
 from bsjax.device.servo import ServoLoop
 from bsjax.device.simulated import SimulatedDevice, sculpt_script
 from bsjax.device.telemetry import ServoStats, plot_recording
+
+if TYPE_CHECKING:  # loaded on first use at run time (`__getattr__` below); named here for checkers
+    from bsjax.device.constraint_sculpt import ConstraintSculptModel, border_free
+    from bsjax.device.physics import PhysicsModel, SculptModel
 
 __all__ = [
     "BUTTON_PRESS",
