@@ -362,23 +362,33 @@ def test_flat_contact_resolved_by_planes_without_overflow(kind):
 
 
 def test_flat_pass_reports_more_cells_than_slots():
-    """The flat pass tests a fixed number of cell slots: a flat pair with more cells than that is
-    reported as overflow (so the direct call's caller retries), never silently cut."""
+    """The flat pass tests a fixed number of cell slots per side: flat pairs holding more cells
+    than that are reported as overflow (so the direct call's caller retries), never cut."""
     b, ca, _, cb = _sheets("coplanar")
-    pa, pb = b.points(ca), b.points(cb)
     levels = levels_for(21)  # 22 samples, 21 cells: one top block of 27 x 27 leaves
-    planes_a, planes_b = block_planes(pa, levels), block_planes(pb, levels)
-    one = lambda v: jnp.array([v], jnp.int32)
-    top = FlatPairs(one(levels), one(0), one(levels), one(0), jnp.array([True]))  # the whole sheets
-    run = jax.jit(resolve_flat_pairs, static_argnums=(5, 6))
     leaves = 9**levels
-    mask_a, mask_b, in_contact, overflow = run(pa, planes_a, pb, planes_b, top, leaves, leaves)
+
+    @jax.jit  # one program for every case below: the pairs' levels and validity are data
+    def run(pa, pb, la, lb, valid):
+        blocks = jnp.zeros(2, jnp.int32)
+        pairs = FlatPairs(la, blocks, lb, blocks, valid)
+        planes_a, planes_b = block_planes(pa, levels), block_planes(pb, levels)
+        return resolve_flat_pairs(pa, planes_a, pb, planes_b, pairs, leaves + 1, leaves + 1)
+
+    pa, pb = b.points(ca), b.points(cb)
+    pair = lambda *v: jnp.array(v, jnp.int32)
+    # the whole sheets against each other (and an unused slot): all cells fit
+    mask_a, mask_b, in_contact, overflow = run(
+        pa, pb, pair(levels, 0), pair(levels, 0), jnp.array([True, False])
+    )
     assert not bool(overflow) and int(in_contact) == 1
-    dense = _surfaces(b, ca, b, cb, method="dense")
-    for got, want in ((mask_a, dense.mask_a), (mask_b, dense.mask_b)):  # every contact vertex found
-        assert not np.any(np.asarray(want) & ~np.asarray(got))
-    assert bool(run(pa, planes_a, pb, planes_b, top, leaves - 1, leaves)[3])
-    assert bool(run(pa, planes_a, pb, planes_b, top, leaves, leaves - 1)[3])
+    assert int(mask_a.sum()) > 0 and int(mask_b.sum()) > 0
+    # a second pair of one leaf of a against all of b: b's side holds 2 * 9^L cells
+    assert bool(run(pa, pb, pair(levels, 0), pair(levels, levels), jnp.array([True, True]))[3])
+    # ... and the mirror: a's side overflows
+    assert bool(run(pa, pb, pair(levels, levels), pair(levels, 0), jnp.array([True, True]))[3])
+    # a leaf against a leaf beside the whole sheets fits on both sides
+    assert not bool(run(pa, pb, pair(levels, 0), pair(levels, 0), jnp.array([True, True]))[3])
 
 
 def test_normal_cones_bound_every_triangle_normal():
