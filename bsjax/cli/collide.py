@@ -5,7 +5,7 @@
     bsjax collide SURFACE.json --ellipsoid CX,CY,CZ,A,B,C
     bsjax collide SURFACE.json --point X,Y,Z
     bsjax collide SURFACE.json --mesh TOOL.stl
-    bsjax collide SURFACE.json --surface OTHER.json [--capacity 2048]
+    bsjax collide SURFACE.json --surface OTHER.json [--capacity N]
 
 Prints a report (contact, samples in contact, parametric window, maximum and total depth, the
 force on the tool by both force methods) and optionally writes it as JSON. float64 unless
@@ -48,7 +48,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=c.grid, default=(82, 82), metavar="M,N", help="sample grid (82,82)")
     p.add_argument("--stiffness", type=c.positive, default=100.0, help="spring stiffness per contact sample")
     p.add_argument(
-        "--capacity", type=c.count(), default=2048, help="candidate cell pairs (surface vs surface)"
+        "--capacity",
+        type=c.count(),
+        default=None,
+        help="candidate cell pairs (surface vs surface; default 64 per sample of the longest grid side)",
     )
     p.add_argument("--json", type=c.output_file(".json"), metavar="OUT", help="also write the report as JSON")
     return p
