@@ -216,8 +216,8 @@ def _fit(points, key, shape, cycles, settings, progress=None, near=None):
     nodes = jax.lax.scan(cycle, nodes, (sigma, alpha, draws, count))[0]
     surface = (points, *_patches(points, nbr))
     nodes = _snap(nodes, bidx, surface)
-    for _ in range(settings.boundary_smoothing):
-        nodes = _snap(jnp.where(bgrid, _boundary_mean(nodes, bgrid), nodes), bidx, surface)
+    smooth = lambda _, nodes: _snap(jnp.where(bgrid, _boundary_mean(nodes, bgrid), nodes), bidx, surface)
+    nodes = jax.lax.fori_loop(0, settings.boundary_smoothing, smooth, nodes)  # one body in the program
     return _harmonic_interior(nodes, bgrid, 4 * max(shape))
 
 
@@ -283,9 +283,8 @@ def _boundary_mean(nodes, bgrid):
 
 
 def _jacobi(nodes, bgrid, sweeps):
-    for _ in range(sweeps):
-        nodes = jnp.where(bgrid, nodes, _neighbour_mean(nodes))
-    return nodes
+    sweep = lambda _, nodes: jnp.where(bgrid, nodes, _neighbour_mean(nodes))
+    return jax.lax.fori_loop(0, sweeps, sweep, nodes)
 
 
 def _laplacian(u, bgrid):
