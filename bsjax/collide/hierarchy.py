@@ -16,7 +16,8 @@ one step whatever the hierarchy's depth.
 
 `sphere_hierarchy`, `cell_triangles` and `tessellate` are compiled at the public boundary
 (`bsjax._boundary.compiled`); the queries call their private kernels, and `traverse`,
-`candidate_triangles`, `block_order`, `levels_for` are kernels of those queries.
+`candidate_triangles`, `block_order`, `levels_for`, `level_table`, `schedule` and `vertex_mask`
+are kernels of those queries.
 """
 
 from __future__ import annotations
