@@ -42,7 +42,6 @@ from bsjax.collide.hierarchy import (
     candidate_triangles,
     levels_for,
     traverse,
-    vertex_mask,
 )
 from bsjax.collide.tools import AbstractTool, Point
 from bsjax.collide.triangles import (
@@ -454,9 +453,7 @@ def _default_capacity(blending_a, blending_b) -> int:
     longest side of either grid. Two surfaces crossing along a curve keep about 47 candidate
     pairs per sample of that side (12×12 plates crossing at 17°, at 82² and 244² samples), so
     one pass suffices there; a flatter crossing or a flat contact may still overflow it."""
-    sides = [b.params_u.shape[0] for b in (blending_a, blending_b)] + [
-        b.params_v.shape[0] for b in (blending_a, blending_b)
-    ]
+    sides = (n for b in (blending_a, blending_b) for n in (b.params_u.shape[0], b.params_v.shape[0]))
     return 64 * max(sides)
 
 
@@ -497,6 +494,13 @@ def _surface_contacts(
     return _unless_apart(apart, query, blending_a, ctrl_a, blending_b, ctrl_b)
 
 
+def _vertex_mask(faces, hit, shape) -> Array:
+    """The grid vertices `(m, n)` of the faces or cells that hit: vertex indices `faces (..., k)`
+    into the flattened grid, `hit (...)`."""
+    flags = jnp.broadcast_to(hit[..., None], faces.shape).reshape(-1)
+    return jnp.zeros(shape[0] * shape[1], bool).at[faces.reshape(-1)].max(flags).reshape(shape)
+
+
 def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_angle, passes="cond"):
     """Refine every candidate pair down to triangles; only when that overflows the capacity
     (flat contact: every sphere intersects) run again with flat pairs resolved by planes, so
@@ -526,8 +530,8 @@ def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
     tri_a, face_a = candidate_triangles(pa, cell_a)  # (K, 2, 3, 3): only the candidate cells
     tri_b, face_b = candidate_triangles(pb, cell_b)
     hits = candidate_pairs_intersect(tri_a[:, :, None], tri_b[:, None, :], valid[:, None, None])
-    mask_a = vertex_mask(face_a, jnp.any(hits, 2), pa.shape[:2])
-    mask_b = vertex_mask(face_b, jnp.any(hits, 1), pb.shape[:2])
+    mask_a = _vertex_mask(face_a, jnp.any(hits, 2), pa.shape[:2])
+    mask_b = _vertex_mask(face_b, jnp.any(hits, 1), pb.shape[:2])
     pair_hit = jnp.any(hits, (1, 2))
     flat_hit = jnp.zeros((), jnp.int32)
     if pairs is not None and planes is not None:
@@ -563,8 +567,8 @@ def _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b):
     tb, fb = _cell_triangles(pb)
     ta, fa, tb, fb = ta.reshape(-1, 3, 3), fa.reshape(-1, 3), tb.reshape(-1, 3, 3), fb.reshape(-1, 3)
     hits = _triangles_intersect(ta[:, None], tb[None, :])
-    mask_a = vertex_mask(fa, jnp.any(hits, 1), pa.shape[:2])
-    mask_b = vertex_mask(fb, jnp.any(hits, 0), pb.shape[:2])
+    mask_a = _vertex_mask(fa, jnp.any(hits, 1), pa.shape[:2])
+    mask_b = _vertex_mask(fb, jnp.any(hits, 0), pb.shape[:2])
     empty = jnp.zeros((0, 2), jnp.int32)
     return SurfaceContact(
         hit=jnp.any(hits),

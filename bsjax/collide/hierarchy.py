@@ -16,8 +16,8 @@ one step whatever the hierarchy's depth.
 
 `sphere_hierarchy`, `cell_triangles` and `tessellate` are compiled at the public boundary
 (`bsjax._boundary.compiled`); the queries call their private kernels, and `traverse`,
-`candidate_triangles`, `block_order`, `levels_for`, `level_table`, `schedule` and `vertex_mask`
-are kernels of those queries.
+`candidate_triangles`, `block_order`, `levels_for`, `level_table` and `schedule` are kernels
+of those queries.
 """
 
 from __future__ import annotations
@@ -215,13 +215,6 @@ def tessellate(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[
     points = _grid(points)
     _, faces = _cell_triangles(points)
     return points.reshape(-1, 3), faces.reshape(-1, 3)
-
-
-def vertex_mask(faces, hit, shape) -> Array:
-    """The grid vertices `(m, n)` of the faces or cells that hit: vertex indices `faces (..., k)`
-    into the flattened grid, `hit (...)`."""
-    flags = jnp.broadcast_to(hit[..., None], faces.shape).reshape(-1)
-    return jnp.zeros(shape[0] * shape[1], bool).at[faces.reshape(-1)].max(flags).reshape(shape)
 
 
 def _overlap(ca, ra, cb, rb):
