@@ -49,18 +49,31 @@ def basis_functions(knots: Float[Array, " L"], degree: int, t: Float[Array, ""],
 
     **Returns:** `(L − degree − 1,)`; at most `degree + 1` entries are non-zero.
     """
-    check_order(nu)
+    return basis_derivatives(knots, degree, t, (nu,))[0]
+
+
+def basis_derivatives(knots: Float[Array, " L"], degree: int, t: Float[Array, ""], orders: tuple[int, ...]):
+    """`basis_functions` of each derivative order in `orders`, `(len(orders), L − degree − 1)`:
+    one Cox–de Boor triangle (thesis eq. 3.2) shared by all orders, order nu branching off at
+    degree `degree − nu` into nu derivative steps (The NURBS Book eq. 2.9)."""
+    for nu in orders:
+        check_order(nu)
     L = knots.shape[0]
     n_ctrl = L - degree - 1
-    if nu > degree:
-        return jnp.zeros((n_ctrl,), dtype=knots.dtype)
     t, span = _clip_and_span(knots, degree, t)
-    values = (jnp.arange(L - 1, dtype=jnp.int32) == span).astype(knots.dtype)
-    for p in range(1, degree - nu + 1):
-        values = _raise_degree(values, knots, t, p)
-    for p in range(degree - nu + 1, degree + 1):
-        values = _differentiate(values, knots, p)
-    return values
+    triangle = [(jnp.arange(L - 1, dtype=jnp.int32) == span).astype(knots.dtype)]
+    for p in range(1, degree - min(orders, default=0) + 1):
+        triangle.append(_raise_degree(triangle[-1], knots, t, p))
+    out = []
+    for nu in orders:
+        if nu > degree:
+            out.append(jnp.zeros((n_ctrl,), dtype=knots.dtype))
+            continue
+        values = triangle[degree - nu]
+        for p in range(degree - nu + 1, degree + 1):
+            values = _differentiate(values, knots, p)
+        out.append(values)
+    return jnp.stack(out)
 
 
 def _clip_and_span(knots, degree: int, t):
@@ -71,7 +84,9 @@ def _clip_and_span(knots, degree: int, t):
     lo, hi = knots[degree], knots[n_ctrl]
     t = jnp.where(t < lo, lo, jnp.where(t > hi, hi, t))
     domain = knots[degree : n_ctrl + 1]
-    span = jnp.searchsorted(domain, t, side="right").astype(jnp.int32) - 1
+    # a count, not jnp.searchsorted's binary search: its while loop costs ~3× the compile of the
+    # whole basis triangle, and the knot vectors are short
+    span = jnp.sum(domain <= t, dtype=jnp.int32) - 1
     nonempty = jnp.where(jnp.diff(domain) > 0, jnp.arange(n_ctrl - degree, dtype=jnp.int32), 0)
     return t, jnp.minimum(span, jnp.max(nonempty)) + degree
 
@@ -94,7 +109,7 @@ def periodic_support(n_ctrl: int, degree: int, params) -> Int[Array, "m k1"]:
 def rows(knots, degree: int, params, orders: tuple[int, ...]):
     """`basis_functions` of each derivative order in `orders` at every parameter, stacked
     `(len(orders), m, n_ctrl)` (the blending-matrix kernel; no checks)."""
-    return jnp.stack([jax.vmap(lambda t: basis_functions(knots, degree, t, nu))(params) for nu in orders])
+    return jnp.moveaxis(jax.vmap(lambda t: basis_derivatives(knots, degree, t, orders))(params), 0, 1)
 
 
 def periodic_rows(n_ctrl: int, degree: int, params, orders: tuple[int, ...]):

@@ -16,7 +16,7 @@ seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made unif
 * `merge_knots`, `average_knots`, `cross_knots`, `common_degree`, `merged_knots`: the knot and
   degree rules (the merged basis without building matrices).
 * `deviation(originals, merged)` → `Deviation` (mean, median, std, max, close points) by
-  closest-point projection (`closest_points`: vmapped optimistix Gauss–Newton); `plot_deviation`
+  closest-point projection (`closest_points`: batched Gauss–Newton); `plot_deviation`
   draws the heat map.
 * `refit(layout, ctrls, RefitSolver())` → `RefitSolution` (net, corrected parameters, RMS
   history, status): nonlinear refit with parameter correction (beyond the thesis);

@@ -11,9 +11,9 @@ over the control net P *and* the sample parameters,
 by alternating the two exact sub-problems (Hoschek's parameter correction, a block coordinate
 descent):
 
-1. parameters: every sample's foot point on the current surface, a vmapped
-   `optimistix.least_squares` (Gauss–Newton, 2 unknowns per sample, clamped to the domain;
-   `_project.closest_points`, the solver the deviation report uses);
+1. parameters: every sample's foot point on the current surface, from its previous parameters
+   (Gauss–Newton, 2 unknowns per sample, clamped to the domain; `bsjax.basis.closest_points`,
+   the projection the deviation report uses);
 2. net: the linear least-squares problem `K P ≈ X`, `K[a, (i, j)] = B_i(u_a) B_j(v_a)`, solved
    through its normal equations (Cholesky, a relative ridge of `1e3 eps` towards the previous
    net keeps a basis function without samples from going singular).
