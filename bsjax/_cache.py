@@ -18,10 +18,13 @@ program's result, not host callbacks, so JAX can store it), however short its co
 keys each entry by the program, the compiler options and the JAX/XLA version, so a stale entry is
 never loaded.
 
-Several processes may share the directory (two notebook kernels, the workers of a test run): the
-cache's size is bounded (`MAX_BYTES`, least recently used entries evicted first), which also makes
-JAX guard every read and write with a file lock (`filelock`), so no process reads an entry another
-is still writing.
+Several processes may share the directory (two notebook kernels, the workers of a test run). The
+cache's size is bounded (`MAX_BYTES`): each `enable_compilation_cache` call removes the least
+recently written entries beyond it (`trim`), once. JAX's own bound is not used: it scans the whole
+directory on every write (a write into a cache of 3 000 entries took 140 ms, so a run that
+compiles thousands of programs spent most of its cache time there). Without it JAX writes entries
+unlocked; a process that reads an entry another is still writing fails to decompress it, warns
+and compiles the program itself.
 """
 
 from __future__ import annotations
@@ -74,5 +77,34 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
         jax.config.update("jax_compilation_cache_dir", str(where))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)  # eviction on: file-locked I/O
+    jax.config.update("jax_compilation_cache_max_size", -1)  # JAX's bound scans the directory per write
+    if where not in _TRIMMED:
+        trim(where)
+        _TRIMMED.add(where)
     return where
+
+
+_TRIMMED: set[Path] = set()  # directories this process has trimmed
+
+
+def trim(directory: str | os.PathLike, max_bytes: int = MAX_BYTES) -> int:
+    """Remove the least recently written entries of the cache in `directory` until it holds at most
+    `max_bytes`. **Returns:** the number of entries removed (entries another process removes at
+    the same time are skipped)."""
+    entries = []
+    for path in Path(directory).glob("*-cache"):
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            continue
+        entries.append((st.st_mtime_ns, st.st_size, path))
+    total = sum(size for _, size, _ in entries)
+    removed = 0
+    for _, size, path in sorted(entries):
+        if total <= max_bytes:
+            break
+        path.unlink(missing_ok=True)
+        path.with_name(path.name[: -len("-cache")] + "-atime").unlink(missing_ok=True)  # JAX's LRU stamp
+        total -= size
+        removed += 1
+    return removed

@@ -35,16 +35,17 @@ def random_surface(rng, r=6, s=5, k=3, l=2, uniform=False, weights=False) -> BSp
 def check_grad(f, x, eps: float = 1e-6, rtol: float = 1e-5, atol: float = 1e-7, n_dirs: int = 4, seed=0):
     """Compare `jax.grad(f)(x)` with central differences along random directions.
 
-    `f` and its gradient run as one compiled program each (eagerly, every operation of `f`, of
-    its derivative and of each difference would be a program of its own)."""
+    One compiled program, `jax.value_and_grad(f)`, serves the gradient and the differences'
+    values (a second program for `f` alone would compile its forward pass again; eagerly, every
+    operation would be a program of its own)."""
     x = jnp.asarray(x)
-    g = jax.jit(jax.grad(f))(x)
-    f = jax.jit(f)
+    value_and_grad = jax.jit(jax.value_and_grad(f))
+    _, g = value_and_grad(x)
     assert bool(jnp.all(jnp.isfinite(g))), "gradient has non-finite entries"
     rng = np.random.default_rng(seed)
     for _ in range(n_dirs):
         d = jnp.asarray(rng.normal(size=x.shape))
-        fd = (f(x + eps * d) - f(x - eps * d)) / (2 * eps)
+        fd = (value_and_grad(x + eps * d)[0] - value_and_grad(x - eps * d)[0]) / (2 * eps)
         an = jnp.vdot(g, d)
         assert abs(float(fd - an)) <= atol + rtol * abs(float(fd)), (float(fd), float(an))
     return g

@@ -81,6 +81,27 @@ def test_cache_dir_off_and_default(monkeypatch, tmp_path):
     assert _cache.cache_dir() == tmp_path / "moved"
 
 
+def test_trim_removes_the_least_recently_written_entries_beyond_the_bound(tmp_path):
+    """`trim` (run once per directory by `enable_compilation_cache`) keeps the newest entries
+    within the bound, removes older ones with JAX's access stamps, and leaves other files."""
+    for i in range(5):
+        entry = tmp_path / f"k{i}-cache"
+        entry.write_bytes(bytes(100))
+        (tmp_path / f"k{i}-atime").write_bytes(bytes(8))
+        os.utime(entry, ns=(10**18 + i * 10**9,) * 2)  # k0 the oldest
+    (tmp_path / "other.txt").write_text("kept")
+    assert _cache.trim(tmp_path, max_bytes=250) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "k3-atime",
+        "k3-cache",
+        "k4-atime",
+        "k4-cache",
+        "other.txt",
+    ]
+    assert _cache.trim(tmp_path, max_bytes=250) == 0
+    assert jax.config.jax_compilation_cache_max_size == -1  # pyright: ignore[reportAttributeAccessIssue]
+
+
 @compiled
 def _checked_sqrt(x):
     x = _checks.positive(x, "x")

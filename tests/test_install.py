@@ -25,7 +25,7 @@ from bsjax.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONAL = ("rhino3dm", "OCP", "trimesh", "matplotlib", "serial", "hid", "websockets", "tqdm")
-CORE = {"jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxtyping", "numpy", "scipy", "filelock"}
+CORE = {"jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxtyping", "numpy", "scipy"}
 
 # Runs first in the subprocess: importing any optional module fails as if it were not installed.
 _BLOCK = f"""
