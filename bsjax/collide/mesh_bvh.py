@@ -246,51 +246,50 @@ def nearest_faces(
         return _merge(best, face, d2.reshape(-1, size), ids, owner)
 
     # 2. best-first over the nearest leaves: rank-major chunks (every tile's nearest leaf
-    # first), a tile's cursor passing the ranks taken or beyond its bound
+    # first), a tile's cursor passing the ranks taken or beyond its bound; every rank of a tile
+    # up to its cursor is done (tested, or beyond the bound then and so for good: bounds only
+    # tighten)
     def ranked(cursor, best):
         rank = jnp.arange(ranks, dtype=jnp.int32)[:, None]  # (ranks, T): rank-major
         return (rank >= cursor[None, :]) & (sgap.T <= bound(best)[None, :])
 
-    def step_a(state):
-        cursor, best, face = state
-        todo = ranked(cursor, best)
-        (slot,) = jnp.nonzero(todo.reshape(-1), size=PAIRS_PER_STEP, fill_value=0)
-        used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
-        tile, rank = slot % n_tiles, slot // n_tiles
-        best, face = test(tile, order[tile, rank], used, best, face)
-        # every rank of a tile up to the last one taken is done (tested, or beyond the bound
-        # then and so for good: bounds only tighten)
-        cursor = jnp.maximum(
-            cursor, jnp.zeros(n_tiles, jnp.int32).at[tile].max(jnp.where(used, rank + 1, 0).astype(jnp.int32))
+    def ranked_done(cursor):
+        return (
+            jnp.zeros((n_tiles, leaves), bool)
+            .at[rows_t[:, None], order]
+            .set(jnp.arange(ranks, dtype=jnp.int32)[None] < cursor[:, None])
         )
-        return cursor, best, face
 
-    cursor = jnp.zeros(n_tiles, jnp.int32)
-    state = (cursor, best, face)
-    cursor, best, face = jax.lax.while_loop(lambda s: jnp.any(ranked(s[0], s[1])), step_a, state)
-
-    # 3. the rest: every (tile, leaf) pair not done whose box lies within the tile's bound,
-    # in index order (usually few or none: the bounds are nearly final after 2a)
-    done = (
-        jnp.zeros((n_tiles, leaves), bool)
-        .at[rows_t[:, None], order]
-        .set(jnp.arange(ranks, dtype=jnp.int32)[None] < cursor[:, None])
-    )
-
+    # 3. then the rest: every (tile, leaf) pair not done whose box lies within the tile's bound,
+    # in index order (usually few or none: the bounds are nearly final after 2). Both phases
+    # are one loop whose body tests one chunk of pairs, so the program holds one copy of the
+    # distance kernel.
     def rest(done, best):
         return ~done & (gap <= bound(best)[:, None])
 
-    def step_b(state):
-        done, best, face = state
-        todo = rest(done, best).reshape(-1)
-        (slot,) = jnp.nonzero(todo, size=PAIRS_PER_STEP, fill_value=0)
-        used = jnp.arange(PAIRS_PER_STEP) < jnp.sum(todo)
-        tile, leaf = slot // leaves, slot % leaves
-        best, face = test(tile, leaf, used, best, face)
-        return done | jnp.zeros_like(done).at[tile, leaf].max(used), best, face
+    def pending(state):
+        cursor, done, best, _ = state
+        return jnp.any(ranked(cursor, best)) | jnp.any(rest(done | ranked_done(cursor), best))
 
-    state = (done, best, face)
-    return jax.lax.while_loop(lambda s: jnp.any(rest(s[0], s[1])), step_b, state)[2]
+    def step(state):
+        cursor, done, best, face = state
+        todo_a = ranked(cursor, best).reshape(-1)
+        first = jnp.any(todo_a)  # phase 2 until its pairs run out, then phase 3
+        todo_b = rest(done | ranked_done(cursor), best).reshape(-1)
+        slot_a = jnp.nonzero(todo_a, size=PAIRS_PER_STEP, fill_value=0)[0].astype(jnp.int32)
+        slot_b = jnp.nonzero(todo_b, size=PAIRS_PER_STEP, fill_value=0)[0].astype(jnp.int32)
+        used = jnp.arange(PAIRS_PER_STEP) < jnp.where(first, jnp.sum(todo_a), jnp.sum(todo_b))
+        tile_a, rank = slot_a % n_tiles, slot_a // n_tiles
+        tile = jnp.where(first, tile_a, slot_b // leaves)
+        leaf = jnp.where(first, order[tile_a, rank], slot_b % leaves)
+        best, face = test(tile, leaf, used, best, face)
+        taken = jnp.where(first & used, rank + 1, 0).astype(jnp.int32)
+        cursor = jnp.maximum(cursor, jnp.zeros(n_tiles, jnp.int32).at[tile_a].max(taken))
+        done = done | jnp.zeros_like(done).at[tile, leaf].max(~first & used)
+        return cursor, done, best, face
+
+    state = (jnp.zeros(n_tiles, jnp.int32), jnp.zeros((n_tiles, leaves), bool), best, face)
+    return jax.lax.while_loop(pending, step, state)[3]
 
 
 def _slack(best):
