@@ -7,23 +7,11 @@ of them compiled is loaded by the others (the annotation re-run of `test_typing`
 notebooks) instead of compiled again; it is removed at the end of the run. Nothing is carried
 from one run to the next. `BSJAX_CACHE_DIR=DIR make test` uses (and keeps) DIR instead;
 `BSJAX_CACHE_DIR=off` runs without one. `tests/test_cache.py` checks the cache itself.
-
-The suite is compile-bound (about two thirds of its time is XLA compiling programs), so it
-compiles with XLA's backend optimisation level 0 (`--xla_backend_optimization_level=0` in
-`XLA_FLAGS`, inherited by every subprocess): the same programs, compiled about 30 % faster and
-run somewhat slower (construct, mss, merge refit and mesh-tool files: 265 s → 216 s). Speed is
-measured in `benchmarks/`, at XLA's default level; an `XLA_FLAGS` that sets the level already
-is left as it is.
 """
 
 import os
 import shutil
 import tempfile
-
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (
-        os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
-    ).strip()
 
 _RUN_CACHE = None
 if "BSJAX_CACHE_DIR" not in os.environ and "PYTEST_XDIST_WORKER" not in os.environ:
