@@ -40,6 +40,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax.basis import _tensor
 from bsjax.basis._surface import BSplineSurface
 
 
@@ -86,28 +87,24 @@ def _domain(surface: BSplineSurface, uv):
 
 def _points(surface: BSplineSurface, u, v):
     """`S(u_a, v_a)` for `(k,)` parameters in the domain (the kernel: no value checks)."""
-    bu = surface.direction_u.matrix(u)
-    bv = surface.direction_v.matrix(v)
-    if surface.weights is None:
-        return jnp.einsum("ki,ijc,kj->kc", bu, surface.ctrl, bv)
-    w = jnp.einsum("ki,ij,kj->k", bu, surface.weights, bv)
-    return jnp.einsum("ki,ijc,ij,kj->kc", bu, surface.ctrl, surface.weights, bv) / w[:, None]
+    net = _tensor.homogeneous(surface.ctrl, surface.weights)
+    h = _tensor.pointwise(surface.direction_u.matrix(u), net, surface.direction_v.matrix(v))
+    return h if surface.weights is None else h[:, :-1] / h[:, -1:]
 
 
 def _with_tangents(surface: BSplineSurface, uv):
-    """`S, S_u, S_v`, each `(M, 3)`, at `uv (M, 2)` brought into the domain (quotient rule for a
-    NURBS: `S_u = (A_u − S w_u) / w` with `A = Σ B B w P`)."""
+    """`S, S_u, S_v`, each `(M, 3)`, at `uv (M, 2)` brought into the domain (a NURBS through its
+    homogeneous map, `_tensor.rational_derivatives`)."""
     uv = _domain(surface, uv)
-    bu = surface.direction_u.matrices(uv[:, 0], (0, 1))
-    bv = surface.direction_v.matrices(uv[:, 1], (0, 1))
-    pairs = ((0, 0), (1, 0), (0, 1))  # S, ∂u, ∂v
+    a_u = surface.direction_u.matrices(uv[:, 0], (0, 1))
+    a_v = surface.direction_v.matrices(uv[:, 1], (0, 1))
+    net = _tensor.homogeneous(surface.ctrl, surface.weights)
+    h = {(k, l): _tensor.pointwise(a_u[k], net, a_v[l]) for k, l in ((0, 0), (1, 0), (0, 1))}
     if surface.weights is None:
-        return [jnp.einsum("ki,ijc,kj->kc", bu[a], surface.ctrl, bv[b]) for a, b in pairs]
-    pw = surface.ctrl * surface.weights[..., None]
-    a = [jnp.einsum("ki,ijc,kj->kc", bu[i], pw, bv[j]) for i, j in pairs]
-    w = [jnp.einsum("ki,ij,kj->k", bu[i], surface.weights, bv[j])[:, None] for i, j in pairs]
-    s = a[0] / w[0]
-    return [s, (a[1] - s * w[1]) / w[0], (a[2] - s * w[2]) / w[0]]
+        return [h[(0, 0)], h[(1, 0)], h[(0, 1)]]
+    along_u = _tensor.rational_derivatives({kl: h[kl] for kl in ((0, 0), (1, 0))}, 1, 0)
+    along_v = _tensor.rational_derivatives({kl: h[kl] for kl in ((0, 0), (0, 1))}, 0, 1)
+    return [along_u[(0, 0)], along_u[(1, 0)], along_v[(0, 1)]]
 
 
 def _pinv_step(su, sv, r):
