@@ -46,6 +46,7 @@ def browser():
 # --- where the suite's time goes (BSJAX_TEST_PROFILE=FILE: one JSON line per test) ----------------
 if os.environ.get("BSJAX_TEST_PROFILE"):
     import json
+    import resource
     import time
 
     import pytest
@@ -68,12 +69,17 @@ if os.environ.get("BSJAX_TEST_PROFILE"):
 
     monitoring.register_event_duration_secs_listener(_listen)
 
+    def _cpu() -> float:
+        """CPU seconds of this process and of its finished children (subprocesses, kernels)."""
+        children = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + children.ru_utime + children.ru_stime
+
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(item, nextitem):
         _spent.clear()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu()
         yield
-        row = {"test": item.nodeid, "wall_s": time.perf_counter() - t0, **_spent}
+        row = {"test": item.nodeid, "wall_s": time.perf_counter() - t0, "cpu_s": _cpu() - c0, **_spent}
         with open(os.environ["BSJAX_TEST_PROFILE"], "a") as f:
             f.write(json.dumps(row) + "\n")
 

@@ -16,7 +16,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from bsjax import _checks
 from bsjax._boundary import compiled
@@ -274,6 +274,26 @@ class Blending(eqx.Module):
         """Control net `(r, s)`."""
         return self.a_u.shape[2], self.a_v.shape[2]
 
+    # --- samples counted once ----------------------------------------------------------------
+    @property
+    def first_samples(self) -> Int[Array, "m n"]:
+        """Flat index (row-major into the `(m, n)` grid) of the first sample at each sample's
+        parameters: the sample itself, except on a seam sampled twice — a periodic direction's
+        default grid holds both 0 and 1, the same row of points — or at a repeated parameter."""
+        xp = _checks.xp(self.params_u, self.params_v)
+        first_u = _first_copies(self.params_u, self.periodic_u, xp)
+        first_v = _first_copies(self.params_v, self.periodic_v, xp)
+        return first_u[:, None] * self.grid_shape[1] + first_v[None, :]
+
+    @property
+    def counted(self) -> Bool[Array, "m n"]:
+        """`(m, n)` booleans: the samples that count in a sum over the surface (contact depths and
+        forces, penetrations, statistics) — every sample but the second copy of a point
+        (`first_samples`), so a closed surface's seam counts once."""
+        xp = _checks.xp(self.params_u, self.params_v)
+        m, n = self.grid_shape
+        return self.first_samples == xp.arange(m * n, dtype=np.int32).reshape(m, n)
+
     # --- evaluation --------------------------------------------------------------------------
     @compiled
     def points(self, ctrl: Float[Array, "r s 3"]) -> Float[Array, "m n 3"]:
@@ -421,6 +441,13 @@ def _blending(du: SplineDirection, dv: SplineDirection, pu, pv, weights) -> Blen
         index_u=_index(m), index_v=_index(n),
         support_u=support_u, band_u=band_u, banded=_tensor.prefer_banded(m, n, r, s, du.degree),
     )  # fmt: skip
+
+
+def _first_copies(params, periodic: bool, xp):
+    """`(m,)` int32: for each of `params (m,)` the index of the first equal one (modulo 1 in a
+    periodic direction, whose 0 and 1 are the same seam)."""
+    p = xp.mod(params, 1.0) if periodic else params
+    return xp.argmax(p[:, None] == p[None, :], axis=1).astype(np.int32)
 
 
 def _index(count: int):

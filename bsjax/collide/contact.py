@@ -200,7 +200,9 @@ def contacts(
     shaped tools*, §3.2.2), the signed distance (plane, mesh) or the closest-point distance
     (implicit). For a `Point`, the three vertices of the nearest triangle carry the point's
     penetration split by barycentric weights, so `Σ depth` is the point's depth behind the
-    surface.
+    surface. Every sum over the samples counts a surface point once: the second copy of a seam
+    sampled twice (a closed direction's default grid holds both 0 and 1) is never in contact
+    (`Blending.counted`); its share of a point's depth goes to the first copy.
     """
     tool = _checked_tool(tool)  # first: the clearest error for a wrong argument order
     if method not in ("window", "dense"):
@@ -215,7 +217,8 @@ def contacts(
     else:
         apart = tool.hull_apart(jax.lax.stop_gradient(ctrl).reshape(-1, 3))  # a decision: no gradient
         contact = _unless_apart(apart, query, blending, ctrl, tool)
-    return contact if sample_mask is None else _masked(contact, sample_mask)
+    counted = blending.counted  # a seam sampled twice counts once
+    return _masked(contact, counted if sample_mask is None else counted & sample_mask)
 
 
 def _checked_mask(blending, sample_mask):
@@ -382,6 +385,7 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
     x = tool.position
     face, closest, bary = _nearest_on_grid(x, points)
     tri = points.reshape(-1, 3)[face]
+    face = blending.first_samples.reshape(-1)[face]  # a seam copy's share goes to its first sample
     face_normal = _safe.unit(jnp.cross(tri[1] - tri[0], tri[2] - tri[0]))
     offset = x - closest
     dist = _safe.norm(offset)

@@ -106,7 +106,8 @@ def surface_penetration(
       thickness; a finite scalar > 0 (traced).
 
     **Returns:** `(a against b, b against a)`: the `Penetration` of A's samples `(m_a, n_a)`
-    into B and of B's samples `(m_b, n_b)` into A. The depth is the distributed-spring depth of
+    into B and of B's samples `(m_b, n_b)` into A (the second copy of a seam sample never in
+    contact: `Blending.counted`). The depth is the distributed-spring depth of
     Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools*,
     §3.2, measured to the other surface's tessellation; jittable, vmappable and differentiable
     in both nets (the foot triangle is a decision, the depth and normal along it are not).
@@ -131,7 +132,18 @@ def surface_penetration(
     def empty():
         return tuple(_empty(s.depth.shape, s.bary.dtype) for s in shapes)
 
-    return jax.lax.cond(apart, empty, narrow)
+    ab, ba = jax.lax.cond(apart, empty, narrow)
+    return _counted(ab, blending_a.counted), _counted(ba, blending_b.counted)
+
+
+def _counted(pen: Penetration, counted) -> Penetration:
+    """`pen` with the second copy of each seam sample out of contact (`Blending.counted`): a
+    closed surface's seam pushes once (its reaction still reaches the other surface's copies)."""
+    return eqx.tree_at(
+        lambda p: (p.depth, p.normals, p.mask),
+        pen,
+        (jnp.where(counted, pen.depth, 0), jnp.where(counted[..., None], pen.normals, 0), pen.mask & counted),
+    )
 
 
 def _checked_reach(reach, dtype):

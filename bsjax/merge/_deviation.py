@@ -63,9 +63,16 @@ class Deviation(eqx.Module):
         }
 
 
-def _window_params(w, samples: int, dtype):
+def _window_params(w, samples: int, surface: BSplineSurface):
+    """The `samples` parameters per direction of the window `w` (`None`: the whole domain); a
+    closed direction sampled all the way round stops short of 1, so its seam counts once."""
     u0, u1, v0, v1 = (0.0, 1.0, 0.0, 1.0) if w is None else w
-    return jnp.linspace(u0, u1, samples, dtype=dtype), jnp.linspace(v0, v1, samples, dtype=dtype)
+
+    def grid(lo, hi, periodic):
+        endpoint = not (periodic and hi - lo >= 1.0)
+        return jnp.linspace(lo, hi, samples, endpoint=endpoint, dtype=surface.ctrl.dtype)
+
+    return grid(u0, u1, surface.periodic_u), grid(v0, v1, surface.periodic_v)
 
 
 def _check_windows(windows, count: int):
@@ -95,7 +102,8 @@ def deviation(
 
     **Arguments:**
     - `originals`: the input patch(es); each is sampled on a `samples × samples` grid (the
-      thesis uses 101², i.e. 20402 points for two patches).
+      thesis uses 101², i.e. 20402 points for two patches; a closed direction's samples cover
+      [0, 1) once, its seam not twice).
     - `merged`: the merged surface.
     - `tolerance`: distance (> 0) under which a point counts as "close" (same units as the
       geometry); static (a new value compiles again).
@@ -118,7 +126,7 @@ def deviation(
     for i, (s, w) in enumerate(zip(originals, windows)):
         if not isinstance(s, BSplineSurface):
             raise TypeError(f"originals[{i}]: expected a BSplineSurface, got {type(s).__name__}")
-        pu, pv = _window_params(w, samples, s.ctrl.dtype)
+        pu, pv = _window_params(w, samples, s)
         uu, vv = jnp.meshgrid(pu, pv, indexing="ij")
         pts = s.evaluate(uu, vv).astype(dtype)
         points.append(_checks.finite(pts, f"originals[{i}]").reshape(-1, 3))
