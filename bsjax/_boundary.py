@@ -217,6 +217,8 @@ class _Compiled:
             args, kwargs = self._mark_static(args, kwargs)
         args, kwargs = as_arrays(args, kwargs)
         leaves, treedef = jax.tree_util.tree_flatten((args, kwargs))
+        if any(isinstance(leaf, np.ndarray) and leaf.dtype.kind not in "biuf" for leaf in leaves):
+            self._refuse_non_numeric(args, kwargs)
         mask = tuple(is_traced(leaf) for leaf in leaves)
         static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
         dynamic = [leaf for m, leaf in zip(mask, leaves) if m]
@@ -232,6 +234,19 @@ class _Compiled:
         if code:
             raise ValueError(_checks.message_of(code))
         return out
+
+    def _refuse_non_numeric(self, args, kwargs) -> None:
+        """Raise the `TypeError` naming the argument that holds a numpy array of strings,
+        objects or complex numbers (no program is traced for it)."""
+        try:
+            bound = inspect.signature(self._fn).bind(*args, **kwargs).arguments
+        except TypeError:  # a wrong call: let the function itself say so
+            return
+        for name, value in bound.items():
+            for leaf in jax.tree_util.tree_leaves(value):
+                if isinstance(leaf, np.ndarray) and leaf.dtype.kind not in "biuf":
+                    _checks.check_real(leaf, name)  # complex: its own message
+                    raise TypeError(f"{name}: expected real numbers, got an array of dtype {leaf.dtype}")
 
     @staticmethod
     def _run(jitted, dynamic, functional: bool):

@@ -194,14 +194,25 @@ def check_count(value: Any, name: str, minimum: int = 1) -> int:
 
 
 def check_real(x: Any, name: str) -> None:
-    """Refuse complex input (it would be truncated to its real part) and booleans (not numbers)."""
+    """Refuse complex input (it would be truncated to its real part), booleans (not numbers) and
+    anything that is not numbers at all (strings, objects, `None`)."""
     dtype = getattr(x, "dtype", None)  # tracers too (their dtype is known; their values are not)
     if dtype is None:
-        dtype = np.asarray(x).dtype
+        try:
+            dtype = np.asarray(x).dtype
+        except (TypeError, ValueError):  # ragged nesting
+            raise TypeError(f"{name}: expected real numbers, got {type(x).__name__} {_short(x)}") from None
+    if not (jnp.issubdtype(dtype, jnp.number) or dtype == np.bool_):  # strings, objects, PRNG keys
+        raise TypeError(f"{name}: expected real numbers, got {type(x).__name__} {_short(x)} (dtype {dtype})")
     if np.issubdtype(dtype, np.complexfloating):
         raise TypeError(f"{name}: expected real numbers, got complex dtype {dtype}")
     if dtype == np.bool_:
         raise TypeError(f"{name}: expected real numbers, got booleans")
+
+
+def _short(x) -> str:
+    text = repr(x)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 # --- values -----------------------------------------------------------------------------------

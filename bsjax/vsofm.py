@@ -151,8 +151,10 @@ def _power_of_two_scale(points):
 def _check_fit_input(points, shape):
     _checks.check_ndim(points, "points", 2, last=3)
     _checks.check_real(points, "points")
-    shape = tuple(int(s) for s in shape) if np.ndim(shape) == 1 else shape
-    if len(shape) != 3 or min(shape) < 2:
+    if np.ndim(shape) != 1 or len(shape) != 3:
+        _checks.fail("shape", "three lattice sizes >= 2", shape)
+    shape = tuple(_checks.check_count(size, "shape", 1) for size in shape)  # ints
+    if min(shape) < 2:
         _checks.fail("shape", "three lattice sizes >= 2", shape)
     pts = jnp.asarray(points)
     if not jnp.issubdtype(pts.dtype, jnp.floating):
@@ -160,7 +162,19 @@ def _check_fit_input(points, shape):
     pts = _distinct(_checks.finite(pts, "points"))
     if pts.shape[0] < 4:
         _checks.fail("points", "at least 4 distinct samples", pts.shape[0])
+    if not isinstance(pts, jax.core.Tracer):
+        _check_volume(np.asarray(pts))
     return pts, shape
+
+
+def _check_volume(points: np.ndarray) -> None:
+    """Samples that span three dimensions: a flat or collinear set encloses no volume, and every
+    cell of a lattice trained on it comes out inverted (singular values of the centred samples)."""
+    spread = np.linalg.svd(points - points.mean(0), compute_uv=False)
+    if not spread[2] > 1e-9 * spread[0]:
+        _checks.fail(
+            "points", "samples of a closed surface (spanning three dimensions)", "a flat or collinear set"
+        )
 
 
 def _distinct(points):

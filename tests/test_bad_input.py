@@ -13,7 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bsjax import collide, merge, mss, shapes, vsofm
+from bsjax import collide, io, merge, mss, shapes, vsofm
+from bsjax.basis import blending_matrix, clamped_knots, greville
 from tests.helpers import raises_both
 
 C3 = jnp.array([0.5, 0.5, 0.1])
@@ -252,6 +253,67 @@ STRUCTURE_CASES = [
     ("plate size < 0", lambda e: shapes.plate(8, 8, size=-1.0), ValueError, "size"),
     ("sphere radius < 0", lambda e: shapes.sphere(radius=-1.0), ValueError, "radius"),
     ("sphere radius complex", lambda e: shapes.sphere(radius=1j), TypeError, "radius"),
+    # found by trying (issue: no silent result, every error names its argument)
+    ("Sphere centre a string", lambda e: collide.Sphere("abc", 0.2), TypeError, "center"),
+    (
+        "Implicit gives vectors",
+        lambda e: collide.contacts(e.b, e.s.ctrl, collide.Implicit(lambda x: x)),
+        ValueError,
+        "fn",
+    ),
+    (
+        "behind_plane zero normal",
+        lambda e: mss.behind_plane(e.state.position, C3, jnp.zeros(3)),
+        ValueError,
+        "normal",
+    ),
+    ("behind_plane NaN point", lambda e: mss.behind_plane(e.state.position, NAN3, C3), ValueError, "point"),
+    (
+        "hex_lattice object masses",
+        lambda e: mss.hex_lattice(np.zeros((2, 2, 2, 3)), 1.0, 0.1, np.array([1.0, None])),
+        TypeError,
+        "mass",
+    ),
+    (
+        "hex_lattice string stiffness",
+        lambda e: mss.hex_lattice(np.zeros((2, 2, 2, 3)), "10", 0.1, 1.0),
+        TypeError,
+        "stiffness",
+    ),
+    (
+        "stable_dt overflowing bound",
+        lambda e: mss.stable_dt(mss.hex_lattice(e.lat.rest_positions.reshape(3, 3, 3, 3), 1e308, 0.1, 1e-3)),
+        ValueError,
+        "lattice",
+    ),
+    (
+        "simulate gravity NaN",
+        lambda e: mss.simulate(e.lat, e.state, 1e-5, 2, gravity=NAN3),
+        ValueError,
+        "gravity",
+    ),
+    ("vsofm float lattice size", lambda e: vsofm.fit(e.pts, (2.5, 3, 3)), TypeError, "shape"),
+    (
+        "vsofm flat samples",
+        lambda e: vsofm.fit(e.pts * np.array([1.0, 1.0, 0.0]), (3, 3, 3)),
+        ValueError,
+        "points",
+    ),
+    (
+        "vsofm collinear samples",
+        lambda e: vsofm.fit(e.pts * np.array([1.0, 0.0, 0.0]), (3, 3, 3)),
+        ValueError,
+        "points",
+    ),
+    ("greville too few knots", lambda e: greville(np.linspace(0, 1, 8), 5), ValueError, "knots"),
+    ("merge_knots empty", lambda e: merge.merge_knots([], clamped_knots(5, 3), 3, 1), ValueError, "knots_a"),
+    (
+        "cross_knots NaN",
+        lambda e: merge.cross_knots([np.r_[0, 0, 0, 0, np.nan, 1, 1, 1, 1]], 3, 5),
+        ValueError,
+        r"knot_list\[0\]",
+    ),
+    ("to_dict not a spline", lambda e: io.to_dict("x"), TypeError, "spline"),
 ]
 
 
@@ -271,6 +333,13 @@ def test_lists_are_array_likes(plate):
     assert int(jnp.sum(as_array.mask)) > 0
     pts = np.asarray(s.ctrl).reshape(-1, 3)
     assert bool(collide.hulls_apart(pts.tolist(), (pts + 5.0).tolist()))
+    assert bool(collide.hulls_apart(pts, pts + 5.0))  # numpy arrays
+    knots = clamped_knots(6, 3)
+    np.testing.assert_array_equal(
+        blending_matrix(knots, 3, [0.25, 0.5]), blending_matrix(knots, 3, jnp.array([0.25, 0.5]))
+    )
+    grid = b.points(s.ctrl)
+    np.testing.assert_array_equal(b.refit(np.asarray(grid).tolist()), b.refit(grid))
 
 
 def test_value_check_failures_are_not_logged_as_tracebacks(plate, caplog):

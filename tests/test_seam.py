@@ -1,11 +1,11 @@
 """A closed surface's seam counts once in every sum over its samples.
 
 A periodic direction's default grid holds both 0 and 1, the same row of points; `Blending.counted`
-marks the second copy, and contacts, penetrations, deviation statistics and the VSOFM samples of
-a volume body leave it out. The checks are symmetries that hold only when the seam counts once
-(a rotationally symmetric body pressed by a centred plane has no sideways force; a contact
-region's area does not change when it moves onto the seam) and a closed form (scipy's quadrature
-of the area of a cylinder inside a sphere)."""
+marks the second copy, and contacts, penetrations and deviation statistics leave it out. The
+checks are symmetries that hold only when the seam counts once (a rotationally symmetric body
+pressed by a centred plane has no sideways force; a contact region's area does not change when
+it moves onto the seam) and a closed form (scipy's quadrature of the area of a cylinder inside a
+sphere)."""
 
 from __future__ import annotations
 

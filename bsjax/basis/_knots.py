@@ -64,6 +64,12 @@ def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
 def greville(knots: ArrayLike, degree: int) -> np.ndarray:
     """Greville abscissae `(t_{i+1} + … + t_{i+k}) / k` (The NURBS Book eq. 9.8), one per control
     point; host-side (numpy), for planning fits."""
+    _checks.check_degree(degree, "degree")
+    _checks.check_real(knots, "knots")
     t = np.asarray(knots, dtype=np.float64)
+    _checks.check_ndim(t, "knots", 1)
     n_ctrl = len(t) - degree - 1
+    if n_ctrl < degree + 1:
+        _checks.fail("knots", f"at least 2 (degree + 1) = {2 * (degree + 1)} knots", len(t))
+    _checks.monotone(t, "knots")
     return np.array([t[i + 1 : i + degree + 1].mean() for i in range(n_ctrl)])

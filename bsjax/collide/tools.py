@@ -519,7 +519,10 @@ class Implicit(AbstractTool):
             _checks.check_real(leaf, "params")
 
     def _f(self, x):
-        return self.fn(x) if self.params is None else self.fn(x, self.params)
+        value = self.fn(x) if self.params is None else self.fn(x, self.params)
+        if np.shape(value) != ():  # traced: the shape is known while tracing
+            _checks.fail("fn", "a scalar per point, fn(x (3,)) -> ()", f"shape {np.shape(value)}")
+        return value
 
     @compiled
     def value(self, x):

@@ -129,8 +129,7 @@ def _linear_weights(tri, grid):
 
 def _jelly(sizes):
     ball = shapes.sphere(radius=0.007)
-    grid = ball.blending(24, 24)
-    samples = np.asarray(grid.points(ball.ctrl))[np.asarray(grid.counted)]  # the seam once
+    samples = np.asarray(ball.blending(24, 24).points(ball.ctrl)).reshape(-1, 3)
     return vsofm.fit(samples + np.array([0.032, 0.0, 0.004]), (sizes["lattice"],) * 3, cycles=sizes["cycles"])
 
 

@@ -128,8 +128,7 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     hm = spoon.height_map(local, (-0.01, -0.035), (0.075, 0.035))
     ball = shapes.sphere(radius=0.007)
     centre = np.array([0.032, 0.0, 0.004])
-    grid = ball.blending(40, 40)
-    samples = np.asarray(grid.points(ball.ctrl))[np.asarray(grid.counted)] + centre  # the seam once
+    samples = np.asarray(ball.blending(40, 40).points(ball.ctrl)).reshape(-1, 3) + centre
     t0 = time.perf_counter()
     shape = (sizes["lattice"],) * 3
     from bsjax.cli import _progress

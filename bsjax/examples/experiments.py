@@ -140,8 +140,7 @@ def _jelly_nodes(size: int, cycles: int, dtype) -> Array:
         cube = np.stack(np.meshgrid(side, side, side, indexing="ij"), -1)
         return jnp.asarray(cube + centre, dtype)
     ball = shapes.sphere(radius=JELLY_RADIUS, dtype=dtype)
-    grid = ball.blending(16, 16)
-    samples = np.asarray(grid.points(ball.ctrl))[np.asarray(grid.counted)] + centre  # the seam once
+    samples = np.asarray(ball.blending(16, 16).points(ball.ctrl)).reshape(-1, 3) + centre
     return vsofm.fit(samples.astype(dtype), (size,) * 3, cycles=cycles)
 
 

@@ -28,6 +28,8 @@ def _listed(x):
 
 def to_dict(spline: BSplineSurface | BSplineCurve) -> dict:
     """A JSON-ready dict holding every field of a surface or curve exactly (floats round-trip by repr)."""
+    if not isinstance(spline, (BSplineSurface, BSplineCurve)):
+        raise TypeError(f"spline: expected a BSplineSurface or BSplineCurve, got {type(spline).__name__}")
     if isinstance(spline, BSplineCurve):
         return {
             "format": _CURVE_FORMAT,

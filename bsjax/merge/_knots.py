@@ -29,8 +29,13 @@ def _host(knots, name: str) -> np.ndarray:
 
 
 def _as_knots(knots, degree: int, name: str) -> np.ndarray:
+    """A concrete clamped knot vector on [0, 1] of at least `degree + 1` control points."""
     t = _host(knots, name)
     _checks.check_ndim(t, name, 1)
+    if len(t) < 2 * (degree + 1):
+        _checks.fail(
+            name, f"a clamped knot vector of at least 2 (degree + 1) = {2 * (degree + 1)} knots", len(t)
+        )
     _checks.clamped_knots(t, degree, len(t) - degree - 1, name)
     return t
 
@@ -112,7 +117,8 @@ def merge_knots(knots_a, knots_b, degree: int, continuity: int) -> np.ndarray:
     `[0,0,0,0,.1069,.2480,.3631,.4316,.5,.5304,.5608,.6256,.6845,.7524,.8642,.9316,1,1,1,1]`.
     """
     _checks.check_degree(degree, "degree")
-    return combine_knots([knots_a, knots_b], degree, continuity)
+    pair = [_as_knots(knots_a, degree, "knots_a"), _as_knots(knots_b, degree, "knots_b")]
+    return combine_knots(pair, degree, continuity)
 
 
 def average_knots(knots_a, knots_b) -> np.ndarray:
@@ -138,10 +144,14 @@ def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "aver
     spaced quantiles, so the distribution of the knots survives.
     """
     if mode not in CROSS_MODES:
-        _checks.fail("cross_knots", f"one of {CROSS_MODES}", repr(mode))
+        _checks.fail("cross_knots", f"one of {CROSS_MODES}", repr(mode))  # merge(cross_knots=)
+    _checks.check_degree(degree, "degree")
+    n_ctrl = _checks.check_count(n_ctrl, "n_ctrl", degree + 1)
     if mode == "uniform":
         return np.asarray(clamped_knots(n_ctrl, degree, np.float64))
-    ts = [_host(t, f"knot_list[{i}]") for i, t in enumerate(knot_list)]
+    ts = [_as_knots(t, degree, f"knot_list[{i}]") for i, t in enumerate(knot_list)]
+    if not ts:
+        _checks.fail("knot_list", "at least one knot vector", "none")
     full = [t for t in ts if len(t) == n_ctrl + degree + 1]
     if len(full) == len(ts):
         return np.mean(np.stack(full), axis=0)

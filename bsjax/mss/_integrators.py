@@ -201,8 +201,8 @@ def stable_dt(
     - `contact_damping`: the contact damper `c_c` (N·s/m, ≥ 0) on a node in contact (e.g. a
       `collide.DistributedSprings`' damping), added to the node damping.
 
-    **Returns:** `h > 0` (inf for a lattice without springs or dampers); never NaN for finite
-    positive masses and finite non-negative stiffnesses (0 when the bound overflows).
+    **Returns:** `h > 0` (inf for a lattice without springs or dampers). A lattice whose bound
+    overflows the dtype (stiffness 1e308 on a gram) raises: no step is representable.
 
     Bounds the largest eigenvalue `ω²` of `M⁻¹K` and `c` of `M⁻¹C` by block Gershgorin discs
     (`ω² ≤ max_i Σ_j K_ij (1/m_i + 1/√(m_i m_j))`, exact for one free spring), adds the contact
@@ -211,7 +211,14 @@ def stable_dt(
     """
     contact_stiffness = _checks.positive(jnp.asarray(contact_stiffness), "contact_stiffness", strict=False)
     contact_damping = _checks.positive(jnp.asarray(contact_damping), "contact_damping", strict=False)
-    return _stable_dt(lattice, contact_stiffness, contact_damping)
+    h = _stable_dt(lattice, contact_stiffness, contact_damping)
+    return _checks.check(
+        h,
+        ~(h > 0),
+        "lattice",
+        "stiffness / mass ratios with a representable stable step",
+        "an overflowing bound",
+    )
 
 
 _UNSTABLE = (

@@ -121,8 +121,11 @@ def _run(
         _checks.check_count(save_every, "save_every")
         if n_steps % save_every:
             _checks.fail("save_every", f"a divisor of n_steps = {n_steps}", save_every)
-    if gravity is not None and np.shape(gravity) != (3,):
-        _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
+    if gravity is not None:
+        if np.shape(gravity) != (3,):
+            _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
+        _checks.check_real(gravity, "gravity")
+        gravity = _checks.finite(jnp.asarray(gravity), "gravity")
     tools = tuple(tools)
     path_tools = () if tool_path is None else tuple(tool_path)
     state, dt, contact = _prepare(

@@ -126,7 +126,7 @@ class Body(eqx.Module):
         if m < r or n < s:
             _checks.fail("samples", f"m ≥ {r} and n ≥ {s} (the control net, for the refit)", (m, n))
         blending = surface.blending(m, n)
-        points = blending.points(surface.ctrl)[np.asarray(blending.counted)]  # the seam once
+        points = blending.points(surface.ctrl).reshape(-1, 3)
         nodes = vsofm.fit(points, shape, **vsofm_options)
         held = None if fixed is None else _fixed_mask(fixed, nodes.reshape(-1, 3))
         lattice = hex_lattice(nodes, material=material, fixed=held)
