@@ -236,8 +236,8 @@ class _Compiled:
         return out
 
     def _refuse_non_numeric(self, args, kwargs) -> None:
-        """Raise the `TypeError` naming the argument that holds a numpy array of strings,
-        objects or complex numbers (no program is traced for it)."""
+        """`_checks.check_real` on each argument holding a numpy array of strings, objects or
+        complex numbers: its `TypeError` names the parameter (no program is traced for it)."""
         try:
             bound = inspect.signature(self._fn).bind(*args, **kwargs).arguments
         except TypeError:  # a wrong call: let the function itself say so
@@ -245,8 +245,7 @@ class _Compiled:
         for name, value in bound.items():
             for leaf in jax.tree_util.tree_leaves(value):
                 if isinstance(leaf, np.ndarray) and leaf.dtype.kind not in "biuf":
-                    _checks.check_real(leaf, name)  # complex: its own message
-                    raise TypeError(f"{name}: expected real numbers, got an array of dtype {leaf.dtype}")
+                    _checks.check_real(leaf, name)
 
     @staticmethod
     def _run(jitted, dynamic, functional: bool):

@@ -255,17 +255,12 @@ RigidPlane = collide.Plane
 def behind_plane(positions: Float[Array, "N 3"], point, normal) -> Array:
     """Boolean mask of nodes on the solid side of a plane (`(x − p)·n ≤ 0`) — e.g. the nodes a
     clamp holds, for `Lattice(fixed=...)`."""
-    for value, name in ((positions, "positions"), (point, "point"), (normal, "normal")):
-        _checks.check_real(value, name)
+    plane = collide.Plane(point, normal)  # a plane tool's checks: (3,) finite, a non-zero normal
+    _checks.check_real(positions, "positions")
     positions = jnp.asarray(positions)
     if positions.ndim < 1 or positions.shape[-1] != 3:
         _checks.fail("positions", "points (..., 3)", f"shape {positions.shape}")
-    for value, name in ((point, "point"), (normal, "normal")):
-        _checks.check_ndim(value, name, 1, last=3)
-    positions, point = _checks.finite(positions, "positions"), _checks.finite(jnp.asarray(point), "point")
-    normal = _checks.finite(jnp.asarray(normal), "normal")
-    zero = ~(_checks.xp(normal).abs(normal).max() > 0)
-    normal = _checks.check(normal, zero, "normal", "a non-zero vector", "(0, 0, 0)")
+    positions = _checks.finite(positions, "positions")
     lead = (1,) * (positions.ndim - 1)
-    point, normal = jnp.reshape(point, (*lead, 3)), jnp.reshape(normal, (*lead, 3))
+    point, normal = jnp.reshape(plane.point, (*lead, 3)), jnp.reshape(plane.normal, (*lead, 3))
     return jnp.sum((positions - point) * normal, axis=-1) <= 0
