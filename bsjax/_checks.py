@@ -74,6 +74,13 @@ def xp(*arrays):
     return np if is_concrete(arrays) else jnp
 
 
+def on_device(tree):
+    """The numpy leaves of `tree` (host-side results of an `xp` computation) as JAX arrays, by
+    `jax.device_put`, which compiles nothing (`jnp.asarray` compiles a small program per shape
+    and dtype); JAX arrays and tracers unchanged, `None` kept."""
+    return jax.tree.map(lambda x: x if isinstance(x, jax.Array) else jax.device_put(x), tree)
+
+
 # --- failures as part of a compiled program's result ---------------------------------------------
 _MESSAGES: list[str] = [""]  # a message's id is its index; 0 = no failure
 _IDS: dict[str, int] = {}

@@ -11,10 +11,11 @@ import jax
 import jax.numpy as jnp
 
 
-def ratio(num, den):
-    """`num / den`, and 0 where `den == 0` (e.g. repeated knots in Cox–de Boor)."""
+def ratio(num, den, xp=jnp):
+    """`num / den`, and 0 where `den == 0` (e.g. repeated knots in Cox–de Boor); `xp`: the array
+    module (`numpy` for host-side precomputation, see `bsjax._checks.xp`)."""
     ok = den != 0
-    return jnp.where(ok, num / jnp.where(ok, den, 1), 0)
+    return xp.where(ok, num / xp.where(ok, den, 1), 0)
 
 
 def sqrt(x):

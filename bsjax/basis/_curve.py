@@ -17,7 +17,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
-from bsjax._typing import ArrayLike
+from bsjax._typing import ArrayLike, HostArray
 from bsjax.basis import _tensor
 from bsjax.basis._direction import SplineDirection
 from bsjax.basis._knots import float_dtype
@@ -286,18 +286,22 @@ def _blending(direction: SplineDirection, params, weights) -> CurveBlending:
     )
 
 
-@compiled
-def sampled(direction: SplineDirection, params: Float[Array, " m"]) -> tuple:
+def sampled(direction: SplineDirection, params: Float[HostArray, " m"]) -> tuple:
     """The blending of one direction at checked `params (m,)` (thesis eqs. 3.6–3.7): the kernel of
-    curve and surface blendings, one program per (control count, degree, periodicity, m) that
-    both directions of a surface and every curve of that basis share.
+    curve and surface blendings. Concrete `params` (and knots) are sampled on the host in numpy
+    (`basis._functions`: the same code, no program to compile, so building a blending costs
+    milliseconds in a new process); traced ones inside the caller's program.
 
     **Returns:** `(a (3, m, n), refit (n, m) or None, full_rank (), support (m, k+1),
-    band (3, m, k+1))`: the basis, first- and second-derivative matrices, the pseudo-inverse of
-    `a[0]` and whether `a[0]` has full column rank, and the band of `a` — the `k + 1` columns
-    that can be non-zero in each row (`SplineDirection.support`) and their entries.
+    band (3, m, k+1))` as JAX arrays: the basis, first- and second-derivative matrices, the
+    pseudo-inverse of `a[0]` and whether `a[0]` has full column rank, and the band of `a` — the
+    `k + 1` columns that can be non-zero in each row (`SplineDirection.support`) and their
+    entries.
     """
-    a = direction.matrices(params, tuple(range(_ORDERS)))
+    xp = _checks.xp(direction, params)
+    params = xp.asarray(params)
+    a = xp.asarray(direction.matrices(params, tuple(range(_ORDERS))))
     refit, ok = _tensor.pseudo_inverse(a[0])
-    support = direction.support(params)
-    return a, refit, ok, support, jnp.take_along_axis(a, support[None], axis=2)
+    support = xp.asarray(direction.support(params))
+    out = (a, refit, ok, support, xp.take_along_axis(a, support[None], axis=2))
+    return _checks.on_device(out)

@@ -10,7 +10,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from bsjax import _checks
-from bsjax._typing import ArrayLike
+from bsjax._typing import ArrayLike, HostArray
 from bsjax.basis._functions import check_order, periodic_rows, periodic_support, rows, support
 from bsjax.basis._knots import clamped_knots, float_dtype
 
@@ -85,26 +85,35 @@ class SplineDirection(eqx.Module):
         """The parameter domain, always `(0.0, 1.0)`."""
         return (0.0, 1.0)
 
-    def matrices(self, params: Float[Array, " m"], orders: tuple[int, ...] = (0,)) -> Float[Array, "o m n"]:
+    def matrices(
+        self, params: Float[HostArray, " m"], orders: tuple[int, ...] = (0,)
+    ) -> Float[Array, "o m n"]:
         """Blending matrices `A^{(nu)}[a, i] = B^{(nu)}_i(params_a)` for each `nu` in `orders`
         (thesis eq. 3.6), `(len(orders), m, n_ctrl)`. A kernel: traceable, no value checks on
-        `params` (periodic parameters are taken modulo 1, clamped ones clipped to [0, 1])."""
+        `params` (periodic parameters are taken modulo 1, clamped ones clipped to [0, 1]);
+        computed on the host (numpy) when `params` and the knots are concrete."""
         for nu in orders:
             check_order(nu)
         if self.knots is None:
-            return periodic_rows(self.n_ctrl, self.degree, params, tuple(orders))
-        return rows(self.knots.astype(params.dtype), self.degree, params, tuple(orders))
+            return _checks.on_device(periodic_rows(self.n_ctrl, self.degree, params, tuple(orders)))
+        return _checks.on_device(rows(self._knots_like(params), self.degree, params, tuple(orders)))
 
-    def support(self, params: Float[Array, " m"]) -> Int[Array, "m k1"]:
+    def support(self, params: Float[HostArray, " m"]) -> Int[Array, "m k1"]:
         """Column indices of the `degree + 1` basis functions that can be non-zero at each
         parameter, `(m, degree + 1)` int32 (cyclic for a periodic direction): every other entry
         of the rows of `matrices(params, orders)` is exactly zero, for every derivative order.
         A kernel like `matrices` (The NURBS Book A2.1, span search)."""
         if self.knots is None:
-            return periodic_support(self.n_ctrl, self.degree, params)
-        return support(self.knots.astype(params.dtype), self.degree, params)
+            return _checks.on_device(periodic_support(self.n_ctrl, self.degree, params))
+        return _checks.on_device(support(self._knots_like(params), self.degree, params))
 
-    def matrix(self, params: Float[Array, " m"], nu: int = 0) -> Float[Array, "m n"]:
+    def _knots_like(self, params):
+        """The knots in the dtype of `params`, in numpy when both are concrete (the basis is then
+        computed on the host: `basis._functions`)."""
+        xp = _checks.xp(self.knots, params)
+        return xp.asarray(self.knots, dtype=params.dtype)
+
+    def matrix(self, params: Float[HostArray, " m"], nu: int = 0) -> Float[Array, "m n"]:
         """One blending matrix, `(m, n_ctrl)` (see `matrices`)."""
         return self.matrices(params, (nu,))[0]
 

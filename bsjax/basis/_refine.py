@@ -15,7 +15,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks
-from bsjax._boundary import compiled
 from bsjax.basis import _tensor
 from bsjax.basis._curve import BSplineCurve
 from bsjax.basis._direction import SplineDirection
@@ -136,15 +135,8 @@ def change_of_basis(old: SplineDirection, new: SplineDirection) -> np.ndarray:
             _checks.fail(name, "a clamped direction (the periodic basis is uniform)", "periodic")
     grid = np.linspace(0.0, 1.0, 4 * (new.n_ctrl + 1))
     t = np.unique(np.concatenate([grid, np.asarray(greville(new.knots, new.degree), np.float64)]))
-    a_old, a_new = (np.asarray(a, dtype=np.float64) for a in _collocation(old, new, t))
+    a_old, a_new = old.matrix(t), new.matrix(t)  # on the host (numpy): concrete knots and t
     return np.linalg.lstsq(a_new, a_old, rcond=None)[0]
-
-
-@compiled
-def _collocation(old: SplineDirection, new: SplineDirection, t):
-    """Both bases at the collocation parameters, in one compiled call (not op by op; `matrix`
-    is the unchecked kernel, so this call holds no run-time checks)."""
-    return old.matrix(t), new.matrix(t)
 
 
 def _rebase_net(ctrl, weights, transform, axis: int):

@@ -435,9 +435,10 @@ def _blending(du: SplineDirection, dv: SplineDirection, pu, pv, weights) -> Blen
     a_u, refit_u, ok_u, support_u, band_u = sampled(du, pu)
     a_v, refit_v, ok_v, _, _ = sampled(dv, pv)
     (m, r), (n, s) = a_u.shape[1:], a_v.shape[1:]
+    full_rank = _checks.on_device(_checks.xp(ok_u, ok_v).logical_and(ok_u, ok_v))
     return Blending(
         params_u=pu, params_v=pv, a_u=a_u, a_v=a_v, refit_u=refit_u, refit_v=refit_v,
-        full_rank=jnp.logical_and(ok_u, ok_v), weights=weights, direction_u=du, direction_v=dv,
+        full_rank=full_rank, weights=weights, direction_u=du, direction_v=dv,
         index_u=_index(m), index_v=_index(n),
         support_u=support_u, band_u=band_u, banded=_tensor.prefer_banded(m, n, r, s, du.degree),
     )  # fmt: skip
@@ -452,13 +453,14 @@ def _first_copies(params, periodic: bool, xp):
 
 def _index(count: int):
     """`arange(count)` in JAX's default int dtype, from the host (no program to compile)."""
-    return jnp.asarray(np.arange(count, dtype=jax.dtypes.canonicalize_dtype(int)))
+    return _checks.on_device(np.arange(count, dtype=jax.dtypes.canonicalize_dtype(int)))
 
 
 def _grid_params(params, count, name, count_name, dtype):
     if params is None:
         _checks.check_count(count, count_name, 2)
-        return jnp.linspace(0.0, 1.0, count, dtype=dtype)
+        dtype = jnp.dtype(dtype) if dtype is not None else jnp.result_type(float)
+        return _checks.on_device(np.linspace(0.0, 1.0, count).astype(dtype))  # no program to compile
     _checks.check_real(params, name)
     params = jnp.asarray(params, dtype=dtype)
     _checks.check_ndim(params, name, 1)

@@ -9,6 +9,7 @@ from math import comb
 
 import jax.numpy as jnp
 
+from bsjax import _checks
 from bsjax._safe import norm, unit
 
 
@@ -103,9 +104,11 @@ def unit_normal(t_u, t_v, t_uv, u, v):
 def pseudo_inverse(a):
     """`(A^+, full column rank)` of a blending matrix `A (m, n)` via SVD, computed once (the stored
     least-squares refit of thesis eq. 3.7); `(None, True)` when `A` has fewer rows than columns
-    (structural: then no refit)."""
+    (structural: then no refit). In numpy for a concrete `A` (`bsjax._checks.xp`); singular
+    values below `10 max(m, n) ε σ_max` are dropped (JAX's `pinv` default, asked of both)."""
+    xp = _checks.xp(a)
     if a.shape[0] < a.shape[1]:
-        return None, jnp.ones((), bool)
-    s = jnp.linalg.svd(a, compute_uv=False)
-    tol = s[0] * max(a.shape) * jnp.finfo(a.dtype).eps
-    return jnp.linalg.pinv(a), s[-1] > tol
+        return None, xp.ones((), bool)
+    s = xp.linalg.svd(a, compute_uv=False)
+    eps = max(a.shape) * xp.finfo(a.dtype).eps
+    return xp.linalg.pinv(a, rtol=10 * eps), s[-1] > s[0] * eps
