@@ -13,10 +13,8 @@ from collections import OrderedDict
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from bsjax import _boundary, _checks
-from bsjax._boundary import compiled
 from bsjax.basis import BSplineSurface, SplineDirection
 
 Orientation = tuple[bool, bool, bool]
@@ -65,17 +63,24 @@ def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
 _EDGE_POINTS = 17
 
 
-@compiled
-def _edge_curves(surfaces: tuple[BSplineSurface, ...], count: int) -> tuple[Float[Array, "4 c 3"], ...]:
-    """The four boundary curves `u = 0`, `u = 1`, `v = 0`, `v = 1` of every patch, each at
-    `count` equally spaced parameters (one compiled call for all patches)."""
+def _edge_curves(surfaces: tuple[BSplineSurface, ...], count: int) -> tuple[np.ndarray, ...]:
+    """The four boundary curves `u = 0`, `u = 1`, `v = 0`, `v = 1` of every patch, `(4, count, 3)`
+    each at `count` equally spaced parameters, on the host (numpy, concrete patches): the blending
+    matrices of the two ends and of the parameters contracted with the homogeneous net `[w P, w]`
+    (thesis eq. 3.6), so planning an orientation compiles nothing."""
+    t, ends = np.linspace(0.0, 1.0, count), np.array([0.0, 1.0])
     curves = []
     for s in surfaces:
-        t = jnp.linspace(0.0, 1.0, count, dtype=s.ctrl.dtype)
-        zero, one = jnp.zeros_like(t), jnp.ones_like(t)
-        u = jnp.stack([zero, one, t, t])
-        v = jnp.stack([t, t, zero, one])
-        curves.append(s.evaluate(u, v))
+        net = np.asarray(s.ctrl, np.float64)
+        if s.weights is not None:
+            w = np.asarray(s.weights, np.float64)[..., None]
+            net = np.concatenate([net * w, w], -1)
+        basis = lambda d, x: np.asarray(d.matrix(x), np.float64)
+        grid = lambda a_u, a_v: np.einsum("ai,ijc,bj->abc", a_u, net, a_v)
+        u_edges = grid(basis(s.direction_u, ends), basis(s.direction_v, t))  # (2, c, d)
+        v_edges = grid(basis(s.direction_u, t), basis(s.direction_v, ends))  # (c, 2, d)
+        h = np.concatenate([u_edges, v_edges.transpose(1, 0, 2)])
+        curves.append(h if s.weights is None else h[..., :-1] / h[..., -1:])
     return tuple(curves)
 
 
