@@ -242,9 +242,10 @@ def test_surface_contacts_direct_equals_one_program(case):
     if case == "crossing":
         b, ca, cb = _crossing()
         capacity = 2048
-    else:  # two coplanar plates: every sphere intersects, the exact pass overflows
+    else:  # two coplanar plates: every sphere intersects, the exact pass overflows (the sheets
+        # of test_collide's flat-contact test, so the suite compiles their direct programs once)
         plate = shapes.plate(6, 6)
-        b, ca = plate.blending(16, 16), jnp.asarray(plate.ctrl)
+        b, ca = plate.blending(22, 22), jnp.asarray(plate.ctrl)
         cb, capacity = ca + jnp.array([0.3, 0.2, 0.0])[None, None], 64
     query = lambda x, y: surface_contacts(b, x, b, y, capacity=capacity)
     direct, jitted = query(ca, cb), jax.jit(query)(ca, cb)
