@@ -79,7 +79,7 @@ def basis_derivatives(
     L = knots.shape[0]
     n_ctrl = L - degree - 1
     t, span = _clip_and_span(knots, degree, t, xp)
-    at, wide = t[..., None], knots.reshape((1,) * t.ndim + (L,))  # explicit ranks (no promotion)
+    at, wide = t[..., None], _along(knots, t)  # explicit ranks (no rank promotion)
     triangle = [(_along(xp.arange(L - 1, dtype=np.int32), t) == span[..., None]).astype(knots.dtype)]
     for p in range(1, degree - min(orders, default=0) + 1):
         triangle.append(_raise_degree(triangle[-1], wide, at, p, xp))
