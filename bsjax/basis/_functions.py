@@ -143,15 +143,20 @@ def rows(knots, degree: int, params, orders: tuple[int, ...]):
 def periodic_rows(n_ctrl: int, degree: int, params, orders: tuple[int, ...]):
     """`rows` of the uniform closed basis (thesis eq. 3.3), parameters taken modulo 1."""
     _, knots, params = _periodic(n_ctrl, degree, params)
-    return fold_periodic(rows(knots, degree, params, orders), n_ctrl)
+    return _fold(rows(knots, degree, params, orders), n_ctrl)
 
 
 def fold_periodic(unwrapped: Float[HostArray, "... n_plus_k"], n_ctrl: int) -> Float[Array, "... n_ctrl"]:
     """Add the last `k` columns (wrapped copies of the first `k` functions) onto the first `k`."""
+    return _checks.on_device(_fold(unwrapped, n_ctrl))
+
+
+def _fold(unwrapped, n_ctrl: int):
+    """`fold_periodic` in the array module of its input (a host-side basis stays on the host)."""
     xp, (unwrapped,) = _host_or_traced(unwrapped)
     head, tail = unwrapped[..., :n_ctrl], unwrapped[..., n_ctrl:]
     k = tail.shape[-1]
-    return _checks.on_device(xp.concatenate([head[..., :k] + tail, head[..., k:]], axis=-1))
+    return xp.concatenate([head[..., :k] + tail, head[..., k:]], axis=-1)
 
 
 def _blending_matrix(knots, degree: int, params, nu: int):
