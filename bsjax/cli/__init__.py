@@ -65,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if not {"-h", "--help"} & set(rest):  # compiled programs kept for the next run (BSJAX_CACHE_DIR)
         from bsjax._cache import enable_compilation_cache
+        from bsjax._xla import prefer_quick_compilation
 
+        prefer_quick_compilation()  # before the first computation (bsjax._xla)
         enable_compilation_cache()
     try:
         return int(importlib.import_module(COMMANDS[name][0]).main(rest) or 0)
