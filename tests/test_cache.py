@@ -258,3 +258,17 @@ def test_checks_are_not_built_inside_trusted():
     np.testing.assert_allclose(f(jnp.array([1.0, -1.0])), [1.0, -1.0])  # not checked: as built
     (jitted,) = f._cache.values()
     assert "callback" not in jitted.lower([jnp.array([1.0, -1.0])]).as_text()
+
+
+def test_quick_compilation_adds_its_flags_and_never_overrides_the_users():
+    """`bsjax._xla.prefer_quick_compilation` (the CLI's and this suite's compiler options)."""
+    from bsjax._xla import QUICK_FLAGS, prefer_quick_compilation
+
+    env = {}
+    assert prefer_quick_compilation(env).split() == list(QUICK_FLAGS)
+    assert prefer_quick_compilation(env) == env["XLA_FLAGS"] == " ".join(QUICK_FLAGS)  # idempotent
+    env = {"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    assert prefer_quick_compilation(env).split() == ["--xla_force_host_platform_device_count=4", *QUICK_FLAGS]
+    env = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}  # the user's choice wins
+    assert prefer_quick_compilation(env) == "--xla_cpu_use_fusion_emitters=true"
+    assert set(QUICK_FLAGS) <= set(os.environ["XLA_FLAGS"].split())  # this run's (tests/conftest.py)

@@ -84,7 +84,8 @@ def test_progress_inside_jit_vmap_and_grad():
 
     value = jax.jit(lambda z: height(z, seen))(jnp.asarray(0.001))
     assert seen.calls == [(d, 40) for d in range(1, 41)]
-    assert float(value) == float(height(jnp.asarray(0.001), None))
+    # the same rollout in another program (the callbacks change XLA's fusion): equal to rounding
+    assert float(value) == pytest.approx(float(height(jnp.asarray(0.001), None)), rel=1e-13)
     seen.calls.clear()
     grad = jax.grad(lambda z: height(z, seen))(jnp.asarray(0.001))
     assert float(grad) == pytest.approx(1.0, abs=1e-9)  # a rigid shift: d mean z / dz = 1
