@@ -39,7 +39,7 @@ leaves the design unchanged. `history[k]` is the objective after `k` accepted st
 
 Compiled at the boundary: `objective`, `residuals`, `constraint` and `progress` are static (a
 new callable compiles again — pass the same function to reuse the compilation), `method`,
-`max_steps` and `throw` static; the design, `args`, bounds, `rtol`, `atol`, `penalty` traced.
+`max_steps`, `throw` and `autodiff_mode` static; the design, `args`, bounds, `rtol`, `atol`, `penalty` traced.
 Sources: Nocedal & Wright, *Numerical Optimization* (2nd ed.), Algorithm 6.1 (BFGS), §3.1
 (backtracking, Armijo), §10.3 (Gauss–Newton, Levenberg–Marquardt); Kidger et al., *Optimistix:
 modular optimisation in JAX and Equinox*.
@@ -225,10 +225,10 @@ def _sum_squares(tree):
 
 
 # --- the driver -------------------------------------------------------------------------------
-def _solve(solver, fn, z0, max_steps: int, throw: bool, progress, f_struct, dtype) -> tuple:
+def _solve(solver, fn, z0, max_steps: int, throw: bool, progress, f_struct, dtype, options=None) -> tuple:
     """optimistix's `init`/`step`/`terminate` in a `while_loop` that records the objective of each
     accepted iterate (optimistix's own loop keeps no history)."""
-    tags, options = frozenset(), {}
+    tags, options = frozenset(), options or {}
     state = solver.init(fn, z0, None, options, f_struct, None, tags)
     # the state holds linear operators (closures) as well as arrays: only the arrays are carried
     dynamic, static = eqx.partition(state, eqx.is_array)
@@ -309,10 +309,11 @@ def minimise(
     atol=1e-8,
     throw: bool = True,
     progress: Callable | None = None,
+    autodiff_mode: str = "bwd",
 ) -> OptimiseResult:
     """Minimise `objective(design, args)` over the design by BFGS with a backtracking Armijo line
     search (Nocedal & Wright, *Numerical Optimization*, Algorithm 6.1 and §3.1), through
-    `jax.grad`.
+    `jax.grad` (or forward mode: `autodiff_mode`).
 
     **Arguments:**
     - `objective`: `(design, args) -> scalar` float, differentiable in `design`.
@@ -329,10 +330,16 @@ def minimise(
     - `rtol`, `atol`: optimistix's Cauchy termination on accepted iterates.
     - `throw`: raise `ValueError` when `max_steps` is reached or the solve fails.
     - `progress`: `progress(step, value)` on each accepted step (step 0 is the start).
+    - `autodiff_mode`: how the gradient is taken from the linearised objective (optimistix's
+      option): `"bwd"`, reverse mode (one transposed pass whatever the design's size), or
+      `"fwd"`, forward mode (one tangent pass per design entry: cheaper for a few entries — a
+      tilt through a 4 350-step rollout, 3.3 s against 17 s).
 
     **Returns:** `OptimiseResult`; `history` is non-increasing.
     """
     _check_common(max_steps, method, ("bfgs",))
+    if autodiff_mode not in ("bwd", "fwd"):
+        raise ValueError(f"autodiff_mode: expected 'bwd' or 'fwd', got {autodiff_mode!r}")
     problem = _problem(design, lower, upper, free)
     _scalar_output(objective, "objective", problem.design(problem.internal()), args)
     penalty = _checks.positive(jnp.asarray(penalty), "penalty")
@@ -349,7 +356,8 @@ def minimise(
     rtol, atol = _tolerances(rtol, atol)
     solver = optx.BFGS(rtol=rtol, atol=atol)  # pyright: ignore[reportArgumentType]
     f_struct = jax.ShapeDtypeStruct((), dtype)
-    z, *rest = _solve(solver, fn, z0, max_steps, throw, progress, f_struct, dtype)
+    options = {"autodiff_mode": autodiff_mode}
+    z, *rest = _solve(solver, fn, z0, max_steps, throw, progress, f_struct, dtype, options)
     return OptimiseResult(problem.design(z), *rest)
 
 

@@ -42,7 +42,7 @@ def test_demo_runs_the_spoon_case_study(tmp_path, capsys):
     # jax.grad through the drop is the derivative of the risk (a chaotic, ringing jelly gave 3e23
     # per rad against a central difference of −0.1; the quick study is small but must agree too)
     check = jelly["gradient_check"]
-    assert check["jax_grad"] == pytest.approx(check["central_difference"], rel=0.05, abs=1e-4)
+    assert check["jax_jvp"] == pytest.approx(check["central_difference"], rel=0.05, abs=1e-4)
     assert (tmp_path / "spoon.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(rhino3dm.File3dm.Read(str(tmp_path / "spoon.3dm")).Objects) == 3
     mesh = trimesh.load(tmp_path / "spoon.glb", force="mesh")

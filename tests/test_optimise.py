@@ -42,6 +42,14 @@ def test_rosenbrock_matches_scipy_bfgs():
     assert history[-1] == pytest.approx(float(ours.value)) and monotone(history)
     assert np.all(np.diff(history) < 0)  # Armijo: every accepted step strictly lowers it
     assert np.isnan(np.asarray(ours.history)[int(ours.steps) + 1 :]).all()
+    # forward mode takes the same gradient another way: the same first steps (rounding then
+    # grows along the curved valley) and the same minimum
+    fwd = optimise.minimise(
+        rosenbrock, jnp.asarray(x0), max_steps=300, rtol=1e-10, atol=1e-10, autodiff_mode="fwd"
+    )
+    assert int(fwd.status) == 0
+    np.testing.assert_allclose(fwd.accepted()[:10], history[:10], rtol=1e-9)
+    np.testing.assert_allclose(fwd.design, np.ones(4), atol=1e-7)
 
 
 def test_box_bound_matches_scipy_lbfgsb_and_is_respected():
@@ -178,6 +186,8 @@ def test_bad_input_raises_clear_errors():
         optimise.minimise(rosenbrock, x, max_steps=1)
     with pytest.raises(ValueError, match="method: expected one of"):
         optimise.minimise(rosenbrock, x, method="adam")
+    with pytest.raises(ValueError, match="autodiff_mode: expected 'bwd' or 'fwd', got 'forward'"):
+        optimise.minimise(rosenbrock, x, autodiff_mode="forward")
     with pytest.raises(ValueError, match="free: expected booleans of shape"):
         optimise.minimise(rosenbrock, x, free=jnp.array([1.0, 0.0]))
     with pytest.raises(TypeError, match="design: expected floating-point"):

@@ -5,7 +5,8 @@
 2. Bend the spoon handle: plasticine mass-spring lattice, one end clamped by a plane, pushed by a
    sphere; merge the bent handle and the bowl into one patch, with a deviation report.
 3. Throw a jelly (B-spline sphere + 12³ VSOFM lattice) into the bowl tilted 0°, 10°, 20° and
-   report the spill; then `jax.grad` through the simulation finds the tilt that keeps it in.
+   report the spill; then the derivative through the simulation (forward mode: the tilt is one
+   number) finds the tilt that keeps it in.
 4. Pictures (PNG), surfaces (.3dm, .json, .glb) and a JSON report in the output folder.
 """
 
@@ -164,11 +165,15 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
         print(
             f"  tilt {deg:4.1f}°: spilled {100 * float(sp):5.1f} % of the jelly, spill risk {float(risk):.4f}"
         )
-    grad = float(jax.jit(jax.grad(lambda t: outcome(t)[1]))(jnp.asarray(0.0)))
+    # One design variable: forward mode (one tangent pass) costs a fifth of reverse mode here
+    # (3.3 s against 17 s through the 4 350 steps); both are the exact derivative of the rollout.
+    risk_of = lambda t: outcome(t)[1]
+    zero = jnp.asarray(0.0)
+    grad = float(jax.jit(lambda t: jax.jvp(risk_of, (t,), (jnp.ones_like(t),))[1])(zero))
     eps = 1e-4  # rad
     central = (float(run(jnp.asarray(eps))[1]) - float(run(jnp.asarray(-eps))[1])) / (2 * eps)
-    print(f"  d risk / d tilt at 0°: jax.grad {grad:.5f}, central difference {central:.5f} per rad")
-    print("  jax.grad through the drop: BFGS (Armijo line search) on the tilt, bounded to [-10°, 20°] …")
+    print(f"  d risk / d tilt at 0°: jax.jvp {grad:.5f}, central difference {central:.5f} per rad")
+    print("  derivatives through the drop: BFGS (Armijo line search) on the tilt, bounded to [-10°, 20°] …")
     found = optimise.minimise(
         lambda t, _: outcome(t)[1],
         jnp.asarray(0.0),
@@ -177,6 +182,7 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
         max_steps=sizes["opt_steps"],
         throw=False,  # a fixed budget of evaluations: keep the last accepted tilt
         progress=_print_step,
+        autodiff_mode="fwd",
     )
     values = found.accepted()
     history = [{"step": k, "spill_risk": float(v)} for k, v in enumerate(values)]
@@ -201,7 +207,7 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
         "steps": steps,
         "throw_velocity": list(throw),
         "tilts": rows,
-        "gradient_check": {"jax_grad": grad, "central_difference": central, "step_rad": eps},
+        "gradient_check": {"jax_jvp": grad, "central_difference": central, "step_rad": eps},
         "optimisation": history,
         "optimiser": {
             "method": "bfgs",
@@ -290,7 +296,7 @@ def run(out: Path, quick: bool = False) -> dict:
         io.save(merged, out / "spoon.glb")
         io.save(merged, out / "spoon.json")
         tick(2, 4)
-        print("[3/4] jelly thrown into the tilted bowl; jax.grad finds the tilt that keeps it in …")
+        print("[3/4] jelly thrown into the tilted bowl; its derivative finds the tilt that keeps it in …")
         hm, finals = jelly_step(out, report, bent, placed, merged, sizes)
         tick(3, 4)
         print("[4/4] pictures …")
