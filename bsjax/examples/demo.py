@@ -175,8 +175,8 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     print(f"  d risk / d tilt at 0°: jax.jvp {grad:.5f}, central difference {central:.5f} per rad")
     print("  derivatives through the drop: BFGS (Armijo line search) on the tilt, bounded to [-10°, 20°] …")
     found = optimise.minimise(
-        lambda t, _: outcome(t)[1],
-        jnp.asarray(0.0),
+        lambda t, _: risk_of(t),
+        zero,
         lower=float(np.deg2rad(-10.0)),
         upper=float(np.deg2rad(20.0)),
         max_steps=sizes["opt_steps"],
