@@ -24,13 +24,8 @@ test: $(PY)
 	$(VENV)/bin/ruff format --check bsjax tests benchmarks
 	$(VENV)/bin/ruff check bsjax tests benchmarks
 	$(VENV)/bin/pyright
-	# XLA's CPU compiler has twice killed a test worker mid-compile (a segfault, then an abort; the
-	# test passes when run again): a larger main-thread stack, and a test whose *worker crashed* runs
-	# up to twice more (pytest-rerunfailures' xdist crash hook). Ordinary failures are never rerun: the
-	# --only-rerun pattern matches no assertion message.
 	# The 20 slowest tests are printed at the end (the suite's budget is 15 min on 2 cores).
-	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --durations=20 --reruns 2 \
-		--only-rerun '^bsjax: rerun only a crashed worker$$'
+	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --durations=20
 
 # The declared dependency floors hold: the core at the versions of constraints-min.txt, in its
 # own venv, and a smoke subset of the core's tests (no extras: no plot test).

@@ -45,7 +45,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from bsjax import _checks
+from bsjax import _checks, _xla
 
 # equinox's EQX_ON_ERROR other than "raise" (nan, breakpoint, off) asks for its own handling of
 # failed checks: then every check stays an `eqx.error_if`.
@@ -186,8 +186,8 @@ class _Compiled:
                 kwargs = {**kwargs, name: _Static(kwargs[name])}
         return tuple(args), kwargs
 
-    def _jitted(self, treedef, mask, static, functional: bool):
-        key = (treedef, mask, static, functional)
+    def _jitted(self, treedef, mask, static, functional: bool, top_level: bool):
+        key = (treedef, mask, static, functional, top_level)
         jitted = self._cache.get(key)
         if jitted is None:
             fn = precise(self._fn)
@@ -206,7 +206,9 @@ class _Compiled:
                     return out, failures.code()
 
             core.__name__ = core.__qualname__ = self.__qualname__  # compile logs name the entry
-            jitted = self._cache[key] = jax.jit(core)
+            # compiler options are for a program of its own (not one inlined in the caller's jit)
+            options = _xla.boundary_options() if top_level else None
+            jitted = self._cache[key] = jax.jit(core, compiler_options=options)
         return jitted
 
     def __call__(self, *args, **kwargs):
@@ -225,7 +227,7 @@ class _Compiled:
         traced = _checks.tracing() or not _checks.is_concrete(dynamic)  # in the caller's jit/vmap/grad
         functional = not traced and _FUNCTIONAL
         try:
-            jitted = self._jitted(treedef, mask, static, functional)
+            jitted = self._jitted(treedef, mask, static, functional, not traced)
         except TypeError as err:  # an unhashable static argument
             raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
         if traced:

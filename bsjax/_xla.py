@@ -1,17 +1,24 @@
-"""The XLA:CPU compiler options of bsjax's own processes: the CLI and the test suite.
+"""The XLA:CPU compiler options of bsjax's programs.
 
 XLA:CPU compiles each fusion either with its MLIR fusion emitters (the default since 2025) or
-with its classic LLVM IR emitters (`--xla_cpu_use_fusion_emitters=false`). bsjax's programs —
-many small fusions inside while loops — compile 20–36 % faster with the classic ones at the same
-run time (measured on the flat surface–surface contact: 6.6 s → 5.3 s of XLA compilation, 3.0 ms
-a call either way; two test files 197 s → 125 s). `prefer_quick_compilation` asks for them in
-the processes bsjax starts itself, before JAX starts its CPU backend; a library user's process
-is left as JAX configures it (importing bsjax changes nothing), where the same choice is one
-environment variable before the first computation:
+with its classic LLVM IR emitters (`xla_cpu_use_fusion_emitters=false`). bsjax's programs —
+many small fusions inside while loops — compile 20–40 % faster with the classic ones at about
+the same run time (first calls in a new process: `collide.contacts` with a triangle mesh
+2.40 → 1.61 s, `surface_contacts` 3.08 → 2.58 s, `vsofm.fit` 1.81 → 1.41 s; steady state within
+±20 % either way, `benchmarks/api.py`).
 
-    XLA_FLAGS=--xla_cpu_use_fusion_emitters=false jupyter lab
+Two places ask for them, neither touching the user's global configuration:
 
-A flag the user's `XLA_FLAGS` already sets is never overridden (`…=true` keeps the default).
+* `boundary_options()`: the compiler options of every program compiled at bsjax's public
+  boundary (`bsjax._boundary`), passed per program to `jax.jit(..., compiler_options=)` on CPU.
+  A user's own `jit` around bsjax calls compiles with the user's options (the bsjax call is
+  inlined there).
+* `prefer_quick_compilation()`: the same flag in `XLA_FLAGS` for the processes bsjax starts
+  itself (the CLI, the test suite and their subprocesses), so that their other programs (a
+  test's own `jit`) compile the same way; it must run before JAX starts its CPU backend.
+
+A flag the user's `XLA_FLAGS` sets is never overridden (`…=true` keeps XLA's default emitters,
+in bsjax's programs too).
 """
 
 from __future__ import annotations
@@ -20,6 +27,22 @@ import os
 from collections.abc import MutableMapping
 
 QUICK_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
+
+
+def boundary_options() -> dict[str, bool] | None:
+    """The compiler options of a program compiled at bsjax's boundary: `QUICK_FLAGS` on the CPU
+    backend, less any flag the process's `XLA_FLAGS` sets; `None` elsewhere (GPU/TPU)."""
+    import jax
+
+    if jax.default_backend() != "cpu":
+        return None
+    names = {flag.split("=")[0] for flag in os.environ.get("XLA_FLAGS", "").split()}
+    options = {
+        flag.split("=")[0].lstrip("-"): flag.split("=")[1] != "false"
+        for flag in QUICK_FLAGS
+        if flag.split("=")[0] not in names
+    }
+    return options or None
 
 
 def prefer_quick_compilation(environ: MutableMapping[str, str] = os.environ) -> str:

@@ -272,3 +272,53 @@ def test_quick_compilation_adds_its_flags_and_never_overrides_the_users():
     env = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}  # the user's choice wins
     assert prefer_quick_compilation(env) == "--xla_cpu_use_fusion_emitters=true"
     assert set(QUICK_FLAGS) <= set(os.environ["XLA_FLAGS"].split())  # this run's (tests/conftest.py)
+
+
+def test_boundary_options_are_the_quick_flags_unless_xla_flags_names_them(monkeypatch):
+    """`bsjax._xla.boundary_options`: the classic emitters for bsjax's own programs on CPU; a
+    flag of the same name in the user's `XLA_FLAGS` wins (then no option is passed)."""
+    from bsjax._xla import boundary_options
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+    assert boundary_options() == {"xla_cpu_use_fusion_emitters": False}
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+    assert boundary_options() is None
+
+
+_OPTIONS_SCRIPT = """
+import json, jax, jax.numpy as jnp
+jax.config.update("jax_enable_x64", True)
+from bsjax import collide, shapes
+from bsjax._xla import boundary_options
+s = shapes.plate(6, 6)
+b = s.blending(12, 12)
+tool = collide.Sphere(jnp.array([0.5, 0.5, 0.05]), 0.1)
+direct = collide.contacts(b, s.ctrl, tool).depth
+jitted = jax.jit(lambda c: collide.contacts(b, c, tool).depth)(s.ctrl)
+lifted = jax.grad(lambda c: collide.contacts(b, c, tool).depth.sum())(s.ctrl)
+kvs = {key[-1]: [list(kv) for kv in p._jit_info.compiler_options_kvs]  # key[-1]: top level
+       for key, p in collide.contacts._cache.items()}
+print(json.dumps({
+    "options": boundary_options(),
+    "top_level": kvs[True],
+    "nested": kvs[False],
+    "same": bool(jnp.array_equal(direct, jitted)),
+    "grad_finite": bool(jnp.isfinite(lifted).all()),
+}))
+"""
+
+
+def test_direct_calls_compile_with_the_boundary_options_and_nest_without_them():
+    """Without `XLA_FLAGS` (a user's process), a direct call's program carries the boundary's
+    compiler options; the same entry inside the caller's `jit`/`grad` is inlined without them
+    (JAX refuses compiler options on a nested `jit`), with the same result."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    done = subprocess.run(
+        [sys.executable, "-c", _OPTIONS_SCRIPT], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["options"] == {"xla_cpu_use_fusion_emitters": False}
+    assert out["top_level"] == [["xla_cpu_use_fusion_emitters", False]]
+    assert out["nested"] == []
+    assert out["same"] and out["grad_finite"]

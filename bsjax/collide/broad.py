@@ -91,6 +91,33 @@ def _hulls_apart(a, b, margin, steps: int = _FW_STEPS):
     return certified
 
 
+def unless_apart(apart, narrow, *args, empty=None):
+    """`narrow(*args)`, or `empty(structure)` (default: zeros of the narrow phase's output
+    structure, a pytree of `jax.ShapeDtypeStruct`s) when the broad phase certified `apart`
+    (the early exit of thesis §3.3.3.1: `lax.cond` skips the narrow phase at run time; under
+    `vmap` both branches run and the result is selected).
+
+    The narrow phase is traced once: `lax.cond` traces its first branch first, and the zero
+    branch takes that trace's output shapes (a second trace, by `jax.eval_shape`, only if a JAX
+    version traced the branches the other way round). Tracing it twice had been a third of
+    `surface_contacts`' first call.
+    """
+    shapes = []
+
+    def narrow_traced(*a):
+        out = narrow(*a)
+        shapes.append(jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), out))
+        return out
+
+    def separated(*a):
+        structure = shapes[-1] if shapes else jax.eval_shape(narrow, *a)
+        if empty is not None:
+            return empty(structure)
+        return jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), structure)
+
+    return jax.lax.cond(jnp.logical_not(apart), narrow_traced, separated, *args)
+
+
 def support_start(a: Float[Array, "m r"], degree: int, periodic: bool) -> Array:
     """First control index of each sample's support (cyclic for periodic directions).
 

@@ -33,11 +33,11 @@ from bsjax import _checks, _safe
 from bsjax._boundary import compiled
 from bsjax.basis import Blending
 from bsjax.collide import _soa
-from bsjax.collide.broad import _blocks, _hulls_apart, _parametric_window, support_start
+from bsjax.collide.broad import _blocks, _hulls_apart, _parametric_window, support_start, unless_apart
 from bsjax.collide.flat import block_planes, flat_pairs, flat_slots, resolve_flat_pairs
 from bsjax.collide.hierarchy import (
     _cell_triangles,
-    _sphere_hierarchy,
+    _sphere_hierarchies,
     block_order,
     candidate_triangles,
     levels_for,
@@ -103,15 +103,10 @@ class SurfaceContact(eqx.Module):
 
 
 def _unless_apart(apart, query, *args):
-    """`query(*args)` unless the broad phase certified separation; then an all-zero result.
-
-    `lax.cond` skips the narrow phase at run time (the early exit of thesis §3.3.3.1); under
-    `vmap` both branches run and the result is selected.
-    """
+    """`query(*args)` unless the broad phase certified separation (`broad.unless_apart`), with
+    `apart` recorded in the result."""
     with _checks.trusted():  # the entry checked `args`: no check (host callback) in a branch
-        shapes = jax.eval_shape(query, *args)
-        empty = lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-        out = jax.lax.cond(apart, empty, query, *args)
+        out = unless_apart(apart, query, *args)
     return eqx.tree_at(lambda c: c.apart, out, apart)
 
 
@@ -513,7 +508,7 @@ def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_a
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
-    spheres = (_sphere_hierarchy(pa, lev_a), _sphere_hierarchy(pb, lev_b))  # built once for both passes
+    spheres = _sphere_hierarchies(((pa, lev_a), (pb, lev_b)))  # built once for both passes
     flat = lambda: _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle)
     if flat_angle is not None and passes == "flat":
         return flat()

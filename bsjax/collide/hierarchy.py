@@ -101,40 +101,66 @@ def sphere_hierarchy(points: Float[Array, "m n 3"], levels: int) -> list[tuple[A
 
 
 def _sphere_hierarchy(points, levels: int):
-    """The kernel of `sphere_hierarchy` (no checks).
+    """The kernel of `sphere_hierarchy` (no checks): `_sphere_hierarchies` of one grid."""
+    return _sphere_hierarchies(((points, levels),))[0]
 
-    Each level first gathers its blocks' corner samples in block-major order (static indices
-    into the flattened grid), then computes centres and radii one coordinate at a time
-    (`collide._soa`), so XLA fuses a whole level into one loop over its blocks; the arithmetic
-    is `three_point_sphere`'s and `bsjax._safe.norm`'s.
-    """
-    m, n = points.shape[:2]
-    dtype = points.dtype
-    neg = jnp.array(-jnp.inf, dtype)
-    flat = tuple(c.reshape(-1) for c in _soa.split(points))
-    out = []
-    centers = radii = None
+
+def _corner_indices(m: int, n: int, levels: int) -> np.ndarray:
+    """`(4, N)` flat grid indices of the corners p00, p10, p01, p11 of every block of every level
+    (level 0 first, each block-major): the intermittent rows and columns of `Blending.lod`."""
+    tables = []
     for level in range(levels + 1):
-        step = BRANCH**level
-        count = BRANCH ** (levels - level)
-        iu = np.minimum(np.arange(count + 1) * step, m - 1)  # intermittent rows and columns
+        step, count = BRANCH**level, BRANCH ** (levels - level)
+        iu = np.minimum(np.arange(count + 1) * step, m - 1)
         iv = np.minimum(np.arange(count + 1) * step, n - 1)
         rows, cols = block_order(levels - level)
-        corners = [  # p00, p10, p01, p11 of every block, block-major
-            tuple(c[jnp.asarray((iu[rows + a] * n + iv[cols + b]).astype(np.int32))] for c in flat)
-            for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))
-        ]
-        c = _three_point_sphere(*corners)  # 3 × (N_l,)
-        valid = jnp.asarray((rows * step < m - 1) & (cols * step < n - 1))
-        if level == 0:
-            radius = functools.reduce(jnp.maximum, [_soa.norm(_soa.sub(p, c)) for p in corners])
-        else:
-            child_c = tuple(x.reshape(-1, BRANCH * BRANCH) for x in centers)
-            child_r = radii.reshape(-1, BRANCH * BRANCH)
-            to_child = _soa.sub(child_c, tuple(x[:, None] for x in c))
-            radius = jnp.max(_soa.norm(to_child) + child_r, axis=1)
-        centers, radii = c, jnp.where(valid, radius, neg)
-        out.append((jnp.stack(centers), radii))
+        tables.append([iu[rows + a] * n + iv[cols + b] for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))])
+    return np.concatenate([np.asarray(t) for t in tables], axis=1)
+
+
+def _sphere_hierarchies(grids):
+    """`sphere_hierarchy` of several grids `((points (m, n, 3), levels), …)` of one dtype.
+
+    Every block of every level and grid gathers its corner samples (one static index table into
+    the grids' concatenated samples) and takes its centre in one `_three_point_sphere` over all
+    of them, one coordinate at a time (`collide._soa`, so XLA fuses it into one loop); the radii
+    then go level by level: a cell's encloses its corners, a block's its nine children
+    (`bsjax._safe.norm`'s arithmetic). One program section for all levels and grids instead of
+    one per level and grid (half `surface_contacts`' program).
+    """
+    dtype = grids[0][0].dtype
+    if any(points.dtype != dtype for points, _ in grids):  # mixed precision: each in its own
+        return [h for grid in grids for h in _sphere_hierarchies((grid,))]
+    tables, start = [], 0
+    for points, levels in grids:
+        tables.append(_corner_indices(points.shape[0], points.shape[1], levels) + start)
+        start += points.shape[0] * points.shape[1]
+    flat = _soa.split(jnp.concatenate([points.reshape(-1, 3) for points, _ in grids]))
+    index = np.concatenate(tables, axis=1).astype(np.int32)
+    corners = [tuple(c[jnp.asarray(index[k])] for c in flat) for k in range(4)]
+    centres = _three_point_sphere(*corners)  # 3 × (all blocks,)
+    neg = jnp.array(-jnp.inf, dtype)
+    out, start = [], 0
+    for points, levels in grids:
+        m, n = points.shape[:2]
+        spheres, radii = [], None
+        for level in range(levels + 1):
+            step, size = BRANCH**level, BRANCH ** (2 * (levels - level))
+            c = tuple(x[start : start + size] for x in centres)
+            if level == 0:
+                ends = [tuple(x[start : start + size] for x in corner) for corner in corners]
+                radius = functools.reduce(jnp.maximum, [_soa.norm(_soa.sub(p, c)) for p in ends])
+            else:
+                child_c = tuple(x.reshape(-1, BRANCH * BRANCH) for x in spheres[-1][0])
+                child_r = radii.reshape(-1, BRANCH * BRANCH)
+                to_child = _soa.sub(child_c, tuple(x[:, None] for x in c))
+                radius = jnp.max(_soa.norm(to_child) + child_r, axis=1)
+            rows, cols = block_order(levels - level)
+            valid = jnp.asarray((rows * step < m - 1) & (cols * step < n - 1))
+            radii = jnp.where(valid, radius, neg)
+            spheres.append((c, radii))
+            start += size
+        out.append([(jnp.stack(c), r) for c, r in spheres])
     return out
 
 

@@ -66,7 +66,7 @@ from jaxtyping import Array, Bool, Float, Int
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
 from bsjax.collide import _soa
-from bsjax.collide.broad import _hulls_apart
+from bsjax.collide.broad import _hulls_apart, unless_apart
 from bsjax.collide.contact import _BLOCK, _CORNERS, _checked_net, points_normals
 from bsjax.collide.hierarchy import _cell_triangles
 from bsjax.collide.triangles import _closest_point_on_triangle
@@ -127,12 +127,9 @@ def surface_penetration(
         pb, nb = points_normals(blending_b, ctrl_b)
         return _both_sides(pa, na, pb, nb, reach)
 
-    shapes = jax.eval_shape(narrow)
-
-    def empty():
-        return tuple(_empty(s.depth.shape, s.bary.dtype) for s in shapes)
-
-    ab, ba = jax.lax.cond(apart, empty, narrow)
+    ab, ba = unless_apart(
+        apart, narrow, empty=lambda shapes: tuple(_empty(s.depth.shape, s.bary.dtype) for s in shapes)
+    )
     return _counted(ab, blending_a.counted), _counted(ba, blending_b.counted)
 
 
