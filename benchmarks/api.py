@@ -9,9 +9,12 @@
 
 `--cold`: the first call as a new notebook kernel or script meets it. Per entry, two new
 processes share an empty compilation cache (`bsjax.enable_compilation_cache`): the first pays
-tracing and compilation (`first s`, budget 2 s), the second loads the programs the first stored
-(`cached s`, budget 0.5 s); `setup s` builds the entry's inputs (other entries' first calls),
-`second ms` is the call once more in the first process. One more process times
+tracing and compilation (`first s`), the second loads the programs the first stored (`cached
+s`); `setup s` builds the entry's inputs (other entries' first calls), `second ms` is the call
+once more in the first process. The budgets are on what the first call adds to the call itself
+— `compile s = first − second` ≤ 2 s, `load s = cached − second` ≤ 0.5 s — which is the whole
+first call for every entry but those whose work takes a noticeable time of its own (`vsofm.fit`:
+300 cycles of 1 728 nodes against 6 488 samples, ~0.3 s a call). One more process times
 `import bsjax` and the subpackages (`import s`, budget 1 s for `import bsjax`).
 
 One row per entry:
@@ -84,11 +87,14 @@ class Sizes:
     som: int = 12  # VSOFM lattice per side
     cycles: int = 300
     coupled_grid: int = 24  # surface lattice of simulate_coupled
+    contact_grid: int = 24  # samples per direction of surface_penetration and the scene's shells
+    shell: int = 8  # nodes across each shell of the scene (README: two 8×8×2 jelly shells)
+    scene_steps: int = 40
 
 
 FULL = Sizes()
 QUICK = Sizes(net=6, grid=20, n_eval=100, lattice=3, steps=20, patch=4, merge_samples=16, deviation=11,
-              som=4, cycles=10, coupled_grid=8)  # fmt: skip
+              som=4, cycles=10, coupled_grid=8, contact_grid=8, shell=4, scene_steps=5)  # fmt: skip
 
 
 # --- the table of entries ----------------------------------------------------------------------
@@ -325,6 +331,16 @@ def _(q):
     return Case(collide.surface_contacts, (b, s.ctrl, b, tilted), grid_size(q) + " x2, crossing")
 
 
+@entry("collide.surface_penetration")
+def _(q):
+    s = shapes.plate(q.net, q.net)
+    b = s.blending(q.contact_grid, q.contact_grid)
+    above = s.ctrl[:, ::-1] + jnp.array([0.3, 0.2, -0.01])  # facing it, 1 cm into it, shifted
+    call = lambda ba, ca, bb, cb, reach: collide.surface_penetration(ba, ca, bb, cb, reach=reach)
+    size = f"{q.net}x{q.net} nets, {q.contact_grid}x{q.contact_grid} x2, overlapping"
+    return Case(call, (b, s.ctrl, b, above, 0.05), size)
+
+
 @entry("collide.contact_force")
 def _(q):
     return Case(lambda c, k: collide.contact_force(c, stiffness=k), (sphere_contact(q), 200.0), grid_size(q))
@@ -470,6 +486,22 @@ def _(q):
 
     size = f"{q.coupled_grid}^2 surface lattice, {n} steps"
     return Case(call, (slat, coupling, mss.init(slat), dt, GRAVITY), size)
+
+
+@entry("mss.simulate_scene")
+def _(q):
+    plate = shapes.plate(5, 5, size=0.1)  # the README's two jelly shells, one falling on the other
+    shape = (q.shell, q.shell, 2)
+    below = mss.Body.from_surface(plate, shape, mss.JELLY, thickness=0.01)
+    moved = plate.with_ctrl(plate.ctrl[:, ::-1] + jnp.array([0, 0, 0.002]))
+    above = mss.Body.from_surface(moved, shape, mss.JELLY, thickness=0.01)
+    scene = mss.Scene((below, above), contact=collide.DistributedSprings(200.0, 0.5))
+    start = mss.scene_init(scene)
+    start = (start[0], mss.State(start[1].position, start[1].velocity.at[:, 2].set(-0.5)))
+    dt = 0.5 * float(mss.scene_stable_dt(scene))
+    n = q.scene_steps
+    call = lambda scene, states, dt: mss.simulate_scene(scene, states, dt, n)
+    return Case(call, (scene, start, dt), f"two {q.shell}x{q.shell}x2 shells, {n} steps")
 
 
 @entry("mss.stable_dt")
@@ -631,13 +663,25 @@ def _child(args: list[str], cache) -> dict[str, Any]:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _added(row: dict[str, Any]) -> tuple[float, float]:
+    """What the first call adds to the call itself (`second s`): in a new process with an empty
+    cache (trace, compile) and with the first process's cache (trace, lowering, loading)."""
+    return row["first_s"] - row["second_s"], row["cached_s"] - row["second_s"]
+
+
+def _within(row: dict[str, Any]) -> bool:
+    compile_s, load_s = _added(row)
+    return compile_s <= FIRST_BUDGET and load_s <= CACHED_BUDGET
+
+
 def run_cold(entries: list[Entry], quick: bool) -> list[dict[str, Any]]:
     """Each entry in two new processes sharing a fresh compilation cache (module docstring)."""
     times = subprocess.run([sys.executable, "-c", _IMPORT], capture_output=True, text=True, check=True)
     bare, subpackages = (float(t) for t in times.stdout.split())
     print(f"import bsjax {bare:.3f} s ({'ok' if bare <= IMPORT_BUDGET else 'SLOW'}); "
           f"basis, collide, merge, mss, shapes, vsofm {subpackages:.2f} s", flush=True)  # fmt: skip
-    print(f"{'entry':34} {'size':40} {'setup s':>8} {'first s':>8} {'cached s':>8} {'second ms':>10} verdict")
+    print(f"{'entry':34} {'size':40} {'setup s':>8} {'first s':>8} {'cached s':>8} {'second ms':>10} "
+          f"{'compile s':>9} {'load s':>7} verdict")  # fmt: skip
     rows = []
     for e in entries:
         args = [__file__, "--child", e.name] + (["--quick"] if quick else [])
@@ -651,17 +695,13 @@ def run_cold(entries: list[Entry], quick: bool) -> list[dict[str, Any]]:
         if "error" in row:
             print(f"{e.name:34} ERROR: {row['error']}", flush=True)
             continue
-        good = row["first_s"] <= FIRST_BUDGET and row["cached_s"] <= CACHED_BUDGET
+        compile_s, load_s = _added(row)
         print(f"{e.name:34} {row['size']:40} {row['setup_s']:8.2f} {row['first_s']:8.2f} "
-              f"{row['cached_s']:8.2f} {1e3 * row['second_s']:10.2f} {'ok' if good else 'OVER'}",
-              flush=True)  # fmt: skip
-    over = [
-        r["name"]
-        for r in rows
-        if "error" in r or r["first_s"] > FIRST_BUDGET or r["cached_s"] > CACHED_BUDGET
-    ]
+              f"{row['cached_s']:8.2f} {1e3 * row['second_s']:10.2f} {compile_s:9.2f} {load_s:7.2f} "
+              f"{'ok' if _within(row) else 'OVER'}", flush=True)  # fmt: skip
+    over = [r["name"] for r in rows if "error" in r or not _within(r)]
     print(f"COLD: {len(rows) - len(over)}/{len(rows)} within {FIRST_BUDGET} s first / {CACHED_BUDGET} s "
-          f"cached; over or failed: {', '.join(over) or 'none'}")  # fmt: skip
+          f"cached (added to the call itself); over or failed: {', '.join(over) or 'none'}")  # fmt: skip
     return rows
 
 

@@ -323,9 +323,9 @@ def _surface_map(body: Body, state: State):
     def surface(x):
         return body.coupling.blending.points(body.coupling.ctrl(x))
 
-    _, velocity = jax.jvp(surface, (state.position,), (state.velocity,))
-    _, pull = jax.vjp(surface, state.position)
-    return velocity, lambda force: pull(force)[0]
+    _, push = jax.linearize(surface, state.position)  # traced once for both directions
+    pull = jax.linear_transpose(push, state.position)
+    return push(state.velocity), lambda force: pull(force)[0]
 
 
 def _methods(scene: Scene, method) -> tuple[str, ...]:
