@@ -289,3 +289,17 @@ def _extreme(a):
 
 def _span(a):
     return f"[{np.nanmin(a)}, {np.nanmax(a)}]" if a.size else "[]"
+
+
+def float_dtype(*xs):
+    """The floating dtype to work in: that of the inputs, else JAX's default float.
+
+    Complex inputs are refused (they would be truncated to their real part)."""
+    for i, x in enumerate(xs):
+        if x is not None and np.iscomplexobj(x):
+            raise TypeError(f"argument {i}: expected real numbers, got complex dtype {np.asarray(x).dtype}")
+    given = [np.asarray(x) if isinstance(x, (list, tuple)) else x for x in xs if x is not None]
+    dtype = jnp.result_type(*given) if given else None
+    if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
+        dtype = jnp.result_type(float)
+    return dtype

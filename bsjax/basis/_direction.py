@@ -12,7 +12,7 @@ from jaxtyping import Array, Float, Int
 from bsjax import _checks
 from bsjax._typing import ArrayLike, HostArray
 from bsjax.basis._functions import check_order, periodic_rows, periodic_support, rows, support
-from bsjax.basis._knots import clamped_knots, float_dtype
+from bsjax.basis._knots import clamped_knots
 
 
 class SplineDirection(eqx.Module):
@@ -56,7 +56,7 @@ class SplineDirection(eqx.Module):
         else:
             if knots is None:
                 _checks.fail(name, "a knot vector for a non-periodic direction", None)
-            knots = jnp.asarray(knots, dtype or float_dtype(knots))
+            knots = jnp.asarray(knots, dtype or _checks.float_dtype(knots))
             _checks.check_ndim(knots, name, 1)
             count = knots.shape[0] - int(degree) - 1 if isinstance(degree, (int, np.integer)) else 0
             n_ctrl = count if n_ctrl is None else n_ctrl

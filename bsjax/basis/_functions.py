@@ -17,7 +17,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._typing import ArrayLike, HostArray
-from bsjax.basis._knots import float_dtype, periodic_knots
+from bsjax.basis._knots import periodic_knots
 
 
 def _raise_degree(lower, knots, t, p, xp):
@@ -184,7 +184,7 @@ def blending_matrix(
     (numpy, no program compiled); traced ones inside the caller's program.
     """
     check_order(nu)
-    dtype = float_dtype(knots, params)
+    dtype = _checks.float_dtype(knots, params)
     knots, params = jnp.asarray(knots, dtype), jnp.asarray(params, dtype)
     _checks.check_ndim(knots, "knots", 1)
     _checks.check_degree(degree, "degree", knots.shape[0] - degree - 1, "the knot vector")
@@ -210,7 +210,7 @@ def periodic_blending_matrix(
     _checks.check_count(n_ctrl, "n_ctrl", 2)
     _checks.check_degree(degree, "degree", n_ctrl, "the periodic direction")
     check_order(nu)
-    params = jnp.asarray(params, float_dtype(params))
+    params = jnp.asarray(params, _checks.float_dtype(params))
     _checks.check_ndim(params, "params", 1)
     return _periodic_blending_matrix(n_ctrl, degree, params, nu)
 

@@ -11,20 +11,6 @@ from bsjax import _checks
 from bsjax._typing import ArrayLike
 
 
-def float_dtype(*xs):
-    """The floating dtype to work in: that of the inputs, else JAX's default float.
-
-    Complex inputs are refused (they would be truncated to their real part)."""
-    for i, x in enumerate(xs):
-        if x is not None and np.iscomplexobj(x):
-            raise TypeError(f"argument {i}: expected real numbers, got complex dtype {np.asarray(x).dtype}")
-    given = [np.asarray(x) if isinstance(x, (list, tuple)) else x for x in xs if x is not None]
-    dtype = jnp.result_type(*given) if given else None
-    if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
-        dtype = jnp.result_type(float)
-    return dtype
-
-
 def _check_dtype(dtype, name: str = "dtype"):
     if dtype is not None and not jnp.issubdtype(dtype, jnp.floating):
         _checks.fail(name, "a floating dtype (float32 or float64)", jnp.dtype(dtype).name)
@@ -45,7 +31,7 @@ def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     _check_dtype(dtype)
     interior = np.linspace(0.0, 1.0, n_ctrl - degree + 1)[1:-1]
     knots = np.concatenate([np.zeros(degree + 1), interior, np.ones(degree + 1)])
-    return jnp.asarray(knots, dtype=dtype or float_dtype())
+    return jnp.asarray(knots, dtype=dtype or _checks.float_dtype())
 
 
 def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
@@ -58,7 +44,7 @@ def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     _checks.check_degree(degree, "degree", n_ctrl, "the periodic direction")
     _check_dtype(dtype)
     j = np.arange(n_ctrl + 2 * degree + 1)
-    return jnp.asarray((j - degree) / n_ctrl, dtype=dtype or float_dtype())
+    return jnp.asarray((j - degree) / n_ctrl, dtype=dtype or _checks.float_dtype())
 
 
 def greville(knots: ArrayLike, degree: int) -> np.ndarray:

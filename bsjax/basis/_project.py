@@ -269,12 +269,6 @@ def closest_points(
         if uv0.shape[0] != points.shape[0]:
             _checks.fail("uv0", f"one start per point, shape ({points.shape[0]}, 2)", uv0.shape)
         uv_starts = _checks.in_range(uv0.astype(points.dtype), "uv0", 0.0, 1.0)[:, None]
-    return closest_from(surface, points, uv_starts, solver)
-
-
-def closest_from(surface, points, uv_starts, solver) -> Projection:
-    """The kernel of `closest_points` (no checks): Gauss–Newton from each point's starts
-    `uv_starts (N, k, 2)`, the best kept."""
     return _project(surface, points, uv_starts, solver)
 
 

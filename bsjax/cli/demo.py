@@ -26,11 +26,12 @@ def _parser():
 def _body(args) -> int:
     for module, extra in (("matplotlib", "plot"), ("rhino3dm", "cad"), ("trimesh", "mesh")):
         require(module, extra, "writing the demo's pictures and files")  # before minutes of work, not after
+    from bsjax.cli import _progress
     from bsjax.examples import demo
 
     out = Path(args.out)
     with c.precision(float32=False):
-        report = demo.run(out, quick=args.quick)
+        report = demo.run(out, quick=args.quick, bar=_progress.bar)  # bars on a terminal only
     files = sorted(p.name for p in out.iterdir())
     print(f"\nwrote {len(files)} files to {out}/: {', '.join(files)}")
     print(f"done in {report['total_seconds']:.1f} s")

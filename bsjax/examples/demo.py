@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from pathlib import Path
@@ -116,7 +117,14 @@ def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
     return bent, placed, merged, dev
 
 
-def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(0.0, 10.0, 20.0)):
+def no_bar(label: str):
+    """The default progress bar of `run`: none (the library prints no bars; `bsjax demo` passes
+    its terminal bars, `bsjax.cli._progress.bar`). A bar factory takes a label and returns a
+    context manager giving a `progress(done, total)` callback, or None."""
+    return contextlib.nullcontext(None)
+
+
+def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(0.0, 10.0, 20.0), bar=no_bar):
     """Throw a jelly (sphere surface + 12³ VSOFM lattice) into the tilted bowl; optimise the tilt."""
     from bsjax import mss, optimise, shapes, vsofm
     from bsjax.examples import spoon
@@ -132,9 +140,7 @@ def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(
     samples = np.asarray(ball.blending(40, 40).points(ball.ctrl)).reshape(-1, 3) + centre
     t0 = time.perf_counter()
     shape = (sizes["lattice"],) * 3
-    from bsjax.cli import _progress
-
-    with _progress.bar("VSOFM cycles") as progress:  # a bar on a terminal only
+    with bar("VSOFM cycles") as progress:
         nodes = vsofm.fit(samples, shape, cycles=sizes["cycles"], progress=progress)
     vs_s = time.perf_counter() - t0
     quality = vsofm.report(samples, nodes)
@@ -266,8 +272,9 @@ def _finite_or_none(value):
     return value
 
 
-def run(out: Path, quick: bool = False) -> dict:
+def run(out: Path, quick: bool = False, bar=no_bar) -> dict:
     """Run the four steps, write the files into `out` and return the report (also `report.json`).
+    `bar`: the progress bars of the steps and of the VSOFM fit (`no_bar`: none).
 
     The study is meant for float64 (`jax_enable_x64`, which `bsjax demo` turns on; this function
     leaves the configuration as it finds it). `quick` uses the small sizes of `QUICK`.
@@ -276,10 +283,8 @@ def run(out: Path, quick: bool = False) -> dict:
     sizes = QUICK if quick else FULL
     float64 = bool(jax.config.read("jax_enable_x64"))
     report: dict = {"jax_backend": jax.default_backend(), "float64": float64, "quick": quick, "sizes": sizes}
-    from bsjax.cli import _progress
-
     t0 = time.perf_counter()
-    with _progress.bar("demo steps") as progress:  # a bar on a terminal (stderr) only
+    with bar("demo steps") as progress:
         tick = progress or (lambda done, total: None)
         print(f"[1/4] shapes through the blending matrices at {SAMPLES}×{SAMPLES} …")
         named = shapes_step(out, report)
@@ -297,7 +302,7 @@ def run(out: Path, quick: bool = False) -> dict:
         io.save(merged, out / "spoon.json")
         tick(2, 4)
         print("[3/4] jelly thrown into the tilted bowl; its derivative finds the tilt that keeps it in …")
-        hm, finals = jelly_step(out, report, bent, placed, merged, sizes)
+        hm, finals = jelly_step(out, report, bent, placed, merged, sizes, bar=bar)
         tick(3, 4)
         print("[4/4] pictures …")
         pictures_step(out, bent, placed, merged, dev, hm, finals)

@@ -38,8 +38,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, batch
 from bsjax._boundary import compiled
-from bsjax.basis import BSplineSurface
-from bsjax.basis._project import closest_from
+from bsjax.basis import BSplineSurface, closest_points
 from bsjax.merge._project import ProjectionSolver
 
 
@@ -174,10 +173,11 @@ def _refit(
 
     def body(carry):
         ctrl, uv, hist, i, _ = carry
-        # kernels, not the checked entry points: a check in a loop body is a host callback,
-        # and a program holding one is never stored on disk
+        # no value checks in the loop body (`_checks.trusted`: the entry checked the values, and
+        # a check in a loop body is a host callback, which keeps the program off the disk cache)
         current = eqx.tree_at(lambda s: s.ctrl, surface, ctrl)
-        proj = closest_from(current, points, uv[:, None], projection)
+        with _checks.trusted():
+            proj = closest_points(current, points, uv, projection)
         ctrl, d = fit_scattered(current, proj.params, points)
         batch.report(progress, i + 1, rounds, after=ctrl)
         return ctrl, proj.params, hist.at[i + 1].set(_rms(d)), i + 1, proj.result

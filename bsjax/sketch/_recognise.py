@@ -46,7 +46,6 @@ import numpy as np
 from bsjax import _checks
 from bsjax._typing import ArrayLike
 from bsjax.basis import BSplineCurve
-from bsjax.basis._knots import float_dtype
 from bsjax.sketch._fits import (
     Polygon,
     fit_circle,
@@ -418,7 +417,7 @@ def recognise(points: ArrayLike, times: ArrayLike | None = None) -> Recognised:
     `corners` call of fixed shape `(_SAMPLES, d)`, and `fit_stroke` for a free stroke.
     """
     pts, t = _inputs(points, times)
-    dtype = float_dtype(np.asarray(points))
+    dtype = _checks.float_dtype(np.asarray(points))
     span = None if t is None else (float(t[0]), float(t[-1]))
     pts, t = _clean(pts, t)
     cut = _closure(pts)

@@ -39,7 +39,6 @@ from bsjax.basis import (
     greville,
     insert_knots,
 )
-from bsjax.basis._knots import float_dtype
 from bsjax.collide import Plane
 
 __all__ = [
@@ -86,7 +85,7 @@ class Features(eqx.Module):
 
 def _stroke(points, name: str = "points", minimum: int = 3):
     _checks.check_real(points, name)
-    points = jnp.asarray(points, float_dtype(points))
+    points = jnp.asarray(points, _checks.float_dtype(points))
     _checks.check_ndim(points, name, 2)
     if points.shape[1] not in (2, 3):
         _checks.fail(name, "stroke samples of dimension 2 or 3, shape (N, d)", f"shape {points.shape}")
@@ -682,7 +681,7 @@ class Camera(eqx.Module):
     aspect: Float[Array, ""]
 
     def __init__(self, eye, target, up=(0.0, 0.0, 1.0), fov: float = math.pi / 3, aspect: float = 1.0):
-        dtype = float_dtype(eye, target)
+        dtype = _checks.float_dtype(eye, target)
         self.eye, self.target, self.up = (
             _vector(v, n, dtype) for v, n in ((eye, "eye"), (target, "target"), (up, "up"))
         )
