@@ -1,4 +1,8 @@
-"""matplotlib pictures of surfaces, control nets and per-sample scalar maps (Agg, no screen).
+"""matplotlib pictures of surfaces, control nets and per-sample scalar maps.
+
+Figures are plain `matplotlib.figure.Figure`s, not pyplot's: no backend is selected or switched
+(a notebook's inline backend, a GUI session and a headless script alike keep theirs), nothing
+is kept in pyplot's registry, and `save` writes through the figure's own canvas (no screen).
 
 Needs the `plot` extra (`pip install 'bsjax[plot]'`); matplotlib is imported by the functions.
 """
@@ -27,15 +31,15 @@ def _grid(x, name: str, shape: tuple | None = None) -> np.ndarray:
 
 
 def figure(n_panels: int, size: float = 4.0):
-    """A row of `n_panels` 3-D axes on the Agg backend (works headless)."""
+    """A row of `n_panels` 3-D axes: `(matplotlib.figure.Figure, axes)`, outside pyplot (module
+    docstring; works headless, and leaves the process's backend as it is)."""
     n_panels = _checks.check_count(n_panels, "n_panels")
     if isinstance(size, bool) or not isinstance(size, (int, float)) or not (0 < size < 1e3):
         _checks.fail("size", "a panel size in inches in (0, 1000)", size)
-    matplotlib = require("matplotlib", "plot", "bsjax.plot.figure")
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    require("matplotlib", "plot", "bsjax.plot.figure")
+    from matplotlib.figure import Figure
 
-    fig = plt.figure(figsize=(size * n_panels, size))
+    fig = Figure(figsize=(size * n_panels, size))
     axes = [fig.add_subplot(1, n_panels, k + 1, projection="3d") for k in range(n_panels)]
     return fig, axes
 
@@ -92,4 +96,5 @@ def save(fig, path) -> None:
         _checks.fail("path", f"an image extension ({', '.join('.' + f for f in sorted(formats))})", str(path))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    require("matplotlib.pyplot", "plot", "bsjax.plot.save").close(fig)
+    if fig.canvas.manager is not None:  # a pyplot figure (a caller's): released from pyplot's registry
+        require("matplotlib.pyplot", "plot", "bsjax.plot.save").close(fig)

@@ -51,6 +51,8 @@ def test_every_subcommand_help_exits_0(command, capsys):
     assert bsjax([command, "--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith(f"usage: bsjax {command}") and "--debug" in out
+    # the description is the command's line of `bsjax --help`, not a fragment of a docstring
+    assert out.split("\n\n")[1].replace("\n", " ") == COMMANDS[command][1]
 
 
 def test_top_level_help_and_unknown_command(capsys):
@@ -60,6 +62,13 @@ def test_top_level_help_and_unknown_command(capsys):
     assert bsjax(["nope"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "nope" in err
+
+
+def test_no_command_is_a_usage_error(capsys):
+    """`bsjax` alone: the usage on stderr and exit 2 (as git and pip), nothing on stdout."""
+    assert bsjax([]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith("usage: bsjax COMMAND") and all(f"  {n} " in err for n in COMMANDS)
 
 
 # --- user errors: exit 2, one stderr line naming the argument or file, no traceback ----------

@@ -38,6 +38,12 @@ def test_enumerate(capsys):
     assert len(lines) == 21 and lines[0] == "M+m+M+m+"  # the thesis's twenty-one shapes
     assert main(["enumerate", "--max-extrema", "4", "--json"]) == 0
     assert json.loads(capsys.readouterr().out) == ["M+m+M+m+", "M+m+M+0m-0", "M+0m-0M+0m-0"]
+    # fewer than 4 extrema: no closed shape — no empty line on stdout, the reason on stderr
+    assert main(["enumerate", "--max-extrema", "3"]) == 0
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "at most 3 extrema" in err
+    assert main(["enumerate", "--max-extrema", "3", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == []
 
 
 def test_errors(tmp_path, capsys):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from bsjax import io
 from bsjax.basis import BSplineSurface, clamped_knots, greville
@@ -52,6 +53,9 @@ def test_merge_command_writes_merged_surface(tmp_path, capsys):
     np.testing.assert_allclose(got[:, 2], 0.4 * np.minimum(got[:, 0], 2.0 - got[:, 0]), atol=1e-9)
     report = json.loads(capsys.readouterr().out)
     assert report["total points"] == 2 * 12 * 12 and report["max"] < 1e-8
+    # "close" by default: 0.1 % of the inputs' control-point box diagonal, not an absolute 0.1
+    corners = np.concatenate([np.asarray(s.ctrl).reshape(-1, 3) for s in (a, b)])
+    assert report["tolerance"] == pytest.approx(1e-3 * np.linalg.norm(corners.max(0) - corners.min(0)))
 
 
 def test_merge_command_errors(tmp_path, capsys):

@@ -53,7 +53,10 @@ def _usage() -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run `bsjax COMMAND ARGS…`; returns the exit code (2 for a user error)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if not argv or argv[0] in ("-h", "--help"):
+    if not argv:  # no command: a usage error (as git, pip): the usage on stderr, exit 2
+        print(_usage(), file=sys.stderr)
+        return 2
+    if argv[0] in ("-h", "--help"):
         print(_usage())
         return 0
     if argv[0] in ("-V", "--version"):

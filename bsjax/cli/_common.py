@@ -41,9 +41,15 @@ _NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,[^ ]*)?$|^-(i
 
 
 class Parser(argparse.ArgumentParser):
-    """`argparse` with the common options (`--float32`, `--debug`) and one-line errors (exit 2)."""
+    """`argparse` with the common options (`--float32`, `--debug`) and one-line errors (exit 2);
+    the description of `bsjax NAME` is, unless given, the command's line of `bsjax --help`
+    (`cli.COMMANDS`)."""
 
-    def __init__(self, prog: str, description: str, *, precision: bool = True):
+    def __init__(self, prog: str, description: str | None = None, *, precision: bool = True):
+        from bsjax.cli import COMMANDS
+
+        if description is None:
+            description = COMMANDS[prog.split()[-1]][1]
         super().__init__(prog=prog, description=description)
         if precision:
             self.add_argument("--float32", action="store_true", help="work in float32 (default float64)")

@@ -21,7 +21,7 @@ from bsjax.cli import _common as c
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax collide", "collision query of a surface file against a tool")
+    p = c.Parser("bsjax collide")
     p.add_argument("surface", type=c.input_file(*c.SURFACE_INPUTS), help="surface file (.json, .3dm)")
     tool = p.add_mutually_exclusive_group(required=True)
     tool.add_argument("--sphere", type=c.vector("CX,CY,CZ,R", positive_at=(3,)), metavar="CX,CY,CZ,R")

@@ -22,7 +22,7 @@ OUTPUTS = (*INPUTS, ".obj", ".stl", ".ply", ".glb")
 
 
 def _parser():
-    p = c.Parser("bsjax convert", __doc__.splitlines()[0].strip("`"))
+    p = c.Parser("bsjax convert")
     p.add_argument("source", type=c.input_file(*INPUTS), help="spline file (" + ", ".join(INPUTS) + ")")
     p.add_argument("target", type=c.output_file(*OUTPUTS), help="output (" + ", ".join(OUTPUTS) + ")")
     p.add_argument("--samples", type=c.grid, default=(82, 82), metavar="M,N", help="mesh sample grid (82,82)")

@@ -15,7 +15,7 @@ from bsjax.cli import _common as c
 
 
 def _parser():
-    p = c.Parser("bsjax demo", __doc__.splitlines()[0].strip("`"), precision=False)
+    p = c.Parser("bsjax demo", precision=False)
     p.add_argument(
         "--out", type=c.output_folder, default="bsjax-out", help="output folder (default ./bsjax-out)"
     )

@@ -29,7 +29,7 @@ class _Sub(c.Parser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax grammar", "curve semantics: symbol strings of curves, shapes of the grammar")
+    p = c.Parser("bsjax grammar")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Sub, metavar="{symbols,enumerate}")
     s = sub.add_parser("symbols", description="symbol string of every curve in a file")
     s.add_argument("curve", type=c.input_file(".json", ".3dm"), help="curve file (.json, .3dm)")
@@ -116,7 +116,7 @@ def _symbols(args) -> int:
         print(c.dumps(reports))
     else:
         for r in reports:
-            print(r["symbols"] if r["symbols"] else "(no characteristic points: constant curvature)")
+            print(r["symbols"] or "(no characteristic points: the curvature has no extremum and no zero)")
     return 0
 
 
@@ -124,7 +124,15 @@ def _enumerate(args) -> int:
     from bsjax import grammar
 
     shapes = grammar.enumerate_shapes(args.max_extrema)
-    print(c.dumps(shapes) if args.json else "\n".join(shapes))
+    if args.json:
+        print(c.dumps(shapes))
+    elif shapes:
+        print("\n".join(shapes))
+    else:  # a valid query with no answer: nothing on stdout, and why on stderr
+        print(
+            f"bsjax grammar: no closed shape has at most {args.max_extrema} extrema (the fewest is 4)",
+            file=sys.stderr,
+        )
     return 0
 
 

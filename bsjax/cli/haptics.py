@@ -44,7 +44,7 @@ def _hid_ids(text: str) -> tuple[int, int]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax haptics", __doc__.split("\n")[0])
+    p = c.Parser("bsjax haptics")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--simulated", action="store_true", help="scripted virtual stylus (default)")
     src.add_argument("--serial", metavar="PORT", help="serial device speaking the bsjax frame protocol")

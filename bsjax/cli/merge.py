@@ -29,7 +29,7 @@ def _grid(text: str) -> tuple[int, int]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax merge", "Merge B-spline patches into one surface.")
+    p = c.Parser("bsjax merge")
     p.add_argument(
         "inputs",
         nargs="+",
@@ -71,7 +71,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--refine", action="store_true", help="nonlinear refit with parameter correction")
     p.add_argument("--report", action="store_true", help="print the deviation from the inputs (JSON)")
-    p.add_argument("--tolerance", type=c.positive, default=0.1, help="'close point' distance for --report")
+    p.add_argument(
+        "--tolerance",
+        type=c.positive,
+        default=None,
+        help="'close point' distance for --report (default 0.1 %% of the inputs' bounding-box diagonal)",
+    )
     p.add_argument(
         "--report-samples",
         type=c.count(2),
@@ -128,12 +133,22 @@ def _body(args) -> int:
         file=sys.stderr,
     )
     if args.report:
-        report = mg.deviation(patches, merged, samples=args.report_samples, tolerance=args.tolerance)
+        tolerance = _relative_tolerance(patches) if args.tolerance is None else args.tolerance
+        report = mg.deviation(patches, merged, samples=args.report_samples, tolerance=tolerance)
         extra = {"tolerance": report.tolerance}
         if args.degrees == "reduce":  # what lowering the degrees alone costs (max over patches)
             extra["reduction error"] = float(layout.reduction_error.max())
         print(c.dumps({**report.row(), **extra}, indent=None))
     return 0
+
+
+def _relative_tolerance(patches) -> float:
+    """0.1 % of the diagonal of the inputs' control-point box: a size-free "close" (an absolute
+    default would call every point of a 12 cm spoon close at 0.1, or none of a building)."""
+    import numpy as np
+
+    points = np.concatenate([np.asarray(s.ctrl).reshape(-1, 3) for s in patches])
+    return 1e-3 * float(np.linalg.norm(points.max(0) - points.min(0))) or 1e-3
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,7 +22,7 @@ from bsjax.cli import _common as c
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax simulate", "Mass-spring simulation of a B-spline surface.")
+    p = c.Parser("bsjax simulate")
     p.add_argument("input", type=c.input_file(*c.SURFACE_INPUTS), help="surface file (.json or .3dm)")
     p.add_argument(
         "-o",

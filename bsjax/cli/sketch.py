@@ -44,7 +44,7 @@ OUTPUTS = (".json", ".3dm", ".glb", ".obj", ".stl", ".ply")
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax sketch", "strokes from a JSON file -> curves and a surface (.3dm/.glb + PNG)")
+    p = c.Parser("bsjax sketch")
     p.add_argument(
         "strokes", type=c.input_file(".json"), help="strokes file (.json, format in the module doc)"
     )

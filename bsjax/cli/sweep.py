@@ -52,7 +52,7 @@ def _spec(text: str) -> tuple[str, tuple[float, float, int]]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax sweep", "parameter study over a grid of designs (spoon, collide, merge)")
+    p = c.Parser("bsjax sweep")
     p.add_argument("experiment", choices=NAMES, help="spoon, collide or merge")
     p.add_argument(
         "--param",
