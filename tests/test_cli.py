@@ -292,3 +292,18 @@ def test_simulate_free_fall_and_table(files, capsys):
     assert 0.01 < table["max_displacement"] < 0.02 and table["finite"]  # free fall: 4.3 m
     z = np.asarray(io.load(files / "s.json").ctrl)[..., 2]
     assert np.all(z < -0.01) and np.all(z > -0.02)  # a flat plate: the refit net lies with the nodes
+
+
+def test_convert_refuses_a_mesh_without_triangles(tmp_path, capsys):
+    """2 × 2 samples of the teardrop all lie on its poles and seam: no triangle is left, so
+    `convert` refuses (exit 2, naming `--samples`) instead of writing an empty STL; the library
+    names its own arguments. 3 × 3 samples give a closed mesh."""
+    pytest.importorskip("trimesh")
+    io.save(shapes.teardrop(), tmp_path / "t.json")
+    assert bsjax(["convert", str(tmp_path / "t.json"), str(tmp_path / "t.stl"), "--samples", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--samples" in err and not (tmp_path / "t.stl").exists()
+    with pytest.raises(ValueError, match=r"^m, n: .*at least one triangle"):
+        io.tessellate(shapes.teardrop(), 2, 2)
+    assert bsjax(["convert", str(tmp_path / "t.json"), str(tmp_path / "t.stl"), "--samples", "3"]) == 0
+    assert len(io.tessellate(shapes.teardrop(), 3, 3).faces) > 0

@@ -60,7 +60,12 @@ def _body(args) -> int:
         if not surfaces:
             raise c.UserError(args.source, "no surface to tessellate (a mesh format holds surfaces only)")
         items = io.CadList(surfaces, loaded.units, surfaces, loaded.held)
-    io.save(items, args.target, *args.samples)
+    try:
+        io.save(items, args.target, *args.samples)
+    except ValueError as err:  # the library's sample counts are this command's --samples
+        if not str(err).startswith("m, n:"):
+            raise
+        raise c.UserError("--samples", str(err).removeprefix("m, n: ")) from None
     trimmed = sum(o.trim is not None for o in items)
     print(
         f"{args.source} → {args.target}: {len(items)} object(s), {trimmed} trimmed, "

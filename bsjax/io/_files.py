@@ -191,6 +191,8 @@ def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82, mask=None):
     scale = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
     mesh.merge_vertices(digits_vertex=int(np.clip(-np.log10(scale * 1e-9), 0, 15)))
     mesh.update_faces(mesh.nondegenerate_faces())
+    if mask is None and len(mesh.faces) == 0:  # every triangle collapsed onto a pole or a seam
+        _checks.fail("m, n", "a sample grid that leaves the surface at least one triangle", (m, n))
     if mesh.is_watertight:
         mesh.fix_normals()
     return mesh
