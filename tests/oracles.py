@@ -1,6 +1,6 @@
-"""Independent references for the basis tests: scipy.interpolate, geomdl and closed forms.
+"""Independent references for the tests and benchmarks: scipy, geomdl and closed forms.
 
-Nothing here calls bsjax's basis code; every function rebuilds the quantity from another
+Nothing here calls bsjax's kernels; every function rebuilds the quantity from another
 library or from a textbook formula, so a disagreement points at bsjax.
 """
 
@@ -146,3 +146,32 @@ def geomdl_surface(surface):
 def tolerance(ref, scale: float = 1e-12) -> float:
     """Absolute tolerance `scale · max(1, max|ref|)` (derivatives grow like 1/Δt^nu)."""
     return scale * max(1.0, float(np.max(np.abs(ref))))
+
+
+def lattice_linear_deflection(lattice, force) -> np.ndarray:
+    """Displacements `(N, 3)` of a mass-spring lattice's linearised springs (`k e eᵀ` per spring,
+    `e` its unit direction at rest) under node forces `(N, 3)`, the fixed nodes held: scipy's
+    sparse solve of `K u = f` (the static answer for vanishing loads). Reads the lattice's
+    arrays only (`rest_positions`, `edges`, `stiffness`, `fixed`)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    x, e, k = (np.asarray(a) for a in (lattice.rest_positions, lattice.edges, lattice.stiffness))
+    n = len(x)
+    d = x[e[:, 1]] - x[e[:, 0]]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    rows, cols, vals = [], [], []
+    for a in range(3):
+        for b in range(3):
+            kab = k * d[:, a] * d[:, b]
+            for i, j, sign in ((0, 0, 1), (1, 1, 1), (0, 1, -1), (1, 0, -1)):
+                rows.append(3 * e[:, i] + a)
+                cols.append(3 * e[:, j] + b)
+                vals.append(sign * kab)
+    stiffness = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), (3 * n, 3 * n)
+    )
+    free = np.repeat(~np.asarray(lattice.fixed), 3)
+    u = np.zeros(3 * n)
+    u[free] = spla.spsolve(stiffness[free][:, free].tocsc(), np.asarray(force).reshape(-1)[free])
+    return u.reshape(n, 3)

@@ -31,7 +31,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, collide, vsofm
 from bsjax._boundary import compiled
@@ -117,6 +117,30 @@ class Body(eqx.Module):
         node_map = (np.arange(a * b).reshape(a, b) * c + c - 1).astype(np.int32)
         return cls(lattice, surface, SurfaceCoupling.on_nodes(blending, node_map, lattice.n_nodes))
 
+    @compiled
+    def point_load(self, u: ArrayLike, v: ArrayLike, force: Float[ArrayLike, " 3"]) -> Float[Array, "N 3"]:
+        """Node forces `(N, 3)` of a force `force (3,)` in N applied at the surface point
+        `S(u, v)` (the user's pull or push on the model, thesis §5.3.3, Figs 5.8–5.10).
+
+        The virtual-work equivalent through the coupling and the refit, `f = (∂S(u, v)/∂x)ᵀ F`
+        — the map every contact force of a scene takes to the nodes — so the load keeps its
+        resultant and its moment: `Σ f_i = F` and `Σ x_i × f_i = S(u, v) × F` at the rest
+        positions (the refit commutes with rigid motions). Forces spread over the nodes that
+        carry the surface around `(u, v)` (the refit's least squares reach a little further,
+        with quickly decaying weights). `u`, `v`: scalars in [0, 1] (traced: a new point does
+        not recompile); pass the result as `external_force` to `mss.relax` / `mss.simulate`.
+        """
+        dtype = self.lattice.rest_positions.dtype
+        force = _checks.finite(_vector3(force, "force", dtype), "force")
+        u, v = (_parameter(t, name, dtype) for t, name in ((u, "u"), (v, "v")))
+
+        def point(x):
+            return self.surface.with_ctrl(self.coupling.ctrl(x)).evaluate(u, v)
+
+        with _checks.trusted():  # checked above; the nodes are the lattice's own rest positions
+            _, pull = jax.vjp(point, self.lattice.rest_positions)
+        return pull(force)[0]
+
     @classmethod
     def _volume(cls, surface, shape, material, fixed, samples, vsofm_options) -> Body:
         """A closed surface's VSOFM volume body (`from_surface`)."""
@@ -131,6 +155,22 @@ class Body(eqx.Module):
         held = None if fixed is None else _fixed_mask(fixed, nodes.reshape(-1, 3))
         lattice = hex_lattice(nodes, material=material, fixed=held)
         return cls(lattice, surface, SurfaceCoupling.embedded(blending, surface.ctrl, lattice))
+
+
+def _vector3(x, name: str, dtype) -> Array:
+    """`x` as a real `(3,)` vector of `dtype`."""
+    _checks.check_real(x, name)
+    if np.shape(x) != (3,):
+        _checks.fail(name, "a vector of shape (3,)", np.shape(x))
+    return jnp.asarray(x, dtype)
+
+
+def _parameter(t, name: str, dtype) -> Array:
+    """`t` as a real scalar parameter of `dtype` in [0, 1]."""
+    _checks.check_real(t, name)
+    if np.shape(t) != ():
+        _checks.fail(name, "a scalar parameter", np.shape(t))
+    return _checks.in_range(jnp.asarray(t, dtype), name, 0.0, 1.0)
 
 
 def _is_closed(surface: BSplineSurface) -> bool:
