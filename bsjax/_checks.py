@@ -223,6 +223,15 @@ def _short(x) -> str:
 
 
 # --- values -----------------------------------------------------------------------------------
+def vector3(x: Any, name: str, dtype) -> jax.Array:
+    """`x` as a real `(3,)` vector of `dtype` (a point, a direction, a force): its type and shape
+    checked (values are the caller's: `finite`, `coordinates`, …)."""
+    check_real(x, name)
+    x = jnp.asarray(x, dtype)
+    check_ndim(x, name, 1, last=3)
+    return x
+
+
 def finite(x, name: str):
     """`x` with every entry finite."""
     return check(x, ~xp(x).isfinite(x), name, "finite values", "NaN or inf")

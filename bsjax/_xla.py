@@ -2,10 +2,13 @@
 
 XLA:CPU compiles each fusion either with its MLIR fusion emitters (the default since 2025) or
 with its classic LLVM IR emitters (`xla_cpu_use_fusion_emitters=false`). bsjax's programs —
-many small fusions inside while loops — compile 20–40 % faster with the classic ones at about
-the same run time (first calls in a new process: `collide.contacts` with a triangle mesh
-2.40 → 1.61 s, `surface_contacts` 3.08 → 2.58 s, `vsofm.fit` 1.81 → 1.41 s; steady state within
-±20 % either way, `benchmarks/api.py`).
+many small fusions inside while loops — compile 20–40 % faster with the classic ones (first
+calls in a new process: `collide.contacts` with a triangle mesh 2.40 → 1.61 s,
+`surface_contacts` 3.08 → 2.58 s, `vsofm.fit` 1.81 → 1.41 s). Their run time differs either way
+(`benchmarks/api.py`, the same calls in one process): `BSplineSurface.evaluate` 0.41 → 0.20 ms,
+`mss.simulate` 6.8 → 4.6 ms and `mss.relax` 68 → 45 ms run faster, `merge.refit` 17 → 13 ms;
+`merge.deviation` 56 → 91 ms, the triangle-mesh contact 4.0 → 4.7 ms and `vsofm.fit` 321 →
+335 ms slower; the rest within noise.
 
 Two places ask for them, neither touching the user's global configuration:
 

@@ -274,7 +274,7 @@ def extrude(curve: BSplineCurve, vector: ArrayLike) -> BSplineSurface:
     the curve is). Differentiable in the control points and in `vector`.
     """
     _check_curves([curve], ["curve"])
-    vector = _vector(vector, "vector", curve.ctrl.dtype)
+    vector = _checks.vector3(vector, "vector", curve.ctrl.dtype)
     vector = _nonzero(vector, "vector", "a finite nonzero extrusion vector")
     plan = _Plan(curve.direction, (None,), False)
     (h,) = _nets(_parts((curve,), plan), plan, ("curve",))
@@ -322,8 +322,9 @@ def _arc_count(angle) -> int:
 @compiled
 def _revolve(profile: BSplineCurve, axis_point, axis_dir, angle, n_arcs: int) -> BSplineSurface:
     dtype = profile.ctrl.dtype
-    origin = _checks.finite(_vector(axis_point, "axis_point", dtype), "axis_point")
-    axis = _nonzero(_vector(axis_dir, "axis_dir", dtype), "axis_dir", "a finite nonzero axis direction")
+    origin = _checks.finite(_checks.vector3(axis_point, "axis_point", dtype), "axis_point")
+    axis = _checks.vector3(axis_dir, "axis_dir", dtype)
+    axis = _nonzero(axis, "axis_dir", "a finite nonzero axis direction")
     _checks.check_real(angle, "angle")
     angle = jnp.asarray(angle, dtype)
     _checks.check_ndim(angle, "angle", 0)
@@ -675,7 +676,7 @@ def _start_normal(tangent, normal, dtype):
         up = jnp.asarray([0.0, 0.0, 1.0], dtype) - tangent[2] * tangent
         side = jnp.asarray([1.0, 0.0, 0.0], dtype) - tangent[0] * tangent
         return _safe.unit(jnp.where(_safe.norm(up) > 1e-3, up, side))
-    normal = _checks.finite(_vector(normal, "normal", dtype), "normal")
+    normal = _checks.finite(_checks.vector3(normal, "normal", dtype), "normal")
     along = normal - (normal @ tangent) * tangent
     bad = _safe.norm(along) <= 1e-9 * _safe.norm(normal)
     along = _checks.check(along, bad, "normal", "a vector not parallel to the path's start tangent", "one")
@@ -826,7 +827,8 @@ def boundary_rotation(left: BSplineCurve, right: BSplineCurve, plane_normal: Arr
 def _boundary_rotation(parts, plan: _AnyPlan, plane_normal) -> SurfaceFit:
     left, right = (h[:, :3] for h in _nets(parts, plan, ("left", "right")))
     dtype = left.dtype
-    normal = _nonzero(_vector(plane_normal, "plane_normal", dtype), "plane_normal", "a finite nonzero normal")
+    normal = _checks.vector3(plane_normal, "plane_normal", dtype)
+    normal = _nonzero(normal, "plane_normal", "a finite nonzero normal")
     normal = _safe.unit(normal)
     centre, half = 0.5 * (left + right), 0.5 * (left - right)
     direction = plan.direction
@@ -870,13 +872,6 @@ def _same_dim(curves, names) -> None:
     for curve, name in zip(curves[1:], names[1:]):
         if curve.dim != curves[0].dim:
             _checks.fail(name, f"dimension {curves[0].dim} like {names[0]}", curve.dim)
-
-
-def _vector(x, name: str, dtype) -> jax.Array:
-    _checks.check_real(x, name)
-    x = jnp.asarray(x, dtype)
-    _checks.check_ndim(x, name, 1, last=3)
-    return x
 
 
 def _nonzero(x, name: str, expected: str):

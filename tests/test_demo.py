@@ -51,5 +51,6 @@ def test_demo_runs_the_spoon_case_study(tmp_path, capsys):
 
 
 def test_cli_lists_commands_and_rejects_unknown(capsys):
-    assert cli.main([]) == 0 and "demo" in capsys.readouterr().out
+    assert cli.main(["--help"]) == 0 and "demo" in capsys.readouterr().out
+    assert cli.main([]) == 2 and "demo" in capsys.readouterr().err  # no command: a usage error
     assert cli.main(["nope"]) == 2

@@ -131,7 +131,7 @@ class Body(eqx.Module):
         not recompile); pass the result as `external_force` to `mss.relax` / `mss.simulate`.
         """
         dtype = self.lattice.rest_positions.dtype
-        force = _checks.finite(_vector3(force, "force", dtype), "force")
+        force = _checks.finite(_checks.vector3(force, "force", dtype), "force")
         u, v = (_parameter(t, name, dtype) for t, name in ((u, "u"), (v, "v")))
 
         def point(x):
@@ -155,14 +155,6 @@ class Body(eqx.Module):
         held = None if fixed is None else _fixed_mask(fixed, nodes.reshape(-1, 3))
         lattice = hex_lattice(nodes, material=material, fixed=held)
         return cls(lattice, surface, SurfaceCoupling.embedded(blending, surface.ctrl, lattice))
-
-
-def _vector3(x, name: str, dtype) -> Array:
-    """`x` as a real `(3,)` vector of `dtype`."""
-    _checks.check_real(x, name)
-    if np.shape(x) != (3,):
-        _checks.fail(name, "a vector of shape (3,)", np.shape(x))
-    return jnp.asarray(x, dtype)
 
 
 def _parameter(t, name: str, dtype) -> Array:

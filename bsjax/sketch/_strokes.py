@@ -683,7 +683,8 @@ class Camera(eqx.Module):
     def __init__(self, eye, target, up=(0.0, 0.0, 1.0), fov: float = math.pi / 3, aspect: float = 1.0):
         dtype = _checks.float_dtype(eye, target)
         self.eye, self.target, self.up = (
-            _vector(v, n, dtype) for v, n in ((eye, "eye"), (target, "target"), (up, "up"))
+            _checks.finite(_checks.vector3(v, name, dtype), name)
+            for v, name in ((eye, "eye"), (target, "target"), (up, "up"))
         )
         angle = jnp.asarray(fov, dtype)
         bad = ~((angle > 0) & (angle < math.pi))
@@ -705,13 +706,6 @@ class Camera(eqx.Module):
         y = (2 * flat[:, 1:] - 1) * h
         ray = _safe.unit(forward[None] + x * right[None] + y * up[None])
         return ray.reshape(window_xy.shape[:-1] + (3,))
-
-
-def _vector(x, name: str, dtype):
-    _checks.check_real(x, name)
-    x = jnp.asarray(x, dtype)
-    _checks.check_ndim(x, name, 1, last=3)
-    return _checks.finite(x, name)
 
 
 @compiled
