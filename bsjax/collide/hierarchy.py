@@ -105,17 +105,20 @@ def _sphere_hierarchy(points, levels: int):
     return _sphere_hierarchies(((points, levels),))[0]
 
 
-def _corner_indices(m: int, n: int, levels: int) -> np.ndarray:
-    """`(4, N)` flat grid indices of the corners p00, p10, p01, p11 of every block of every level
-    (level 0 first, each block-major): the intermittent rows and columns of `Blending.lod`."""
-    tables = []
+def _corner_indices(m: int, n: int, levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """`(index (4, N), valid (N,))` over every block of every level (level 0 first, each
+    block-major): the flat grid indices of its corners p00, p10, p01, p11 — on the intermittent
+    rows and columns of `Blending.lod` — and whether it covers a cell of the grid (padding
+    blocks beyond the grid do not)."""
+    index, valid = [], []
     for level in range(levels + 1):
         step, count = BRANCH**level, BRANCH ** (levels - level)
         iu = np.minimum(np.arange(count + 1) * step, m - 1)
         iv = np.minimum(np.arange(count + 1) * step, n - 1)
         rows, cols = block_order(levels - level)
-        tables.append([iu[rows + a] * n + iv[cols + b] for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))])
-    return np.concatenate([np.asarray(t) for t in tables], axis=1)
+        index.append([iu[rows + a] * n + iv[cols + b] for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))])
+        valid.append((rows * step < m - 1) & (cols * step < n - 1))
+    return np.concatenate([np.asarray(i) for i in index], axis=1), np.concatenate(valid)
 
 
 def _sphere_hierarchies(grids):
@@ -131,21 +134,22 @@ def _sphere_hierarchies(grids):
     dtype = grids[0][0].dtype
     if any(points.dtype != dtype for points, _ in grids):  # mixed precision: each in its own
         return [h for grid in grids for h in _sphere_hierarchies((grid,))]
-    tables, start = [], 0
+    tables, masks, start = [], [], 0
     for points, levels in grids:
-        tables.append(_corner_indices(points.shape[0], points.shape[1], levels) + start)
+        index, valid = _corner_indices(points.shape[0], points.shape[1], levels)
+        tables.append(index + start)
+        masks.append(valid)
         start += points.shape[0] * points.shape[1]
     flat = _soa.split(jnp.concatenate([points.reshape(-1, 3) for points, _ in grids]))
-    index = np.concatenate(tables, axis=1).astype(np.int32)
+    index, valid = np.concatenate(tables, axis=1).astype(np.int32), np.concatenate(masks)
     corners = [tuple(c[jnp.asarray(index[k])] for c in flat) for k in range(4)]
     centres = _three_point_sphere(*corners)  # 3 × (all blocks,)
     neg = jnp.array(-jnp.inf, dtype)
     out, start = [], 0
-    for points, levels in grids:
-        m, n = points.shape[:2]
+    for _, levels in grids:
         spheres, radii = [], None
         for level in range(levels + 1):
-            step, size = BRANCH**level, BRANCH ** (2 * (levels - level))
+            size = BRANCH ** (2 * (levels - level))
             c = tuple(x[start : start + size] for x in centres)
             if level == 0:
                 ends = [tuple(x[start : start + size] for x in corner) for corner in corners]
@@ -155,9 +159,7 @@ def _sphere_hierarchies(grids):
                 child_r = radii.reshape(-1, BRANCH * BRANCH)
                 to_child = _soa.sub(child_c, tuple(x[:, None] for x in c))
                 radius = jnp.max(_soa.norm(to_child) + child_r, axis=1)
-            rows, cols = block_order(levels - level)
-            valid = jnp.asarray((rows * step < m - 1) & (cols * step < n - 1))
-            radii = jnp.where(valid, radius, neg)
+            radii = jnp.where(jnp.asarray(valid[start : start + size]), radius, neg)
             spheres.append((c, radii))
             start += size
         out.append([(jnp.stack(c), r) for c, r in spheres])
