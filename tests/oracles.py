@@ -148,15 +148,14 @@ def tolerance(ref, scale: float = 1e-12) -> float:
     return scale * max(1.0, float(np.max(np.abs(ref))))
 
 
-def lattice_linear_deflection(lattice, force) -> np.ndarray:
-    """Displacements `(N, 3)` of a mass-spring lattice's linearised springs (`k e eᵀ` per spring,
-    `e` its unit direction at rest) under node forces `(N, 3)`, the fixed nodes held: scipy's
-    sparse solve of `K u = f` (the static answer for vanishing loads). Reads the lattice's
-    arrays only (`rest_positions`, `edges`, `stiffness`, `fixed`)."""
+def lattice_stiffness(lattice, per_spring=None):
+    """The sparse `(3N, 3N)` matrix `Σ_springs k e eᵀ` (the linearised springs at rest, `e` a
+    spring's unit direction), `k` the lattice's stiffness or `per_spring (E,)` (its dampers:
+    the damping matrix). Reads the lattice's arrays only (`rest_positions`, `edges`)."""
     import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
 
-    x, e, k = (np.asarray(a) for a in (lattice.rest_positions, lattice.edges, lattice.stiffness))
+    x, e = np.asarray(lattice.rest_positions), np.asarray(lattice.edges)
+    k = np.asarray(lattice.stiffness if per_spring is None else per_spring)
     n = len(x)
     d = x[e[:, 1]] - x[e[:, 0]]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -168,9 +167,17 @@ def lattice_linear_deflection(lattice, force) -> np.ndarray:
                 rows.append(3 * e[:, i] + a)
                 cols.append(3 * e[:, j] + b)
                 vals.append(sign * kab)
-    stiffness = sp.csr_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), (3 * n, 3 * n)
-    )
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), (3 * n, 3 * n))
+
+
+def lattice_linear_deflection(lattice, force) -> np.ndarray:
+    """Displacements `(N, 3)` of a mass-spring lattice's linearised springs (`lattice_stiffness`)
+    under node forces `(N, 3)`, the fixed nodes held: scipy's sparse solve of `K u = f` (the
+    static answer for vanishing loads)."""
+    import scipy.sparse.linalg as spla
+
+    stiffness = lattice_stiffness(lattice)
+    n = lattice.rest_positions.shape[0]
     free = np.repeat(~np.asarray(lattice.fixed), 3)
     u = np.zeros(3 * n)
     u[free] = spla.spsolve(stiffness[free][:, free].tocsc(), np.asarray(force).reshape(-1)[free])

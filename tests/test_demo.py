@@ -1,8 +1,6 @@
 """`bsjax demo` runs end to end through the CLI (quick sizes) and writes what it promises."""
 
-import itertools
 import json
-import math
 
 import numpy as np
 import pytest
@@ -26,23 +24,18 @@ def test_demo_runs_the_spoon_case_study(tmp_path, capsys):
     merged = io.load(tmp_path / "spoon.json")
     assert merged.shape == tuple(report["merge"]["control_net"]) == (15, 8)
     assert report["merge"]["average"] < 2e-4 and report["merge"]["max"] < 2e-3
-    # the jelly lattice is valid and every outcome and gradient is a finite number
+    # the jelly lattice is valid; the spill fractions (total and by exit) are fractions that add up
     jelly = report["jelly"]
     assert jelly["inverted_hexahedra"] == 0
     assert [row["tilt_deg"] for row in jelly["tilts"]] == [0.0, 10.0, 20.0]
-    assert all(
-        0.0 <= row["spill_fraction"] <= 1.0 and 0.0 <= row["spill_risk"] <= 1.0 for row in jelly["tilts"]
-    )
-    # the tilt search (bsjax.optimise, BFGS) only accepts steps that lower the risk: no discarded step
-    risks = [h["spill_risk"] for h in jelly["optimisation"]]
-    assert all(math.isfinite(r) for r in risks) and all(b <= a for a, b in itertools.pairwise(risks))
-    assert jelly["optimiser"]["accepted_steps"] == len(risks) - 1
-    assert jelly["best"]["spill_risk"] == pytest.approx(risks[-1], rel=1e-9, abs=1e-12)
-    assert jelly["best"]["spill_risk"] <= risks[0] + 1e-12
-    # jax.grad through the drop is the derivative of the risk (a chaotic, ringing jelly gave 3e23
-    # per rad against a central difference of −0.1; the quick study is small but must agree too)
+    for row in jelly["tilts"]:
+        assert 0.0 <= row["spilled"] <= 1.0 and 0.0 <= row["spill_risk"] <= 1.0
+        assert sum(row[k] for k in ("front", "back", "side")) == pytest.approx(row["spilled"], abs=1e-12)
+    # forward mode through contact and both lattices is the derivative of the risk: a central
+    # difference agrees (the unrolled conjugate gradients of the steel gave 1e21 here)
     check = jelly["gradient_check"]
-    assert check["jax_jvp"] == pytest.approx(check["central_difference"], rel=0.05, abs=1e-4)
+    assert abs(check["jax_jvp"]) > 1e-8
+    assert check["jax_jvp"] == pytest.approx(check["central_difference"], rel=0.05)
     assert (tmp_path / "spoon.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(rhino3dm.File3dm.Read(str(tmp_path / "spoon.3dm")).Objects) == 3
     mesh = trimesh.load(tmp_path / "spoon.glb", force="mesh")

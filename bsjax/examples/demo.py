@@ -4,9 +4,11 @@
    82×82 (points, normals, refit).
 2. Bend the spoon handle: plasticine mass-spring lattice, one end clamped by a plane, pushed by a
    sphere; merge the bent handle and the bowl into one patch, with a deviation report.
-3. Throw a jelly (B-spline sphere + 12³ VSOFM lattice) into the bowl tilted 0°, 10°, 20° and
-   report the spill; then the derivative through the simulation (forward mode: the tilt is one
-   number) finds the tilt that keeps it in.
+3. A jelly (B-spline sphere + VSOFM volume lattice) resting in the merged spoon, itself a steel
+   shell lattice held at the handle: two deformable bodies in surface–surface contact
+   (`bsjax.examples.spoon.study`), the spoon tilted 0°, 10° and 20° backwards (thesis Figs
+   7.15–7.17); the spill and where it leaves, and the derivative of the spill risk with respect
+   to the tilt through the whole rollout (forward mode), beside a central difference.
 4. Pictures (PNG), surfaces (.3dm, .json, .glb) and a JSON report in the output folder.
 """
 
@@ -24,8 +26,24 @@ import numpy as np
 SAMPLES = 82
 
 # Sizes of the full case study and of the quick one the test suite runs (same code path).
-FULL = {"bend_steps": 200, "relax_steps": 3000, "lattice": 12, "cycles": 300, "seconds": 0.3, "opt_steps": 8}
-QUICK = {"bend_steps": 40, "relax_steps": 100, "lattice": 6, "cycles": 60, "seconds": 0.05, "opt_steps": 2}
+FULL = {
+    "bend_steps": 200,
+    "relax_steps": 3000,
+    "lattice": 6,
+    "jelly_samples": 12,
+    "spoon_shape": (30, 8, 2),
+    "cycles": 100,
+    "seconds": 0.3,
+}
+QUICK = {
+    "bend_steps": 40,
+    "relax_steps": 100,
+    "lattice": 4,
+    "jelly_samples": 12,
+    "spoon_shape": (30, 8, 2),
+    "cycles": 60,
+    "seconds": 0.03,
+}
 
 
 def _timed(fn, *args, repeat: int = 50):
@@ -124,114 +142,87 @@ def no_bar(label: str):
     return contextlib.nullcontext(None)
 
 
-def jelly_step(out: Path, report: dict, bent, bowl, merged, sizes: dict, tilts=(0.0, 10.0, 20.0), bar=no_bar):
-    """Throw a jelly (sphere surface + 12³ VSOFM lattice) into the tilted bowl; optimise the tilt."""
-    from bsjax import mss, optimise, shapes, vsofm
+def jelly_step(out: Path, report: dict, merged, sizes: dict, tilts=(0.0, 10.0, 20.0), bar=no_bar):
+    """The jelly in the merged steel spoon, two deformable bodies (`spoon.study`): tilted 0°,
+    10° and 20° backwards (thesis Figs 7.15–7.17); the derivative of the spill risk with
+    respect to the tilt through contact and both lattices, beside a central difference."""
+    from bsjax import vsofm
     from bsjax.examples import spoon
 
-    rot, origin = spoon.bowl_frame(bent, bowl)
-    patch = merged.blending(
-        params_u=np.linspace(0.5, 1.0, 160), params_v=np.linspace(0.0, 1.0, 80), m=160, n=80
-    )
-    local = (patch.points(merged.ctrl) - origin[None, None]) @ rot  # world → bowl frame
-    hm = spoon.height_map(local, (-0.01, -0.035), (0.075, 0.035))
-    ball = shapes.sphere(radius=0.007)
-    centre = np.array([0.032, 0.0, 0.004])
-    samples = np.asarray(ball.blending(40, 40).points(ball.ctrl)).reshape(-1, 3) + centre
     t0 = time.perf_counter()
-    shape = (sizes["lattice"],) * 3
     with bar("VSOFM cycles") as progress:
-        nodes = vsofm.fit(samples, shape, cycles=sizes["cycles"], progress=progress)
-    vs_s = time.perf_counter() - t0
-    quality = vsofm.report(samples, nodes)
-    # A jelly damped at ζ = 0.3 (JELLY's E and ρ; its ζ = 0.1 rang so long after the landing that
-    # the tangent jax.grad carries back grew 1e15-fold in 300 steps: a gradient of 3e23 per rad
-    # against a central difference of −0.1, and BFGS could not take a step). At ζ = 0.3 the
-    # gradient matches the central difference to 2 % at 0°, 3° and 6° of tilt.
-    jelly = mss.Material(mss.JELLY.youngs_modulus, mss.JELLY.density, 0.3)
-    lattice = mss.hex_lattice(nodes, material=jelly, node_damping=5e-6)
-    dt = 0.9 * float(mss.stable_dt(lattice, 2.0))
-    steps = max(int(sizes["seconds"] / dt) // 50, 1) * 50
+        s = spoon.study(
+            merged,
+            lattice=sizes["lattice"],
+            jelly_samples=(sizes["jelly_samples"],) * 2,
+            spoon_shape=sizes["spoon_shape"],
+            cycles=sizes["cycles"],
+            progress=progress,
+        )
+    build = time.perf_counter() - t0
+    steel, jelly = s.scene.bodies
+    ball = jelly.coupling.blending.points(jelly.surface.ctrl).reshape(-1, 3)
+    quality = vsofm.report(ball, jelly.lattice.rest_positions.reshape((sizes["lattice"],) * 3 + (3,)))
+    dt = spoon.step_size(s)
+    seconds = sizes["seconds"]
     print(
-        f"  jelly: {shape[0]}³ VSOFM lattice in {vs_s:.2f} s ({quality.inverted} inverted hexahedra); "
-        f"{lattice.n_edges} springs; {steps} steps of {1e3 * dt:.3f} ms"
+        f"  jelly: {sizes['lattice']}³ VSOFM lattice ({quality.inverted} inverted hexahedra), "
+        f"{jelly.lattice.n_edges} springs; steel spoon {steel.lattice.n_nodes} nodes; built in {build:.1f} s;"
+        " "
+        f"{int(round(seconds / dt))} steps of {1e6 * dt:.0f} µs ({seconds} s)"
     )
-    throw = (0.0, -0.45, 0.0)  # thrown sideways: untilted, it flies over the far rim
-
-    def outcome(tilt):
-        state, risk = spoon.drop(lattice, hm, tilt, dt, steps, 2.0, 0.002, velocity=throw)
-        return spoon.spill(hm, state.position), risk, state.position
-
-    run = jax.jit(outcome)
     rows, finals = [], {}
     for deg in tilts:
-        sp, risk, pos = run(jnp.deg2rad(deg))
-        rows.append({"tilt_deg": deg, "spill_fraction": float(sp), "spill_risk": float(risk)})
-        finals[deg] = np.asarray(pos)
+        t0 = time.perf_counter()
+        with bar(f"tilt {deg:g}°") as progress:
+            states, t = spoon.run(s, deg, seconds=seconds, progress=progress)
+        where = {k: float(v) for k, v in spoon.spilled(s, states[1].position, t).items()}
+        risk = float(spoon.spill_risk(s, states[1].position, t))
+        rows.append({"tilt_deg": deg, **where, "spill_risk": risk, "seconds": time.perf_counter() - t0})
+        finals[deg] = np.asarray(states[1].position)
+        exits = ", ".join(f"{k} {100 * where[k]:.0f} %" for k in spoon.EXITS if where[k] > 0) or "none"
         print(
-            f"  tilt {deg:4.1f}°: spilled {100 * float(sp):5.1f} % of the jelly, spill risk {float(risk):.4f}"
+            f"  tilt {deg:4.1f}° backwards: spilled {100 * where['spilled']:5.1f} % ({exits}),"
+            f" risk {risk:.4f}"
         )
-    # One design variable: forward mode (one tangent pass) costs a fifth of reverse mode here
-    # (3.3 s against 17 s through the 4 350 steps); both are the exact derivative of the rollout.
-    risk_of = lambda t: outcome(t)[1]
-    zero = jnp.asarray(0.0)
-    grad = float(jax.jit(lambda t: jax.jvp(risk_of, (t,), (jnp.ones_like(t),))[1])(zero))
-    eps = 1e-4  # rad
-    central = (float(run(jnp.asarray(eps))[1]) - float(run(jnp.asarray(-eps))[1])) / (2 * eps)
-    print(f"  d risk / d tilt at 0°: jax.jvp {grad:.5f}, central difference {central:.5f} per rad")
-    print("  derivatives through the drop: BFGS (Armijo line search) on the tilt, bounded to [-10°, 20°] …")
-    found = optimise.minimise(
-        lambda t, _: risk_of(t),
-        zero,
-        lower=float(np.deg2rad(-10.0)),
-        upper=float(np.deg2rad(20.0)),
-        max_steps=sizes["opt_steps"],
-        throw=False,  # a fixed budget of evaluations: keep the last accepted tilt
-        progress=_print_step,
-        autodiff_mode="fwd",
-    )
-    values = found.accepted()
-    history = [{"step": k, "spill_risk": float(v)} for k, v in enumerate(values)]
-    tilt = found.design
+    # One design variable: forward mode (one tangent pass through the rollout) is the cheap
+    # exact derivative; a central difference of two more rollouts checks it.
+    at = float(tilts[-1])
+
+    def risk_of(tilt):
+        states, t = spoon.run(s, tilt, seconds=seconds, dt=dt)
+        return spoon.spill_risk(s, states[1].position, t)
+
+    t0 = time.perf_counter()
+    tangent = float(jax.jvp(risk_of, (jnp.asarray(at),), (jnp.ones(()),))[1])
+    jvp_s = time.perf_counter() - t0
+    eps = 0.05  # degrees
+    central = (float(risk_of(at + eps)) - float(risk_of(at - eps))) / (2 * eps)
     print(
-        f"    {optimise.STATUS[int(found.status)]}: {int(found.steps)} accepted steps in"
-        f" {int(found.evaluations)} evaluations, risk {' → '.join(f'{v:.4f}' for v in values)}"
-    )
-    sp, risk, pos = run(tilt)
-    best = {"tilt_deg": float(jnp.rad2deg(tilt)), "spill_fraction": float(sp), "spill_risk": float(risk)}
-    finals[best["tilt_deg"]] = np.asarray(pos)
-    print(
-        f"  best tilt {best['tilt_deg']:.2f}°: spilled {100 * best['spill_fraction']:.1f} %,"
-        f" risk {best['spill_risk']:.4f}"
+        f"  d risk / d tilt at {at:g}°: jax.jvp {tangent:.3e}, central difference {central:.3e} per degree"
+        f" ({jvp_s:.1f} s for the derivative)"
     )
     report["jelly"] = {
-        "lattice": list(shape),
-        "vsofm_seconds": vs_s,
+        "lattice": [sizes["lattice"]] * 3,
         "inverted_hexahedra": quality.inverted,
         "min_scaled_jacobian": quality.min_scaled_jacobian,
+        "spoon_nodes": steel.lattice.n_nodes,
         "dt": dt,
-        "steps": steps,
-        "throw_velocity": list(throw),
+        "steps": int(round(seconds / dt)),
+        "seconds_simulated": seconds,
         "tilts": rows,
-        "gradient_check": {"jax_jvp": grad, "central_difference": central, "step_rad": eps},
-        "optimisation": history,
-        "optimiser": {
-            "method": "bfgs",
-            "status": optimise.STATUS[int(found.status)],
-            "accepted_steps": int(found.steps),
-            "evaluations": int(found.evaluations),
+        "gradient_check": {
+            "tilt_deg": at,
+            "jax_jvp": tangent,
+            "central_difference": central,
+            "step_deg": eps,
         },
-        "best": best,
     }
-    return hm, finals
+    return s, finals
 
 
-def _print_step(step: int, value: float) -> None:
-    print(f"    step {step}: spill risk {value:.4f}", flush=True)
-
-
-def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
-    """spoon.png: the bent handle and bowl, the merged spoon coloured by deviation, the jelly."""
+def pictures_step(out: Path, bent, placed, merged, dev, study, finals):
+    """spoon.png: the bent handle and bowl, the merged spoon, the jelly after each tilt."""
     from bsjax import plot
 
     fig, axes = plot.figure(3, size=4.5)
@@ -242,22 +233,17 @@ def pictures_step(out: Path, bent, placed, merged, dev, hm, finals):
     grid = merged.blending(82, 82)
     plot.draw_surface(axes[1], grid.points(merged.ctrl), None, title=f"merged {merged.shape}, C¹ seam")
     ax = axes[2]
-    x = np.asarray(
-        jnp.linspace(hm.origin[0], hm.origin[0] + hm.spacing[0] * (hm.z.shape[0] - 1), hm.z.shape[0])
+    bowl = np.asarray(
+        merged.blending(
+            params_u=np.linspace(0.5, 1.0, 30), params_v=np.linspace(0, 1, 20), m=30, n=20
+        ).points(merged.ctrl)
     )
-    y = np.asarray(
-        jnp.linspace(hm.origin[1], hm.origin[1] + hm.spacing[1] * (hm.z.shape[1] - 1), hm.z.shape[1])
-    )
-    X, Y = np.meshgrid(x, y, indexing="ij")
-    Z = np.where(np.asarray(hm.mask) > 0, np.asarray(hm.z), np.nan)
-    ax.plot_surface(X, Y, Z, color="#cccccc", alpha=0.5, linewidth=0)
+    ax.plot_wireframe(bowl[..., 0], bowl[..., 1], bowl[..., 2], color="#999999", linewidth=0.4)
     for (deg, pos), c in zip(finals.items(), ("#1f77b4", "#2ca02c", "#d62728", "#9467bd")):
-        ax.scatter(pos[::3, 0], pos[::3, 1], pos[::3, 2], s=1, color=c, label=f"{deg:.1f}°")
-    jelly = np.concatenate(list(finals.values()))
-    bowl_pts = np.stack([X, Y, Z], -1).reshape(-1, 3)
-    plot.equal_axes(ax, np.concatenate([jelly, bowl_pts[np.isfinite(bowl_pts[:, 2])]]))
+        ax.scatter(pos[:, 0], pos[:, 1], pos[:, 2], s=2, color=c, label=f"{deg:g}° backwards")
+    plot.equal_axes(ax, np.concatenate([bowl.reshape(-1, 3), *finals.values()]))
     ax.legend(fontsize=7, loc="upper left")
-    ax.set_title("jelly after the throw, per tilt (bowl frame)", fontsize=9)
+    ax.set_title("jelly after each tilt (spoon frame)", fontsize=9)
     plot.save(fig, out / "spoon.png")
 
 
@@ -301,11 +287,11 @@ def run(out: Path, quick: bool = False, bar=no_bar) -> dict:
         io.save(merged, out / "spoon.glb")
         io.save(merged, out / "spoon.json")
         tick(2, 4)
-        print("[3/4] jelly thrown into the tilted bowl; its derivative finds the tilt that keeps it in …")
-        hm, finals = jelly_step(out, report, bent, placed, merged, sizes, bar=bar)
+        print("[3/4] a jelly in the steel spoon, tilted: two deformable bodies in contact …")
+        study, finals = jelly_step(out, report, merged, sizes, bar=bar)
         tick(3, 4)
         print("[4/4] pictures …")
-        pictures_step(out, bent, placed, merged, dev, hm, finals)
+        pictures_step(out, bent, placed, merged, dev, study, finals)
         tick(4, 4)
     report["total_seconds"] = time.perf_counter() - t0
     (out / "report.json").write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False))

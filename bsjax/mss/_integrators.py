@@ -1,5 +1,6 @@
-"""Time integration: semi-implicit Euler (thesis eqs. 5.14–5.16), linearised backward Euler, the
-stability limit and the time-step checks.
+"""Time integration: semi-implicit Euler (thesis eqs. 5.14–5.16), linearised backward Euler (about
+the current state, by conjugate gradients; or about the rest shape, by a block Cholesky factor),
+the stability limit and the time-step checks.
 
 Pure functions over pytrees (jax-md / brax style): `step(model, state, dt, …) -> state`. The
 public functions are compiled at the boundary (`bsjax._boundary.compiled`); the rollouts of
@@ -20,13 +21,17 @@ from bsjax._boundary import compiled
 from bsjax.mss._forces import _dot3, _inv_length, contact_tangent, edge_sum, spring_forces, tool_forces
 from bsjax.mss._lattice import Lattice, State
 
-METHODS = ("semi_implicit", "implicit")
+METHODS = ("semi_implicit", "implicit", "linear_implicit")
 
 
-def _check_method(method) -> None:
-    """`method`: one of `METHODS`."""
+def _check_method(method, lattice: Lattice | None = None) -> None:
+    """`method`: one of `METHODS` (`"linear_implicit"` on a hexahedral grid lattice only)."""
     if method not in METHODS:
         _checks.fail("method", f"one of {METHODS}", repr(method))
+    if method == "linear_implicit" and lattice is not None and lattice.grid_shape is None:
+        _checks.fail(
+            "method", "'linear_implicit' on a hexahedral grid lattice (grid_shape set)", "an edge list"
+        )
 
 
 class Contact(eqx.Module):
@@ -432,3 +437,90 @@ def _diag(lattice, x, rest, h):
     diag = ((h * c + h * h * k)[None] * e2 + (h * h * k * lam)[None] * (1.0 - e2)).T
     n = x.shape[0]
     return jax.ops.segment_sum(diag, i, n) + jax.ops.segment_sum(diag, j, n)
+
+
+def _rest_system(lattice: Lattice, h, rest):
+    """Block Cholesky factor `(L (a, B, B), W (a, B, B))` of `A = M + hC + h²K₀` on a hexahedral
+    grid lattice of `grid_shape = (a, b, c)` (`B = 3bc`: one block per slab of the first index).
+
+    `K₀` is the springs' tangent stiffness at the rest positions (`_tangent_pair`), rows and
+    columns of fixed nodes the identity. The grid's springs join neighbouring slabs only, so `A`
+    is block tridiagonal; its 2a blocks are read from `3B` products `A w` (every third slab
+    perturbed at once) and factored slab by slab: `L_0 L_0ᵀ = A_00`, `W_i = A_{i,i−1} L_{i−1}⁻ᵀ`,
+    `L_i L_iᵀ = A_ii − W_i W_iᵀ` (`W_0 = 0`)."""
+    assert lattice.grid_shape is not None
+    a = lattice.grid_shape[0]
+    x0 = lattice.rest_positions
+    n, dtype = x0.shape[0], x0.dtype
+    width = 3 * n // a
+    free = ~lattice.fixed[:, None]
+    mass = lattice.mass[:, None] + h * lattice.node_damping[:, None]
+    pair = _tangent_pair(h)
+
+    def matvec(w):  # (a, B) -> (a, B)
+        w = w.reshape(n, 3)
+        held = jnp.where(free, w, 0.0)
+        out = mass * held + edge_sum(lattice, pair, (x0, held), (rest, lattice.stiffness, lattice.damping))
+        return jnp.where(free, out, w).reshape(a, width)
+
+    eye = jnp.eye(width, dtype=dtype)
+    slab = jnp.arange(a) % 3
+
+    def column(colour, d):
+        return matvec(jnp.where((slab == colour)[:, None], eye[d][None], 0.0))
+
+    y = jax.vmap(jax.vmap(column, (None, 0)), (0, None))(jnp.arange(3), jnp.arange(width))  # (3, B, a, B)
+    i = jnp.arange(a)
+    diag = jnp.swapaxes(y[i % 3, :, i, :], 1, 2)  # A_ii[row, col]
+    sub = jnp.swapaxes(y[(i - 1) % 3, :, i, :], 1, 2)  # A_{i,i-1}[row, col]
+
+    def factor(prev, blocks):
+        d, c = blocks
+        w = jax.scipy.linalg.solve_triangular(prev, c.T, lower=True).T
+        chol = jnp.linalg.cholesky(d - w @ w.T)
+        return chol, (chol, w)
+
+    first = jnp.linalg.cholesky(diag[0])
+    _, (chols, ws) = jax.lax.scan(factor, first, (diag[1:], sub[1:]))
+    return jnp.concatenate([first[None], chols]), jnp.concatenate([jnp.zeros_like(first)[None], ws])
+
+
+def _rest_solve(system, r):
+    """`A⁻¹ r` for `r (a, B)` by the block factor of `_rest_system` (two sweeps over the slabs)."""
+    chol, w = system
+    solve = jax.scipy.linalg.solve_triangular
+
+    def down(y_prev, blocks):
+        l, wi, ri = blocks
+        y = solve(l, ri - wi @ y_prev, lower=True)
+        return y, y
+
+    _, y = jax.lax.scan(down, jnp.zeros_like(r[0]), (chol, w, r))
+    w_next = jnp.concatenate([w[1:], jnp.zeros_like(w[:1])])
+
+    def up(x_next, blocks):
+        l, wn, yi = blocks
+        x = solve(l, yi - wn.T @ x_next, lower=True, trans="T")
+        return x, x
+
+    return jax.lax.scan(up, jnp.zeros_like(r[0]), (chol, w_next, y), reverse=True)[1]
+
+
+def _linear_implicit(lattice, state, dt, external_force, gravity, tools, contact, rest_length, system):
+    """Backward Euler linearised about the rest shape: `(M + hC + h²K₀) Δv = h f(x, v) − h²K₀ v`,
+    solved exactly by the factor `system = _rest_system(lattice, h, rest)` (built once per
+    rollout); `f` in full (springs at the current state, forces, gravity, tools explicitly).
+    Stable and accurate while the body stays close to its rest shape (a stiff one: steel), at a
+    cost per step of two sweeps of `a` block solves. Fixed nodes are held."""
+    h = jnp.asarray(dt, dtype=state.position.dtype)
+    x, v = state.position, state.velocity
+    rest = lattice.rest_length if rest_length is None else rest_length
+    free = ~lattice.fixed[:, None]
+    f = _net_force(lattice, state, external_force, gravity, tools, contact, rest)
+    pair = _tangent_pair(h, damped=False)
+    kv = edge_sum(lattice, pair, (lattice.rest_positions, v), (rest, lattice.stiffness, lattice.damping))
+    rhs = jnp.where(free, h * f - kv, 0.0)
+    a = system[0].shape[0]
+    dv = _rest_solve(system, rhs.reshape(a, -1)).reshape(x.shape)
+    v1 = jnp.where(free, v + dv, 0.0)
+    return State(jnp.where(free, x + h * v1, x), v1)

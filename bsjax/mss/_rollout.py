@@ -27,6 +27,8 @@ from bsjax.mss._integrators import (
     _checked_inputs,
     _explicit,
     _implicit,
+    _linear_implicit,
+    _rest_system,
 )
 from bsjax.mss._lattice import Lattice, State
 
@@ -78,20 +80,24 @@ def _per_step_force(external_force, n_steps, n_nodes):
 
 def _prepare(lattice, state, dt, method, cg_iterations, tools, contact, check_stability):
     """Structure and value checks shared by the rollouts: `(state, dt, contact)`."""
-    _check_method(method)
+    _check_method(method, lattice)
     _checks.check_count(cg_iterations, "cg_iterations")
     state = _checked_inputs(lattice, state)[0]
     contact = Contact() if (tools and contact is None) else contact
     k_c = contact.stiffness if contact is not None else 0.0
-    if method == "implicit":
+    if method != "semi_implicit":
         return state, _checked_implicit_dt(lattice, dt, k_c), contact
     return state, _checked_dt(lattice, dt, k_c, check_stability), contact
 
 
-def _kernel(method, cg_iterations):
-    """The step kernel `(lattice, state, dt, force, gravity, tools, contact, rest) -> state`."""
+def _kernel(method, cg_iterations, lattice, dt):
+    """The step kernel `(lattice, state, dt, force, gravity, tools, contact, rest) -> state` of
+    `method` for `lattice` at step `dt` (`"linear_implicit"` factors its system here, once)."""
     if method == "semi_implicit":
         return _explicit
+    if method == "linear_implicit":
+        system = _rest_system(lattice, jnp.asarray(dt, lattice.rest_positions.dtype), lattice.rest_length)
+        return lambda *args: _linear_implicit(*args, system)
     return lambda *args: _implicit(*args, cg_iterations)
 
 
@@ -132,7 +138,7 @@ def _run(
         lattice, state, dt, method, cg_iterations, tools + path_tools, contact, check_stability
     )
     const_force, path_force = _per_step_force(external_force, n_steps, lattice.n_nodes)  # pyright: ignore[reportGeneralTypeIssues]
-    advance = _kernel(method, cg_iterations)
+    advance = _kernel(method, cg_iterations, lattice, dt)
 
     def body(carry, xs):
         s, rest = carry
@@ -383,7 +389,7 @@ def relax(
     tol = _checks.positive(jnp.asarray(tol, dtype=lattice.mass.dtype), "tol", strict=False)
     tools = tuple(tools)
     state, dt, contact = _prepare(lattice, state, dt, method, cg_iterations, tools, contact, True)
-    advance = _kernel(method, cg_iterations)
+    advance = _kernel(method, cg_iterations, lattice, dt)
 
     def chunk(s):
         def body(s, _):

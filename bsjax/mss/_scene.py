@@ -365,8 +365,8 @@ def _methods(scene: Scene, method) -> tuple[str, ...]:
     methods = (method,) * len(scene.bodies) if isinstance(method, str) else tuple(method)
     if len(methods) != len(scene.bodies):
         _checks.fail("method", f"a method, or {len(scene.bodies)} (one per body)", f"{len(methods)} methods")
-    for m in methods:
-        _check_method(m)
+    for m, body in zip(methods, scene.bodies):
+        _check_method(m, body.lattice)
     return methods
 
 
@@ -446,7 +446,7 @@ def simulate_scene(
     if not scene.bodies:
         return states
     h = _stable_dt_scene(scene, dt, methods)
-    kernels = [_kernel(m, cg_iterations) for m in methods]
+    kernels = [_kernel(m, cg_iterations, b.lattice, h) for m, b in zip(methods, scene.bodies)]
 
     def advance(carry, k):
         node_f, _ = _contact_forces(scene, carry)
