@@ -80,7 +80,7 @@ def test_collide_area_of_a_plate_is_the_disc_under_the_sphere():
 
 def test_spoon_table_is_a_loop_over_the_designs():
     experiment = experiments.EXPERIMENTS["spoon"]
-    specs = {"tilt": (0.0, 25.0, 2), "stiffness": (5e3, 2e4, 2)}
+    specs = {"tilt": (0.0, 25.0, 2), "shake_amplitude": (0.0, 0.01, 2)}
     designs = experiments.grid(experiment.parameters, specs)
     setup = experiment.setup(designs, True, np.float64)
     calls = []
@@ -92,6 +92,8 @@ def test_spoon_table_is_a_loop_over_the_designs():
             assert abs(found[name][i] - float(expected[name])) <= 1e-10
     assert calls == [(2, 4), (4, 4)]
     assert np.all((found["spilled"] >= 0) & (found["spilled"] <= 1))
+    exits = found["front"] + found["back"] + found["side"]
+    np.testing.assert_allclose(exits, found["spilled"], rtol=0, atol=1e-12)
     assert len(set(np.round(found["risk"], 12))) == 4  # every parameter changes the outcome
 
 
@@ -132,11 +134,13 @@ def test_csv_round_trips_floats_exactly(tmp_path):
 
 def test_grid_order_first_parameter_slowest():
     params = experiments.EXPERIMENTS["spoon"].parameters
-    designs = experiments.grid(params, {"speed": (0.0, 1.0, 2), "tilt": (0.0, 10.0, 3)})
-    assert list(designs) == ["tilt", "speed", "stiffness"]  # columns in the experiment's order
-    np.testing.assert_array_equal(designs["speed"], [0, 0, 0, 1, 1, 1])
+    designs = experiments.grid(params, {"roll": (0.0, 1.0, 2), "tilt": (0.0, 10.0, 3)})
+    # columns in the experiment's order
+    assert list(designs) == ["tilt", "roll", "shake_axis", "shake_amplitude", "shake_frequency"]
+    np.testing.assert_array_equal(designs["roll"], [0, 0, 0, 1, 1, 1])
     np.testing.assert_array_equal(designs["tilt"], [0, 5, 10, 0, 5, 10])
-    np.testing.assert_array_equal(designs["stiffness"], np.full(6, params["stiffness"].default))
+    default = params["shake_frequency"].default
+    np.testing.assert_array_equal(designs["shake_frequency"], np.full(6, default))
 
 
 # --- several processes ----------------------------------------------------------------------

@@ -1,12 +1,13 @@
 """`bsjax sweep`: a parameter study over a full grid of designs, sharded with `bsjax.batch`.
 
-    bsjax sweep spoon --param tilt=0:20:5 --param speed=0.2:0.6:3 --out study/ [--quick]
+    bsjax sweep spoon --param tilt=0:30:4 --param shake_amplitude=0:0.01:3 --out study/ [--quick]
     bsjax sweep collide --param radius=0.1:0.4:4 --param z=0:1:5 [--surface s.json] --out study/
     bsjax sweep merge --param continuity=0:2:3 --param samples=20:60:3 --out study/
     bsjax sweep collide … --coordinator 10.0.0.1:12355 --num-processes 2 --process-id I
 
-Experiments (`bsjax.examples.experiments`): `spoon` (tilt deg, speed m/s, stiffness Pa →
-spilled, risk), `collide` (radius, x, y, z of a sphere over `--surface`, default the teardrop →
+Experiments (`bsjax.examples.experiments`): `spoon` (the jelly in the steel spoon: tilt and
+roll deg, shake_axis deg from the handle, shake_amplitude m, shake_frequency Hz → spilled,
+front, back, side, risk), `collide` (radius, x, y, z of a sphere over `--surface`, default the teardrop →
 area, max_depth, force) and `merge` (continuity, samples: static ints, one compilation per
 value pair → mean, max deviation). `--param NAME=START:STOP:COUNT` gives COUNT evenly spaced
 values from START to STOP; parameters left out take their defaults; the grid is the product of
@@ -60,7 +61,8 @@ def _parser() -> argparse.ArgumentParser:
         type=_spec,
         default=[],
         metavar="NAME=START:STOP:COUNT",
-        help="a swept parameter (repeat for a grid): spoon tilt (deg), speed (m/s), stiffness (Pa); "
+        help="a swept parameter (repeat for a grid): spoon tilt, roll, shake_axis (deg), "
+        "shake_amplitude (m), shake_frequency (Hz); "
         "collide radius, x, y, z; merge continuity, samples (ints)",
     )
     p.add_argument("--out", required=True, type=c.output_folder, metavar="DIR", help="output folder")

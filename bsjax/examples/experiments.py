@@ -1,10 +1,12 @@
 """The experiments of `bsjax sweep`: one function per design, evaluated over a grid of designs
 with `bsjax.batch.map` (issue #14).
 
-* `spoon` — a jelly thrown into the spoon's bowl (`bsjax.examples.spoon.drop`): parameters
-  `tilt` (degrees, the bowl rolled about its axis), `speed` (m/s, the sideways throw) and
-  `stiffness` (Pa, the jelly's Young's modulus) → `spilled` (fraction of the jelly that left the
-  bowl, `spoon.spill`) and `risk` (time-averaged closeness to the rim, `spoon.rim_risk`).
+* `spoon` — the jelly resting in the steel spoon, two deformable bodies in contact
+  (`bsjax.examples.spoon.study`, thesis §7.3): parameters `tilt` and `roll` (degrees: the spoon
+  pitched backwards, rolled about the handle), `shake_axis` (degrees from the handle: 0 along
+  it, 90 across), `shake_amplitude` (m) and `shake_frequency` (Hz) of the hand → `spilled`,
+  `front`, `back`, `side` (mass fractions of the jelly off the bowl, by exit,
+  `spoon.spilled`) and `risk` (`spoon.spill_risk`).
 * `collide` — a sphere of `radius` centred at `(x, y, z)` over a surface → `area` (the surface
   area in contact, m² or the surface's units²), `max_depth` and `force` (the magnitude of the
   contact force, Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with
@@ -18,9 +20,8 @@ A design's parameters are arrays, traced, except the static ones (`merge`'s `con
 groups the designs by their static values and maps each group's per-design function over its
 array parameters; every merge design is its own group (one compilation per group).
 
-Everything a design shares (the height map of the bowl, the jelly's VSOFM nodes, the sample grid
-of the surface, the patches) is built once by the experiment's `setup`, from the designs (the
-spoon's time step is stable for the stiffest jelly of the grid), and bound to the per-design
+Everything a design shares (the spoon study's two bodies and step, the sample grid of the
+surface, the patches) is built once by the experiment's `setup` and bound to the per-design
 function with `functools.partial`, so that `bsjax.batch.map` passes its arrays replicated.
 """
 
@@ -37,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bsjax import batch, collide, merge, mss
+from bsjax import batch, collide, merge
 from bsjax.basis import Blending, BSplineSurface
 from bsjax.examples import spoon
 
@@ -92,80 +93,62 @@ def grid(parameters: dict[str, Parameter], specs: dict[str, tuple[float, float, 
 
 # --- spoon ---------------------------------------------------------------------------------------
 SPOON_SIZES = {
-    "quick": {"lattice": 3, "cycles": 0, "seconds": 0.08},
-    "full": {"lattice": 6, "cycles": 100, "seconds": 0.2},
+    "quick": {
+        "lattice": 3,
+        "cycles": 30,
+        "jelly_samples": (10, 10),
+        "spoon_shape": (30, 8, 2),
+        "seconds": 0.02,
+    },
+    "full": {
+        "lattice": 6,
+        "cycles": 100,
+        "jelly_samples": (12, 12),
+        "spoon_shape": (30, 8, 2),
+        "seconds": 0.3,
+    },
 }
-JELLY_RADIUS, JELLY_CENTRE = 0.007, (0.032, 0.0, 0.004)
-JELLY_DENSITY, JELLY_DAMPING_RATIO, JELLY_NODE_DAMPING = 1050.0, 0.1, 5e-6
-BOWL_STIFFNESS, BOWL_DAMPING = 2.0, 0.002  # the penalty of the bowl on the jelly's nodes (N/m, N·s/m)
 
 
 class SpoonSetup(eqx.Module):
-    """What every spoon design shares: the jelly's rest nodes (a VSOFM lattice of a 7 mm
-    sphere), the bowl's height map, the time step and the number of steps."""
+    """What every spoon design shares: the study (`spoon.study`: the jelly resting in the steel
+    spoon, two deformable bodies), its step `dt` and the simulated `seconds`."""
 
-    nodes: Float[Array, "a b c 3"]
-    height: spoon.HeightMap
-    dt: Float[Array, ""]
-    steps: int = eqx.field(static=True)
+    study: spoon.Study
+    dt: float = eqx.field(static=True)
+    seconds: float = eqx.field(static=True)
 
 
 def spoon_setup(designs: dict, quick: bool, dtype, surface: BSplineSurface | None = None) -> SpoonSetup:
-    """The bowl (`shapes.spoon_bowl`, or `surface` in the bowl frame) as a height map, the jelly
-    (`vsofm.fit` on a 7 mm sphere, `6³` nodes; quick: a `3³` cube grid), a time step `0.9 ×
-    mss.stable_dt` of the stiffest jelly among `designs` and `seconds / dt` steps."""
-    from bsjax import shapes
+    """The spoon (`shapes.spoon_handle` merged C¹ with `shapes.spoon_bowl`, or with `surface`:
+    a bowl in the same frame, its u = 0 edge at the handle's end) as a steel shell and a
+    B-spline sphere jelly on a VSOFM lattice (`spoon.study`, sizes `SPOON_SIZES`)."""
+    from bsjax import merge, shapes
 
     sizes = SPOON_SIZES["quick" if quick else "full"]
     bowl = shapes.spoon_bowl(dtype) if surface is None else surface
-    points = np.asarray(bowl.blending(60, 40).points(bowl.ctrl))
-    height = spoon.height_map(points, (-0.01, -0.035), (0.075, 0.035), (80, 50) if quick else (160, 100))
-    height = jax.tree.map(lambda x: jnp.asarray(x, dtype), height)
-    nodes = _jelly_nodes(sizes["lattice"], sizes["cycles"], dtype)
-    stiffest = _jelly(nodes, jnp.asarray(np.max(designs["stiffness"]), dtype))
-    dt = 0.9 * mss.stable_dt(stiffest, BOWL_STIFFNESS)
-    steps = max(int(sizes["seconds"] / float(dt)) // 50, 1) * 50
-    return SpoonSetup(nodes, height, dt, steps)
-
-
-def _jelly_nodes(size: int, cycles: int, dtype) -> Array:
-    """The jelly's rest nodes: `vsofm.fit` on samples of the sphere (`cycles` ≥ 1), or with
-    `cycles == 0` (quick) the regular `size³` grid of the cube inscribed in the sphere (no
-    training to compile)."""
-    from bsjax import shapes, vsofm
-
-    centre = np.array(JELLY_CENTRE)
-    if cycles == 0:
-        side = np.linspace(-1.0, 1.0, size) * JELLY_RADIUS / np.sqrt(3.0)
-        cube = np.stack(np.meshgrid(side, side, side, indexing="ij"), -1)
-        return jnp.asarray(cube + centre, dtype)
-    ball = shapes.sphere(radius=JELLY_RADIUS, dtype=dtype)
-    samples = np.asarray(ball.blending(16, 16).points(ball.ctrl)).reshape(-1, 3) + centre
-    return vsofm.fit(samples.astype(dtype), (size,) * 3, cycles=cycles)
-
-
-def _jelly(nodes, stiffness) -> mss.Lattice:
-    material = mss.Material(stiffness, jnp.asarray(JELLY_DENSITY, stiffness.dtype), JELLY_DAMPING_RATIO)
-    return mss.hex_lattice(nodes, material=material, node_damping=JELLY_NODE_DAMPING)
-
-
-def spoon_design(setup: SpoonSetup, tilt, speed, stiffness) -> dict[str, Array]:
-    """One throw: the jelly of Young's modulus `stiffness` (Pa) thrown sideways at `speed` (m/s,
-    towards −y) into the bowl rolled by `tilt` degrees; `{"spilled", "risk"}` (`spoon.spill`,
-    the time average of `spoon.rim_risk`)."""
-    lattice = _jelly(setup.nodes, stiffness)
-    velocity = jnp.stack([jnp.zeros_like(speed), -speed, jnp.zeros_like(speed)])
-    state, risk = spoon.drop(
-        lattice,
-        setup.height,
-        jnp.deg2rad(tilt),
-        setup.dt,
-        setup.steps,
-        BOWL_STIFFNESS,
-        BOWL_DAMPING,
-        velocity,
+    merged = merge.merge([shapes.spoon_handle(dtype), bowl], direction="u", continuity=1)
+    study = spoon.study(
+        merged,
+        lattice=sizes["lattice"],
+        jelly_samples=sizes["jelly_samples"],
+        spoon_shape=sizes["spoon_shape"],
+        cycles=sizes["cycles"],
     )
-    return {"spilled": spoon.spill(setup.height, state.position), "risk": risk}
+    return SpoonSetup(study, spoon.step_size(study), sizes["seconds"])
+
+
+def spoon_design(
+    setup: SpoonSetup, tilt, roll, shake_axis, shake_amplitude, shake_frequency
+) -> dict[str, Array]:
+    """The jelly in the spoon pitched by `tilt` and rolled by `roll` degrees (`spoon.tilted`),
+    the hand shaking by `shake_amplitude` m at `shake_frequency` Hz along `shake_axis` degrees
+    from the handle (`spoon.shake`; 0 along it, 90 across): the spilled fraction in total and
+    by exit (`spoon.spilled`) and the smooth `risk` (`spoon.spill_risk`) at the end."""
+    hand = spoon.shake(setup.study, shake_axis, shake_amplitude, shake_frequency)
+    states, t = spoon.run(setup.study, tilt, hand, seconds=setup.seconds, dt=setup.dt, roll_deg=roll)
+    where = spoon.spilled(setup.study, states[1].position, t, hand)
+    return {**where, "risk": spoon.spill_risk(setup.study, states[1].position, t, hand)}
 
 
 # --- collide -------------------------------------------------------------------------------------
@@ -282,10 +265,12 @@ EXPERIMENTS = {
         "spoon",
         _params(
             Parameter("tilt", "deg", 0.0, -90.0, 90.0),
-            Parameter("speed", "m/s", 0.45, 0.0),
-            Parameter("stiffness", "Pa", 1e4, 0.0, open_low=True),
+            Parameter("roll", "deg", 0.0, -90.0, 90.0),
+            Parameter("shake_axis", "deg", 0.0, -360.0, 360.0),
+            Parameter("shake_amplitude", "m", 0.0, 0.0, 0.05),
+            Parameter("shake_frequency", "Hz", 4.0, 0.0, 50.0, open_low=True),
         ),
-        ("spilled", "risk"),
+        ("spilled", "front", "back", "side", "risk"),
         spoon_setup,
         spoon_design,
     ),
