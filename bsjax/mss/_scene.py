@@ -16,9 +16,9 @@ contact model (`collide.DistributedSprings`). Each step of `simulate_scene`:
 4. the forces act on the refit surfaces' samples `S(x)` (what the contact sees) and reach the
    nodes by virtual work, `(∂S/∂x)ᵀ f` (coupling weights and refit together; the dampers see
    `(∂S/∂x) v`), so the contact does no work the bodies do not feel; every body takes one
-   step with gravity — semi-implicit Euler (`mss.step`), or linearised backward Euler for a
-   stiff body (`method="implicit"`: its springs implicit, the contact forces explicit) — and the
-   prescribed `motion` moves its fixed nodes.
+   step with gravity — semi-implicit Euler (`mss.step`), or backward Euler for a stiff body
+   (`method="implicit"` or `"linear_implicit"`: its springs implicit, the contact forces
+   explicit) — and the prescribed `motion` moves its fixed nodes.
 
 So Σ of the contact forces over all bodies plus the tools' reactions is zero to rounding.
 """
@@ -422,10 +422,12 @@ def simulate_scene(
     - `motion`: per body None or a function `t ↦ (rotation (3, 3), translation (3,))` that
       moves the body's fixed nodes rigidly from their rest positions (a tilt, a shaking hand;
       their velocity is its time derivative, by `jax.jvp`).
-    - `method`: `"semi_implicit"` (symplectic Euler, `mss.step`) or `"implicit"` (linearised
-      backward Euler, `mss.implicit_step` with `cg_iterations`), for all bodies or one per body:
-      an implicit body takes its lattice's springs implicitly and the contact forces of the
-      step's start explicitly (IMEX), so a stiff body (a steel bowl) does not set the step.
+    - `method`: `"semi_implicit"` (symplectic Euler, `mss.step`), `"implicit"` (linearised
+      backward Euler, `mss.implicit_step` with `cg_iterations`) or `"linear_implicit"`
+      (backward Euler linearised about the rest shape, solved exactly: `mss.simulate`), for
+      all bodies or one per body: an implicit body takes its lattice's springs implicitly and
+      the contact forces of the step's start explicitly (IMEX), so a stiff body (a steel bowl)
+      does not set the step.
     - `checkpoint_every`: rematerialise chunks of this many steps in the backward pass (memory
       O(n/c + c) states, as `mss.simulate`).
     - `progress`: an optional callback `progress(done, n_steps)` on the host (`mss.simulate`).
