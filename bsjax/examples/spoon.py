@@ -7,11 +7,15 @@
    multi-resolution B-spline surfaces with shaped tools*, §4.1).
 2. `attach_bowl` + `bsjax.merge.merge`: the bowl follows the bent neck and the two patches
    become one surface.
-3. `jelly`, `drop`, `spill`: a jelly (B-spline sphere + VSOFM hexahedral lattice) dropped into
-   the spoon's bowl tilted sideways by an angle; contact against a height map sampled once from
-   the merged surface; the spilled fraction is a smooth function of the final node positions.
-4. the tilt that keeps the jelly in: `bsjax.optimise.minimise` (BFGS) on the spill risk, with `jax.grad`
-   through the whole drop (`bsjax.examples.demo`); the bowl's own shape: `bsjax.examples.bowl`.
+3. `study`, `tilted`, `shake`, `run`, `spilled`, `spill_risk`: the jelly resting in the
+   merged spoon, two deformable bodies in surface–surface contact (`mss.Scene`: the steel
+   spoon a shell lattice held at the handle, the jelly a VSOFM volume lattice), tilted,
+   rolled or shaken (thesis Figs 7.14–7.19); where the jelly leaves the bowl and a smooth
+   risk, differentiable in the tilt and the hand (`bsjax.examples.demo`,
+   `bsjax sweep spoon`, `benchmarks/spoon_study.py`).
+4. `HeightMap`, `drop`, `rim_risk`, `spill`: the former rigid-bowl throw (a jelly lattice
+   against a height map sampled once from the bowl), kept only for `bsjax.examples.bowl`'s
+   shape optimisation until that moves onto the study.
 
 All lengths in metres, times in seconds. The bowl frame has x along the spoon (the bowl at
 x ∈ [0, 0.06]), z up out of the bowl; a sideways tilt θ rotates gravity about x.
@@ -311,7 +315,7 @@ def spill_risk(s: Study, position, t=0.0, hand: Hand | None = None, scale: float
     return jnp.sum(mass * jax.nn.sigmoid(-margin / scale)) / jnp.sum(mass)
 
 
-# --- the jelly drop on a height map (the demo's, until it moves onto the study above) ------------
+# --- the jelly drop on a height map (bsjax.examples.bowl's, until it moves onto the study) ------
 class HeightMap(eqx.Module):
     """A surface sampled once on a regular (x, y) grid of the bowl frame: heights `z`, a
     coverage mask (1 on the surface's footprint, 0 outside) and the slopes, for O(1) contact
