@@ -63,6 +63,37 @@ def test_body_is_a_shell_of_the_surface():
     np.testing.assert_allclose(mass, float(mss.JELLY.density) * 0.1 * 0.1 * 0.01, rtol=1e-9)
 
 
+def test_with_ctrl_rebuilds_the_shell_from_a_new_net_differentiably():
+    """`Body.with_ctrl`: the same net gives the same body; a net moved rigidly moves every node
+    and keeps every rest length; a bumped net is the shell `from_surface` builds from it (nodes
+    and rest lengths); its derivative equals a central difference; a volume body is refused."""
+    a, _ = _pair()
+    same = a.with_ctrl(PLATE.ctrl)
+    np.testing.assert_allclose(same.lattice.rest_positions, a.lattice.rest_positions, atol=1e-15)
+    shift = jnp.array([0.01, -0.02, 0.03])
+    moved = a.with_ctrl(PLATE.ctrl + shift[None, None])
+    np.testing.assert_allclose(
+        moved.lattice.rest_positions, a.lattice.rest_positions + shift[None], atol=1e-15
+    )
+    np.testing.assert_allclose(moved.lattice.rest_length, a.lattice.rest_length, rtol=1e-12)
+    bump = jnp.zeros(PLATE.ctrl.shape).at[2:4, 2:4, 2].set(0.01)
+    rebuilt = mss.Body.from_surface(PLATE.with_ctrl(PLATE.ctrl + bump), SHAPE, mss.JELLY, thickness=0.01)
+    bumped = a.with_ctrl(PLATE.ctrl + bump)
+    np.testing.assert_allclose(bumped.lattice.rest_positions, rebuilt.lattice.rest_positions, atol=1e-14)
+    np.testing.assert_allclose(bumped.lattice.rest_length, rebuilt.lattice.rest_length, atol=1e-14)
+
+    def spread(h):  # the summed rest lengths of the shell whose net is bumped by h
+        return jnp.sum(a.with_ctrl(PLATE.ctrl + h * bump).lattice.rest_length)
+
+    tangent = jax.jvp(spread, (0.5,), (1.0,))[1]
+    central = (spread(0.5 + 1e-5) - spread(0.5 - 1e-5)) / 2e-5
+    assert float(tangent) == pytest.approx(float(central), rel=1e-7) and abs(float(tangent)) > 1e-3
+    with pytest.raises(ValueError, match="ctrl: expected a control net of shape"):
+        a.with_ctrl(PLATE.ctrl[:3])
+    with pytest.raises(ValueError, match="self: expected a shell body"):
+        _balls()[0].with_ctrl(BALL.ctrl)
+
+
 def test_volume_body_embeds_its_closed_surface():
     """A closed surface's body: a VSOFM lattice inside it, the surface's samples carried by
     trilinear weights (summing to 1) that reproduce them at rest, the refit giving the net back,

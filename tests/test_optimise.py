@@ -196,15 +196,18 @@ def test_bad_input_raises_clear_errors():
 
 @pytest.mark.slow
 def test_bowl_optimisation_lowers_spill_risk_and_matches_nelder_mead():
-    """The spoon bowl (quick sizes): jax.grad through merge + contact + rollout equals central
-    differences; BFGS lowers the spill risk monotonically and does at least as well as scipy's
-    Nelder–Mead given the same number of objective evaluations."""
+    """The spoon bowl on two deformable bodies (quick sizes): the derivative through merge, the
+    steel shell's rest shape, surface–surface contact and both lattices' rollout equals central
+    differences over 0.1 mm (the contact's small jumps averaged: `bowl.gradient_check`); BFGS
+    (with `jax.grad`)
+    lowers the spill risk monotonically and does at least as well as scipy's Nelder–Mead given
+    the same number of objective evaluations."""
     from bsjax.examples import bowl
 
     s = bowl.study(quick=True)
     analytic, fd = bowl.gradient_check(s)
-    assert analytic == pytest.approx(fd, rel=1e-5, abs=1e-9) and abs(fd) > 1e-4
-    found = bowl.optimise_bowl(s, max_steps=6)
+    assert analytic == pytest.approx(fd, rel=0.1) and abs(fd) > 1.0
+    found = bowl.optimise_bowl(s, max_steps=3)
     history = found.accepted()
     assert found.steps >= 1 and monotone(history) and history[-1] < history[0]
     assert float(jnp.max(jnp.abs(jnp.where(s.free, 0.0, found.design)))) == 0.0  # rim and others fixed

@@ -13,12 +13,11 @@
    rolled or shaken (thesis Figs 7.14–7.19); where the jelly leaves the bowl and a smooth
    risk, differentiable in the tilt and the hand (`bsjax.examples.demo`,
    `bsjax sweep spoon`, `benchmarks/spoon_study.py`).
-4. `HeightMap`, `drop`, `rim_risk`, `spill`: the former rigid-bowl throw (a jelly lattice
-   against a height map sampled once from the bowl), kept only for `bsjax.examples.bowl`'s
-   shape optimisation until that moves onto the study.
+4. `reshaped`: the study with the spoon's rest shape following a new control net, for the
+   bowl's shape optimisation on the same two-body physics (`bsjax.examples.bowl`).
 
-All lengths in metres, times in seconds. The bowl frame has x along the spoon (the bowl at
-x ∈ [0, 0.06]), z up out of the bowl; a sideways tilt θ rotates gravity about x.
+All lengths in metres, times in seconds. The spoon's frame has x along the handle towards the
+bowl (the bowl at x ∈ [0, 0.06]), z up out of the bowl; a tilt or a roll turns gravity in it.
 """
 
 from __future__ import annotations
@@ -196,6 +195,14 @@ def study(
     return Study(scene, jnp.asarray(rows), float(neck), float(rows[:, 0].max()))
 
 
+def reshaped(s: Study, spoon_ctrl) -> Study:
+    """The study with the spoon's rest shape following the control net `spoon_ctrl` of its
+    surface (`mss.Body.with_ctrl`; the jelly, the footprint and the contact kept): differentiable
+    in `spoon_ctrl`, for the bowl's shape optimisation (`bsjax.examples.bowl`)."""
+    steel = s.scene.bodies[0].with_ctrl(spoon_ctrl)
+    return eqx.tree_at(lambda t: t.scene.bodies[0], s, steel)
+
+
 #: Each body's integrator: the steel spoon by backward Euler linearised about its rest shape and
 #: solved exactly (`"linear_implicit"`: its explicit limit is ~100 times smaller than the
 #: jelly's, and 20 conjugate-gradient iterations of `"implicit"` leave 99 % of its velocity
@@ -313,136 +320,3 @@ def spill_risk(s: Study, position, t=0.0, hand: Hand | None = None, scale: float
     mass = s.scene.bodies[1].lattice.mass
     margin = jnp.min(_margins(s, _in_hand_frame(hand, t, position)), 1)
     return jnp.sum(mass * jax.nn.sigmoid(-margin / scale)) / jnp.sum(mass)
-
-
-# --- the jelly drop on a height map (bsjax.examples.bowl's, until it moves onto the study) ------
-class HeightMap(eqx.Module):
-    """A surface sampled once on a regular (x, y) grid of the bowl frame: heights `z`, a
-    coverage mask (1 on the surface's footprint, 0 outside) and the slopes, for O(1) contact
-    queries by bilinear interpolation (differentiable in the query point). `margin` is the signed
-    distance to the footprint's edge (the rim): positive inside, negative outside."""
-
-    z: Float[Array, "gx gy"]
-    mask: Float[Array, "gx gy"]
-    margin: Float[Array, "gx gy"]
-    dzdx: Float[Array, "gx gy"]
-    dzdy: Float[Array, "gx gy"]
-    origin: Float[Array, " 2"]
-    spacing: Float[Array, " 2"]
-
-
-def height_map(points: np.ndarray, lo, hi, cells: tuple[int, int] = (160, 100)) -> HeightMap:
-    """Height map of `(…, 3)` surface samples (bowl frame) over `[lo, hi]` in (x, y)."""
-    from scipy.interpolate import griddata
-
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    gx = np.linspace(lo[0], hi[0], cells[0])
-    gy = np.linspace(lo[1], hi[1], cells[1])
-    X, Y = np.meshgrid(gx, gy, indexing="ij")
-    from scipy.ndimage import distance_transform_edt
-
-    z = griddata(pts[:, :2], pts[:, 2], (X, Y), method="linear")
-    inside = np.isfinite(z)
-    mask = inside.astype(np.float64)
-    z = np.where(mask > 0, z, np.nanmin(z) - 0.05)  # outside: far below, and masked out anyway
-    spacing = np.array([gx[1] - gx[0], gy[1] - gy[0]])
-    dzdx, dzdy = np.gradient(z, *spacing)
-    outside_distance = np.asarray(distance_transform_edt(inside, sampling=spacing))
-    margin = outside_distance - np.asarray(distance_transform_edt(~inside, sampling=spacing))
-    as_j = jnp.asarray
-    return HeightMap(
-        as_j(z),
-        as_j(mask),
-        as_j(margin),
-        as_j(dzdx),
-        as_j(dzdy),
-        as_j(np.array(lo[:2], float)),
-        as_j(spacing),
-    )
-
-
-def _bilinear(grid, hm: HeightMap, xy):
-    """Bilinear interpolation of `grid` at `(N, 2)` points (clamped to the grid)."""
-    g = (xy - hm.origin[None]) / hm.spacing[None]
-    hi = jnp.array(grid.shape, dtype=g.dtype) - 1.000001
-    g = jnp.clip(g, 0.0, hi[None])
-    g0 = jnp.floor(g)
-    t = g - g0
-    i0 = g0.astype(jnp.int32)
-    i, j = i0[:, 0], i0[:, 1]
-    a, b = t[:, 0], t[:, 1]
-    return (
-        (1 - a) * (1 - b) * grid[i, j]
-        + a * (1 - b) * grid[i + 1, j]
-        + (1 - a) * b * grid[i, j + 1]
-        + a * b * grid[i + 1, j + 1]
-    )
-
-
-def bowl_force(hm: HeightMap, x, v, stiffness, damping, shell: float = 0.004):
-    """Penalty force of the rigid spoon on nodes below its surface (within a `shell`-thick skin),
-    along the surface normal `(−z_x, −z_y, 1)/|·|`, weighted by the footprint mask."""
-    xy = x[:, :2]
-    depth = _bilinear(hm.z, hm, xy) - x[:, 2]
-    cover = _bilinear(hm.mask, hm, xy)
-    active = (depth > 0) & (depth < shell)
-    normal = jnp.stack([-_bilinear(hm.dzdx, hm, xy), -_bilinear(hm.dzdy, hm, xy), jnp.ones_like(depth)], -1)
-    normal = normal / jnp.linalg.norm(normal, axis=-1, keepdims=True)
-    vn = jnp.sum(v * normal, -1)
-    mag = jnp.where(active, cover * (stiffness * depth - damping * jnp.minimum(vn, 0.0)), 0.0)
-    return mag[:, None] * normal
-
-
-def tilted_gravity(tilt):
-    """Gravity in the bowl frame when the bowl is rolled by `tilt` radians about its x axis."""
-    return GRAVITY * jnp.stack([jnp.zeros_like(tilt), jnp.sin(tilt), -jnp.cos(tilt)])
-
-
-def drop(
-    lattice: mss.Lattice,
-    hm: HeightMap,
-    tilt,
-    dt: float,
-    steps: int,
-    contact_stiffness: float,
-    contact_damping: float = 0.0,
-    velocity=(0.0, 0.0, 0.0),
-    chunk: int = 50,
-):
-    """Drop (or throw, with an initial `velocity`) the jelly lattice onto the spoon tilted by
-    `tilt` radians; `jax.checkpoint` every `chunk` steps so `jax.grad` with respect to the tilt
-    keeps only `steps / chunk` states.
-
-    **Returns:** `(final_state, risk)`: the risk is the time average of `rim_risk`.
-    """
-    gravity = tilted_gravity(jnp.asarray(tilt, dtype=lattice.mass.dtype))
-
-    def body(carry, _):
-        state, risk = carry
-        f = bowl_force(hm, state.position, state.velocity, contact_stiffness, contact_damping)
-        state = mss.step(lattice, state, dt, external_force=f, gravity=gravity)
-        return (state, risk + rim_risk(hm, state.position)), None
-
-    @jax.checkpoint
-    def run_chunk(carry, _):
-        return jax.lax.scan(body, carry, None, length=chunk)[0], None
-
-    v0 = jnp.broadcast_to(jnp.asarray(velocity, dtype=lattice.mass.dtype), lattice.rest_positions.shape)
-    carry = (mss.init(lattice, velocity=v0), jnp.zeros((), lattice.mass.dtype))
-    state, risk = jax.lax.scan(run_chunk, carry, None, length=steps // chunk)[0]
-    return state, risk / (steps // chunk * chunk)
-
-
-def rim_risk(hm: HeightMap, position, scale: float = 0.003):
-    """Smooth closeness of the jelly to the rim: mean over nodes of `σ(−margin / scale)` (½ on
-    the rim, → 1 beyond it, → 0 deep inside). Its time average is the spill risk."""
-    return jnp.mean(jax.nn.sigmoid(-_bilinear(hm.margin, hm, position[:, :2]) / scale))
-
-
-def spill(hm: HeightMap, position, width: float = 0.0005):
-    """Fraction of jelly nodes that left the spoon: outside its footprint, or fallen more than
-    a few millimetres below its surface; smooth (sigmoid) so it has a gradient."""
-    xy = position[:, :2]
-    cover = _bilinear(hm.mask, hm, xy)
-    below = jax.nn.sigmoid((_bilinear(hm.z, hm, xy) - 0.004 - position[:, 2]) / width)
-    return jnp.mean(1.0 - cover * (1.0 - below))

@@ -108,14 +108,37 @@ class Body(eqx.Module):
             _checks.fail("shape", f"a ≥ {r} and b ≥ {s} (the control net, for the refit)", (a, b, c))
         thickness = float(_checks.positive(np.asarray(thickness, float), "thickness"))
         blending = surface.blending(a, b)
-        top, normal = blending.points(surface.ctrl), blending.normals(surface.ctrl)
-        depth = jnp.linspace(thickness, 0.0, c, dtype=top.dtype)  # the last layer is the surface
-        nodes = top[:, :, None, :] - depth[None, None, :, None] * normal[:, :, None, :]
+        nodes = _shell_nodes(blending, surface.ctrl, thickness, c)
         rest = nodes.reshape(-1, 3)
         held = None if fixed is None else _fixed_mask(fixed, rest)
         lattice = hex_lattice(nodes, material=material, fixed=held)
         node_map = (np.arange(a * b).reshape(a, b) * c + c - 1).astype(np.int32)
         return cls(lattice, surface, SurfaceCoupling.on_nodes(blending, node_map, lattice.n_nodes))
+
+    def with_ctrl(self, ctrl: Float[ArrayLike, "r s 3"]) -> Body:
+        """The shell body whose rest shape follows a new control net `ctrl` of its surface (a
+        shape to optimise): its nodes at rest rebuilt as `from_surface` builds them (the
+        thickness measured from its own rest layers), its springs' rest lengths their new
+        lengths; masses, stiffnesses, fixed nodes and the coupling kept (for small changes of
+        shape). Differentiable in `ctrl`. A volume body (its lattice a VSOFM fit) is refused."""
+        if self.coupling.node_map.shape[-1] > 1:
+            _checks.fail("self", "a shell body (from an open surface with a thickness)", "a volume body")
+        want = self.surface.ctrl.shape
+        _checks.check_real(ctrl, "ctrl")
+        if np.shape(ctrl) != want:
+            _checks.fail("ctrl", f"a control net of shape {want}", np.shape(ctrl))
+        ctrl = _checks.finite(jnp.asarray(ctrl, self.surface.ctrl.dtype), "ctrl")
+        shape = self.lattice.grid_shape
+        assert shape is not None
+        layers = self.lattice.rest_positions.reshape(shape + (3,))
+        thickness = jnp.mean(jnp.linalg.norm(layers[:, :, -1] - layers[:, :, 0], axis=-1))
+        rest = _shell_nodes(self.coupling.blending, ctrl, thickness, shape[2]).reshape(-1, 3)
+        i, j = self.lattice.edges[:, 0], self.lattice.edges[:, 1]
+        lengths = jnp.linalg.norm(rest[i] - rest[j], axis=-1)
+        lattice = eqx.tree_at(
+            lambda lat: (lat.rest_positions, lat.rest_length), self.lattice, (rest, lengths)
+        )
+        return Body(lattice, self.surface.with_ctrl(ctrl), self.coupling)
 
     @compiled
     def point_load(self, u: ArrayLike, v: ArrayLike, force: Float[ArrayLike, " 3"]) -> Float[Array, "N 3"]:
@@ -155,6 +178,14 @@ class Body(eqx.Module):
         held = None if fixed is None else _fixed_mask(fixed, nodes.reshape(-1, 3))
         lattice = hex_lattice(nodes, material=material, fixed=held)
         return cls(lattice, surface, SurfaceCoupling.embedded(blending, surface.ctrl, lattice))
+
+
+def _shell_nodes(blending, ctrl, thickness, layers: int) -> Array:
+    """A shell's nodes `(a, b, layers, 3)`: layer k at `S − (layers−1−k)/(layers−1) · thickness
+    · N` on the blending's samples (the last layer is the surface, the others inward)."""
+    top, normal = blending.points(ctrl), blending.normals(ctrl)
+    depth = jnp.linspace(1.0, 0.0, layers, dtype=top.dtype) * thickness
+    return top[:, :, None, :] - depth[None, None, :, None] * normal[:, :, None, :]
 
 
 def _parameter(t, name: str, dtype) -> Array:
