@@ -347,7 +347,13 @@ def simulate_plastic(
     check_stability: bool = True,
 ) -> tuple[Lattice, State]:
     """`simulate` with plastic yield (`yield_rest_lengths`, thesis §5.4) after each step; returns
-    the lattice with its new rest lengths (the permanently deformed shape) and the final state."""
+    the lattice with its new rest lengths (the permanently deformed shape) and the final state.
+    `method="linear_implicit"` is refused: its factor is built once from the rest lengths as
+    they were, which yield changes."""
+    if method == "linear_implicit":
+        _checks.fail(
+            "method", "'semi_implicit' or 'implicit' (plastic yield changes the rest lengths)", repr(method)
+        )
     final, rest = _run(
         lattice,
         state,
