@@ -30,6 +30,10 @@ import pytest  # noqa: E402
 
 import bsjax  # noqa: E402
 from tests.helpers import CHROMIUM  # noqa: E402
+from tests.xdist_scheduling import (  # noqa: E402, F401  (hooks: how tests spread over workers)
+    pytest_collection_modifyitems,
+    pytest_xdist_make_scheduler,
+)
 
 bsjax.enable_compilation_cache()  # this process (and each worker)
 jax.config.update("jax_enable_x64", True)
@@ -89,43 +93,6 @@ if os.environ.get("BSJAX_TEST_PROFILE"):
         row = {"test": item.nodeid, "wall_s": time.perf_counter() - t0, "cpu_s": _cpu() - c0, **_spent}
         with open(os.environ["BSJAX_TEST_PROFILE"], "a") as f:
             f.write(json.dumps(row) + "\n")
-
-
-# --- the two workers (pytest-xdist) ----------------------------------------------------------------
-# A file's tests run on one worker, one after another: the programs a test compiles are still in
-# that worker's memory for the next test of its file (its fixtures too), where per-test
-# distribution compiled or loaded them in both (a sample of six files: 7 % less CPU, 6 % less
-# wall). The notebooks share nothing in process (each runs in its own kernel), so they go one by
-# one; the slowest files go first so that both workers finish together.
-SLOWEST_FIRST = (
-    "tests/test_notebooks.py", "tests/test_optimise.py", "tests/test_collide.py",
-    "tests/test_construct.py", "tests/test_mesh_tool.py", "tests/test_mss_scene.py",
-    "tests/test_collide_speed.py", "tests/test_mss.py", "tests/test_tool_family.py",
-    "tests/test_vsofm.py", "tests/test_sweep.py", "tests/test_basis_banded.py",
-)  # fmt: skip
-ONE_BY_ONE = ("tests/test_notebooks.py",)
-
-
-def pytest_collection_modifyitems(config, items):
-    def rank(item):
-        path = item.nodeid.split("::", 1)[0]
-        return SLOWEST_FIRST.index(path) if path in SLOWEST_FIRST else len(SLOWEST_FIRST)
-
-    items.sort(key=rank)  # stable: the order within a file, and of the other files, is kept
-
-
-def pytest_xdist_make_scheduler(config, log):
-    """File scope for `-n N` (the default `--dist load`); an explicit other `--dist` is kept."""
-    if config.option.dist != "load":
-        return None
-    from xdist.scheduler import LoadFileScheduling
-
-    class ByFile(LoadFileScheduling):
-        def _split_scope(self, nodeid: str) -> str:
-            return nodeid if nodeid.startswith(ONE_BY_ONE) else super()._split_scope(nodeid)
-
-    config.option.loadscopereorder = False  # keep the order above (not by number of tests)
-    return ByFile(config, log)
 
 
 def pytest_unconfigure(config):
