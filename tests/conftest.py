@@ -29,16 +29,31 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 import bsjax  # noqa: E402
+from tests import xdist_scheduling  # noqa: E402
 from tests.helpers import CHROMIUM  # noqa: E402
-from tests.xdist_scheduling import (  # noqa: E402, F401  (hooks: how tests spread over workers)
-    pytest_collection_modifyitems,
-    pytest_xdist_make_scheduler,
-)
 
 bsjax.enable_compilation_cache()  # this process (and each worker)
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+def pytest_configure(config):
+    """How the tests spread over xdist's workers (`tests/xdist_scheduling.py`), when it runs."""
+    if config.pluginmanager.hasplugin("xdist"):
+        config.pluginmanager.register(xdist_scheduling, "bsjax-xdist-scheduling")
+
+
+def pytest_runtest_teardown(item, nextitem):
+    """After a file's last test in this process, every compiled program is dropped (bsjax's
+    entry points and JAX's caches; the next file loads what it shares from the run's disk cache).
+    Each live XLA:CPU executable holds three memory maps: a worker keeping the ~22 000 programs
+    of half the suite reaches Linux's default `vm.max_map_count` (65 530), where LLVM's JIT fails
+    ("Cannot allocate memory") and the worker dies (a segfault serialising an executable, an
+    abort compiling one)."""
+    if nextitem is None or nextitem.path != item.path:
+        bsjax.clear_caches()
+        jax.clear_caches()
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """How the suite's tests are spread over pytest-xdist's workers (a pytest plugin; `conftest.py`
-imports its hooks).
+registers it when xdist runs).
 
 A file's tests run on one worker, one after another: the programs a test compiles are still in
 that worker's memory for the next test of its file (its fixtures too), where per-test
