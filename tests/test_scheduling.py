@@ -13,14 +13,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 FILES = {
-    "test_a.py": "import os\n\ndef test_a1():\n    pass\n\ndef test_a2():\n    pass\n",
+    "test_a.py": "def test_a1():\n    pass\n\ndef test_a2():\n    pass\n",
     "test_b.py": (
         "import os, signal\n\ndef test_b1():\n    pass\n\n"
         "def test_crash():\n    os.kill(os.getpid(), signal.SIGSEGV)\n\n"
         "def test_b_after():\n    pass\n\ndef test_b_last():\n    pass\n"
     ),
     "test_c.py": "def test_c1():\n    pass\n",
-    "test_d.py": "import os\n\ndef test_d1():\n    print('worker', os.environ['PYTEST_XDIST_WORKER'])\n",
+    "test_d.py": "def test_d1():\n    pass\n",
 }
 
 
@@ -56,3 +56,12 @@ def test_a_files_tests_run_on_one_worker(tmp_path):
         where.setdefault(test.split("::")[0], set()).add(worker)
     assert len(where) == 4 and all(len(w) == 1 for w in where.values()), out.stdout[-3000:]
     assert len(set().union(*where.values())) == 2  # both workers had work
+
+
+def test_a_worker_dying_on_its_files_last_test_leaves_no_empty_work(tmp_path):
+    """The file it died in has nothing left to run: it must not go back on the queue (xdist
+    would send it as empty work and the run would hang)."""
+    files = {**FILES, "test_b.py": FILES["test_b.py"].split("\n\ndef test_b_after")[0] + "\n"}
+    out = _run(tmp_path, files)
+    assert out.returncode == 1, out.stdout[-3000:]
+    assert re.search(r"\b1 failed, 5 passed\b", out.stdout.splitlines()[-1]), out.stdout[-3000:]

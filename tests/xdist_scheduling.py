@@ -48,18 +48,16 @@ def pytest_xdist_make_scheduler(config, log):
             """A worker died: the test it was running is reported failed (returned, not run
             again); the unfinished rest of its files goes back on the queue."""
             workload = self.assigned_work.pop(node)
-            unfinished = {scope: unit for scope, unit in workload.items() if not all(unit.values())}
-            if not unfinished:
+            pending = [nodeid for unit in workload.values() for nodeid, done in unit.items() if not done]
+            if not pending:
                 return None
-            crashed = next(
-                nodeid for unit in unfinished.values() for nodeid, done in unit.items() if not done
-            )
-            for unit in unfinished.values():
-                unit.pop(crashed, None)
-            self.workqueue.update({scope: unit for scope, unit in unfinished.items() if unit})
+            for unit in workload.values():
+                unit.pop(pending[0], None)  # the test it died on
+            # only units with a test still to run: a finished one would be sent as empty work
+            self.workqueue.update({scope: unit for scope, unit in workload.items() if not all(unit.values())})
             for other in self.assigned_work:
                 self._reschedule(other)
-            return crashed
+            return pending[0]
 
         def _reschedule(self, node):
             """Top the worker up to more than two pending tests: it runs a test only once it
