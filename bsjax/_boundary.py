@@ -45,7 +45,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from bsjax import _checks, _xla
+from bsjax import _checks, _executables, _xla
 
 # equinox's EQX_ON_ERROR other than "raise" (nan, breakpoint, off) asks for its own handling of
 # failed checks: then every check stays an `eqx.error_if`.
@@ -208,7 +208,10 @@ class _Compiled:
             core.__name__ = core.__qualname__ = self.__qualname__  # compile logs name the entry
             # compiler options are for a program of its own (not one inlined in the caller's jit)
             options = _xla.boundary_options() if top_level else None
-            jitted = self._cache[key] = jax.jit(core, compiler_options=options)
+            jitted = jax.jit(core, compiler_options=options)
+            if top_level:  # a direct call: its program kept whole on disk where it may be
+                jitted = _executables.stored(jitted, self._fn, treedef, (mask, static, functional), options)
+            self._cache[key] = jitted
         return jitted
 
     def __call__(self, *args, **kwargs):

@@ -67,8 +67,11 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
+    from bsjax import _executables
+
     where = cache_dir()
     if where is None:
+        _executables.use(None)
         return None
     where = Path(path).expanduser() if path is not None else where
     where.mkdir(parents=True, exist_ok=True)
@@ -78,6 +81,7 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     jax.config.update("jax_compilation_cache_max_size", -1)  # JAX's bound scans the directory per write
+    _executables.use(where)
     if where not in _TRIMMED:
         trim(where)
         _TRIMMED.add(where)
@@ -91,8 +95,10 @@ def trim(directory: str | os.PathLike, max_bytes: int = MAX_BYTES) -> int:
     """Remove the least recently written entries of the cache in `directory` until it holds at most
     `max_bytes`. **Returns:** the number of entries removed (entries another process removes at
     the same time are skipped)."""
+    from bsjax._executables import SUFFIX
+
     entries = []
-    for path in Path(directory).glob("*-cache"):
+    for path in (*Path(directory).glob("*-cache"), *Path(directory).glob("*" + SUFFIX)):
         try:
             st = path.stat()
         except FileNotFoundError:
@@ -104,7 +110,8 @@ def trim(directory: str | os.PathLike, max_bytes: int = MAX_BYTES) -> int:
         if total <= max_bytes:
             break
         path.unlink(missing_ok=True)
-        path.with_name(path.name[: -len("-cache")] + "-atime").unlink(missing_ok=True)  # JAX's LRU stamp
+        if path.name.endswith("-cache"):
+            path.with_name(path.name[: -len("-cache")] + "-atime").unlink(missing_ok=True)  # JAX's LRU stamp
         total -= size
         removed += 1
     return removed

@@ -1,9 +1,11 @@
-"""The persistent compilation cache (`bsjax.enable_compilation_cache`) and the compiled boundary's
-failure codes that make its programs storable.
+"""The persistent compilation cache (`bsjax.enable_compilation_cache`), the store of whole
+compiled programs beside it (`bsjax._executables`) and the compiled boundary's failure codes
+that make its programs storable.
 
 A program holding a host callback (`eqx.error_if`'s) cannot be stored by JAX; bsjax's direct
-calls return a failure code instead, so a second process loads every program of a direct call
-from disk: that is asserted by counting JAX's own cache hits and misses in two fresh processes.
+calls return a failure code instead, so a second process loads every program from disk: that
+is asserted by counting JAX's own trace events and cache hits and misses in two fresh processes
+(the direct call itself is neither traced nor compiled there: its executable is loaded whole).
 """
 
 from __future__ import annotations
@@ -29,13 +31,17 @@ _SCRIPT = textwrap.dedent(
     import jax
     from jax import monitoring
     jax.config.update("jax_enable_x64", True)
-    counts = {"hits": 0, "misses": 0}
+    counts = {"hits": 0, "misses": 0, "traced": []}
     def listen(event, **kwargs):
         if event == "/jax/compilation_cache/cache_hits":
             counts["hits"] += 1
         elif event == "/jax/compilation_cache/cache_misses":
             counts["misses"] += 1
+    def timed(event, duration, **kwargs):
+        if event == "/jax/core/compile/jaxpr_trace_duration":
+            counts["traced"].append(kwargs.get("fun_name"))
     monitoring.register_event_listener(listen)
+    monitoring.register_event_duration_secs_listener(timed)
     import bsjax
     where = bsjax.enable_compilation_cache()
     from bsjax import collide, shapes
@@ -43,7 +49,8 @@ _SCRIPT = textwrap.dedent(
     b = s.blending(12, 12)
     out = collide.contacts(b, s.ctrl, collide.Sphere([0.5, 0.5, 0.05], 0.2))
     jax.block_until_ready(out)
-    print(json.dumps({**counts, "dir": str(where), "hit": int(out.hit.sum())}))
+    stored = sorted(p.name for p in where.glob("*-exe"))
+    print(json.dumps({**counts, "dir": str(where), "hit": int(out.hit.sum()), "stored": stored}))
     """
 )
 
@@ -63,10 +70,12 @@ def test_a_second_process_loads_every_program_from_the_cache(tmp_path):
     first = _run(env)
     assert first["dir"] == str(tmp_path / "cache")
     assert first["misses"] > 0 and first["hit"] > 0
+    assert "contacts" in first["traced"] and len(first["stored"]) == 1
     second = _run(env)
     assert second["misses"] == 0, second
-    assert second["hits"] >= first["misses"]
-    assert second["hit"] == first["hit"]
+    assert "contacts" not in second["traced"], second  # loaded whole from the store
+    assert second["hits"] == first["misses"] - 1  # the rest (setup programs) from JAX's cache
+    assert second["hit"] == first["hit"] and second["stored"] == first["stored"]
 
 
 def test_cache_dir_off_and_default(monkeypatch, tmp_path):
@@ -83,14 +92,18 @@ def test_cache_dir_off_and_default(monkeypatch, tmp_path):
 
 def test_trim_removes_the_least_recently_written_entries_beyond_the_bound(tmp_path):
     """`trim` (run once per directory by `enable_compilation_cache`) keeps the newest entries
-    within the bound, removes older ones with JAX's access stamps, and leaves other files."""
+    (JAX's and the stored programs) within the bound, removes older ones with JAX's access
+    stamps, and leaves other files."""
     for i in range(5):
         entry = tmp_path / f"k{i}-cache"
         entry.write_bytes(bytes(100))
         (tmp_path / f"k{i}-atime").write_bytes(bytes(8))
         os.utime(entry, ns=(10**18 + i * 10**9,) * 2)  # k0 the oldest
     (tmp_path / "other.txt").write_text("kept")
-    assert _cache.trim(tmp_path, max_bytes=250) == 3
+    stored = tmp_path / "s0-exe"  # a whole program (bsjax._executables), older than every entry
+    stored.write_bytes(bytes(100))
+    os.utime(stored, ns=(10**18 - 10**9,) * 2)
+    assert _cache.trim(tmp_path, max_bytes=250) == 4
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "k3-atime",
         "k3-cache",
@@ -243,8 +256,9 @@ def test_the_loops_and_branches_of_a_direct_call_hold_no_host_callback(monkeypat
     monkeypatch.setattr(_boundary._Compiled, "_run", staticmethod(record))
     call()
     assert ran  # the calls went through the boundary
+    jits = [(getattr(jitted, "jitted", jitted), dynamic) for jitted, dynamic in ran]  # a Stored one's jit
     with_callback = [
-        jitted.__name__ for jitted, dynamic in ran if "callback" in jitted.lower(dynamic).as_text()
+        jitted.__name__ for jitted, dynamic in jits if "callback" in jitted.lower(dynamic).as_text()
     ]
     assert not with_callback
 
@@ -322,3 +336,115 @@ def test_direct_calls_compile_with_the_boundary_options_and_nest_without_them():
     assert out["top_level"] == [["xla_cpu_use_fusion_emitters", False]]
     assert out["nested"] == []
     assert out["same"] and out["grad_finite"]
+
+
+# --- the store of whole programs (bsjax._executables) ---------------------------------------------
+
+_TRACED: list = []  # one entry per trace of `_scaled`
+
+
+@compiled
+def _scaled(x, n: int, *, by):
+    _TRACED.append(n)
+    return _checks.finite(x, "x") * by * n
+
+
+@compiled
+def _mapped(x, fn):
+    return fn(x)
+
+
+@pytest.fixture
+def store(tmp_path, monkeypatch):
+    """The caches (JAX's and the store) in `tmp_path`, this module's functions keyable, nothing
+    compiled yet; the run's caches again afterwards."""
+    from bsjax import _executables
+
+    monkeypatch.setattr(_executables, "_OWNERS", (*_executables._OWNERS, "tests"))
+    assert bsjax.enable_compilation_cache(tmp_path) == tmp_path
+    _TRACED.clear()
+    forget()
+    yield tmp_path
+    forget()
+    bsjax.enable_compilation_cache()
+
+
+def forget():
+    """A new process's view of the store: nothing compiled in memory."""
+    for fn in (_scaled, _mapped):
+        fn.clear_cache()
+    jax.clear_caches()
+
+
+def _stored(path) -> list[str]:
+    return sorted(p.name for p in path.glob("*-exe"))
+
+
+def test_a_stored_program_is_loaded_untraced_and_keyed_by_everything_that_decides_it(store, monkeypatch):
+    from bsjax import _executables
+
+    x = jnp.arange(3.0)
+    expected = np.arange(3.0)
+    np.testing.assert_array_equal(_scaled(x, 2, by=0.5), expected)
+    assert _TRACED == [2] and len(_stored(store)) == 1
+    forget()
+    np.testing.assert_array_equal(_scaled(x, 2, by=0.25), expected / 2)  # a new float: the same program
+    np.testing.assert_array_equal(_scaled(x.tolist(), 2, by=0.25), expected / 2)  # a list: the same
+    assert _TRACED == [2] and len(_stored(store)) == 1  # loaded, not traced
+    _scaled(jnp.arange(4.0), 2, by=1.0)  # another shape
+    _scaled(x, 3, by=1.0)  # another static value
+    _scaled(x.astype(jnp.float32), 2, by=1.0)  # another dtype
+    assert _TRACED == [2, 2, 3, 2] and len(_stored(store)) == 4
+    forget()
+    # the same program under other keys: traced again, then found in JAX's cache (not stored)
+    with jax.numpy_dtype_promotion("standard"):  # another trace context (the suite's is strict)
+        _scaled(x, 2, by=1.0)
+    assert len(_TRACED) == 5
+    forget()
+    monkeypatch.setattr(_executables, "_source_digest", lambda: "an edited bsjax")
+    _scaled(x, 2, by=1.0)
+    assert len(_TRACED) == 6 and len(_stored(store)) == 4
+
+
+def test_a_stored_program_keeps_its_value_checks(store):
+    bad = jnp.array([1.0, np.nan])
+    with pytest.raises(ValueError, match=r"^x: expected finite values, got"):
+        _scaled(bad, 2, by=1.0)  # compiled and stored
+    forget()
+    with pytest.raises(ValueError, match=r"^x: expected finite values, got"):
+        _scaled(bad, 2, by=1.0)  # loaded
+    assert _TRACED == [2] and len(_stored(store)) == 1
+
+
+def test_a_call_holding_the_users_code_is_never_stored(store):
+    x = jnp.arange(3.0)
+    from bsjax import _safe
+
+    np.testing.assert_allclose(_mapped(x, _safe.norm), np.sqrt(5.0))  # bsjax's: keyable
+    assert len(_stored(store)) == 1
+    np.testing.assert_array_equal(_mapped(x, lambda y: 2 * y), 2 * np.arange(3.0))  # a lambda
+
+    def double(y):
+        return 2 * y
+
+    np.testing.assert_array_equal(_mapped(x, double), 2 * np.arange(3.0))  # a local function
+    assert len(_stored(store)) == 1
+
+
+def test_an_unreadable_entry_is_removed_and_the_program_compiled_again(store):
+    x = jnp.arange(3.0)
+    _scaled(x, 2, by=1.0)
+    (entry,) = store.glob("*-exe")
+    whole = entry.read_bytes()
+    entry.write_bytes(whole[: len(whole) // 2])  # truncated
+    forget()
+    np.testing.assert_array_equal(_scaled(x, 2, by=1.0), 2 * np.arange(3.0))  # from JAX's cache
+    assert _TRACED == [2, 2] and not entry.exists()  # (JAX's copy of it is not stored: module doc)
+    for path in store.glob("*-cache"):
+        path.unlink()
+    forget()
+    np.testing.assert_array_equal(_scaled(x, 2, by=1.0), 2 * np.arange(3.0))  # compiled
+    assert _TRACED == [2, 2, 2] and len(entry.read_bytes()) > 0
+    forget()
+    np.testing.assert_array_equal(_scaled(x, 2, by=1.0), 2 * np.arange(3.0))
+    assert _TRACED == [2, 2, 2]  # the new entry loads
