@@ -187,32 +187,44 @@ class _Compiled:
         return tuple(args), kwargs
 
     def _jitted(self, treedef, mask, static, functional: bool, top_level: bool):
+        """The compiled form of a call structure: a direct call's `_executables.Program` (its
+        programs with their failure messages, kept on disk where they may be), or inside the
+        caller's trace a `jax.jit` (inlined in the caller's program)."""
         key = (treedef, mask, static, functional, top_level)
         jitted = self._cache.get(key)
         if jitted is None:
-            fn = precise(self._fn)
-
-            def core(dynamic):
-                it = iter(dynamic)
-                leaves = [
-                    next(it) if m else (s.value if isinstance(s, _Static) else s)
-                    for m, s in zip(mask, static)
-                ]
-                args, kwargs = jax.tree_util.tree_unflatten(treedef, leaves)
-                if not functional:
-                    return fn(*args, **kwargs)
-                with _checks.collecting() as failures:
-                    out = fn(*args, **kwargs)
-                    return out, failures.code()
-
-            core.__name__ = core.__qualname__ = self.__qualname__  # compile logs name the entry
-            # compiler options are for a program of its own (not one inlined in the caller's jit)
-            options = _xla.boundary_options() if top_level else None
-            jitted = jax.jit(core, compiler_options=options)
-            if top_level:  # a direct call: its program kept whole on disk where it may be
-                jitted = _executables.stored(jitted, self._fn, treedef, (mask, static, functional), options)
+            make_core = functools.partial(self._core, treedef, mask, static, functional)
+            if top_level:  # compiler options for a program of its own (not one inlined in a jit)
+                jitted = _executables.Program(
+                    make_core, (self._fn, treedef, (mask, static, functional)), _xla.boundary_options()
+                )
+            else:
+                jitted = jax.jit(make_core())
             self._cache[key] = jitted
         return jitted
+
+    def _core(self, treedef, mask, static, functional: bool):
+        """A new function of the traced leaves that calls the public function (with the failure
+        code of its checks beside the result when `functional`; the messages of the codes in
+        its attribute `messages`, set while it is traced)."""
+        fn = precise(self._fn)
+
+        def core(dynamic):
+            it = iter(dynamic)
+            leaves = [
+                next(it) if m else (s.value if isinstance(s, _Static) else s) for m, s in zip(mask, static)
+            ]
+            args, kwargs = jax.tree_util.tree_unflatten(treedef, leaves)
+            if not functional:
+                return fn(*args, **kwargs)
+            with _checks.collecting() as failures:
+                out = fn(*args, **kwargs)
+                core.messages = failures.messages
+                return out, failures.code()
+
+        core.messages = []
+        core.__name__ = core.__qualname__ = self.__qualname__  # compile logs name the entry
+        return core
 
     def __call__(self, *args, **kwargs):
         if _checks.collecting_now():  # inside another compiled program's trace: inlined there,
@@ -235,9 +247,9 @@ class _Compiled:
             raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
         if traced:
             return jitted(dynamic)
-        out, code = self._run(jitted, dynamic, functional)
-        if code:
-            raise ValueError(_checks.message_of(code))
+        out, failure = self._run(jitted, dynamic, functional)
+        if failure:
+            raise ValueError(failure)
         return out
 
     def _refuse_non_numeric(self, args, kwargs) -> None:
@@ -253,17 +265,19 @@ class _Compiled:
                     _checks.check_real(leaf, name)
 
     @staticmethod
-    def _run(jitted, dynamic, functional: bool):
-        """`(result, failure code)` of a direct call (code 0 when not `functional`), a failed
-        `eqx.error_if` check inside the program raised as its `ValueError`."""
+    def _run(program, dynamic, functional: bool):
+        """`(result, failure message or "")` of a direct call: the message of the program's
+        failure code when `functional`, a failed `eqx.error_if` check inside it raised as its
+        `ValueError` otherwise."""
         try:
+            out, messages = program(dynamic)
             if functional:
-                out, code = jitted(dynamic)
-                return out, int(code)  # waits for the program
-            out = jitted(dynamic)
+                out, code = out
+                code = int(code)  # waits for the program
+                return out, messages[code - 1] if code else ""
             if _asynchronous():  # a failed check raises here, not where the result is read
                 jax.block_until_ready(out)
-            return out, 0
+            return out, ""
         except (jax.errors.JaxRuntimeError, ValueError) as err:  # the C++ fast path: a ValueError
             failure = check_failure(err)
             if failure is None:

@@ -82,34 +82,26 @@ def on_device(tree):
 
 
 # --- failures as part of a compiled program's result ---------------------------------------------
-_MESSAGES: list[str] = [""]  # a message's id is its index; 0 = no failure
-_IDS: dict[str, int] = {}
-
-
-def message_of(code: int) -> str:
-    """The message of a failure code (`collecting`)."""
-    return _MESSAGES[code]
-
-
-def _message_id(text: str) -> int:
-    ident = _IDS.get(text)
-    if ident is None:
-        ident = _IDS[text] = len(_MESSAGES)
-        _MESSAGES.append(text)
-    return ident
-
-
 class _Collector:
-    """The failure codes of one program being traced at the compiled boundary."""
+    """The failure codes of one program being traced at the compiled boundary: code k ≥ 1 is
+    `messages[k − 1]`, numbered in the program's own order (so a program compiled in another
+    process and loaded from disk carries its messages with it: `bsjax._executables`)."""
 
     def __init__(self):
         self.trace = _trace_ctx.trace if _trace_ctx is not None else None
         self.codes: list = []
+        self.messages: list[str] = []
 
     def here(self) -> bool:
         """Whether the trace being built now is the program's own (not a `vmap`/`scan`/`cond`
         body or a derivative inside it, whose values cannot become the program's result)."""
         return _trace_ctx is not None and _trace_ctx.trace is self.trace
+
+    def add(self, failed, text: str) -> None:
+        """Report the traced scalar `failed` as the failure `text`."""
+        if text not in self.messages:
+            self.messages.append(text)
+        self.codes.append(jnp.where(failed, self.messages.index(text) + 1, 0).astype(jnp.int32))
 
     def code(self):
         """int32 scalar: the first non-zero code in program order, 0 when none."""
@@ -164,7 +156,7 @@ def report(x, failed, text: str):
         return x
     collector = _collector.get()
     if collector is not None and collector.here():
-        collector.codes.append(jnp.where(failed, _message_id(text), 0).astype(jnp.int32))
+        collector.add(failed, text)
         return x
     if collector is not None and collector.codes:  # in a body of the program: an earlier failed
         failed = failed & (collector.code() == 0)  # check of the program is the one reported

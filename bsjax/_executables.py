@@ -1,5 +1,11 @@
-"""Whole compiled programs of the public boundary on disk: a second process runs a public
-function's first call without tracing, lowering or compiling it.
+"""The programs of a direct call of a public function (`Program`), kept whole on disk: a
+second process runs a public function's first call without tracing, lowering or compiling it.
+
+A `Program` compiles one program per trace context and shape signature ahead of time
+(`jax.jit(...).lower(...).compile()`) and calls it through JAX's compiled fast path (the same
+per-call cost as `jax.jit`'s). Each program carries the failure messages of its value checks
+(`bsjax._checks.collecting`: code k is the program's k-th message), so a program compiled in
+another process reports its failures in the same words.
 
 JAX's persistent compilation cache (`bsjax._cache`) skips XLA's compilation in a second
 process, but JAX must still trace the Python function and lower it to find the entry (its key
@@ -141,70 +147,93 @@ def _environment(options) -> str:
     )
 
 
-def stored(jitted, fn, treedef, static, options):
-    """`jitted` (a direct call's `jax.jit` of the boundary's core on its traced leaves, for the
-    call structure `treedef` and static leaves `static`) as a `Stored` program, or `jitted`
-    itself where the store is off, the process has several devices, JAX's jit is off or re-runs
-    programs op by op (its NaN/Inf checks), or something in the call cannot be keyed by value."""
-    cfg = jax.config
-    if (
-        _directory is None
-        or jax.local_device_count() != 1
-        or cfg.jax_disable_jit
-        or cfg.jax_debug_nans
-        or cfg.jax_debug_infs  # pyright: ignore[reportAttributeAccessIssue]
-    ):
-        return jitted
-    try:
-        signature = (fn.__module__, fn.__qualname__, _tree(treedef), _spec(static), _environment(options))
-    except _Unkeyable as err:
-        _LOG.debug("%s: not stored (%s cannot be keyed)", fn.__qualname__, err)
-        return jitted
-    return Stored(jitted, repr(signature), _directory)
+class Program:
+    """The programs of one direct call structure of a public function (`bsjax._boundary`): one
+    compiled program per trace context and shape signature, with the failure messages of its
+    value checks (`bsjax._checks.collecting`), each loaded from the store or compiled (and
+    stored) on its first call.
 
+    `make_core()` returns a new function of the list of traced leaves (a new function per
+    lowering, so JAX traces it afresh and its `messages` — set while tracing — belong to that
+    lowering); `key_parts` `(fn, treedef, static)` key the store; `options` are the compiler
+    options. A call returns `(the program's result, its failure messages)`.
+    """
 
-class Stored:
-    """A direct call's program, `jitted` (a `jax.jit` of the boundary's core on the list of
-    traced leaves) compiled once per shape signature, each loaded from or saved to disk."""
-
-    def __init__(self, jitted, signature: str, directory: Path):
-        self.jitted, self._signature, self._directory = jitted, signature, directory
+    def __init__(self, make_core, key_parts, options):
+        self._make_core, self._key_parts, self.compiler_options = make_core, key_parts, options
         self._compiled: dict = {}
-        self._last = self._last_key = None
+        self._last = self._last_context = None
 
     def __call__(self, dynamic):
         from jax._src import config
 
+        if jax.config.jax_disable_jit:  # pyright: ignore[reportAttributeAccessIssue]  (JAX's debugging switch)
+            core = self._make_core()
+            return core(dynamic), tuple(core.messages)
         context = config.trace_context()
-        if self._last is not None and context == self._last_key:
+        if self._last is not None and context == self._last_context:
             try:
-                return self._last(dynamic)
+                return self._last[0](dynamic), self._last[1]
             except TypeError as err:  # another shape or dtype than the last call's
                 if not str(err).startswith(_MISMATCH):
                     raise
         avals = tuple(jax.typeof(x) for x in dynamic)
-        compiled = self._compiled.get((context, avals))
-        if compiled is None:
-            compiled = self._compiled[context, avals] = self._load_or_compile(dynamic, avals)
-        self._last, self._last_key = compiled, context
-        return compiled(dynamic)
+        entry = self._compiled.get((context, avals))
+        if entry is None:
+            entry = self._compiled[context, avals] = self._load_or_compile(dynamic, avals)
+        self._last, self._last_context = entry, context
+        return entry[0](dynamic), entry[1]
+
+    def lower(self, dynamic):
+        """The lowered program of a call on `dynamic` (traced afresh; `jax.stages.Lowered`)."""
+        return self._lower(dynamic)[0]
+
+    def _lower(self, dynamic):
+        core = self._make_core()
+        lowered = jax.jit(core, compiler_options=self.compiler_options).lower(dynamic)
+        return lowered, tuple(core.messages)
 
     def _cache_size(self) -> int:
         """The number of programs held (compiled or loaded), as `jax.jit`'s method of that name."""
         return len(self._compiled)
 
     def _load_or_compile(self, dynamic, avals):
+        path = self._path(avals)
+        if path is not None and (entry := _load(path)) is not None:
+            return entry
+        lowered, messages = self._lower(dynamic)
+        hits = _JAX_CACHE.hits
+        compiled = lowered.compile()
+        if path is not None and _JAX_CACHE.hits == hits:  # compiled here, not loaded from JAX's cache
+            _save(path, compiled, messages)
+        return compiled, messages
+
+    def _path(self, avals) -> Path | None:
+        """Where the program of `avals` is stored, or None where the store is off, the process
+        has several devices, JAX re-runs programs op by op (its NaN/Inf checks), or something
+        in the call cannot be keyed by value."""
         from jax._src import config
 
-        text = repr((self._signature, _spec(config.trace_context()), avals))
-        path = self._directory / (hashlib.sha256(text.encode()).hexdigest() + SUFFIX)
-        compiled = _load(path)
-        if compiled is None:
-            hits = _JAX_CACHE.hits
-            compiled = self.jitted.lower(dynamic).compile()
-            if _JAX_CACHE.hits == hits:  # compiled here, not loaded from JAX's cache (below)
-                _save(path, compiled)
-        return compiled
+        cfg = jax.config
+        if _directory is None or jax.local_device_count() != 1 or cfg.jax_debug_nans or cfg.jax_debug_infs:  # pyright: ignore[reportAttributeAccessIssue]
+            return None
+        fn, treedef, static = self._key_parts
+        try:
+            text = repr(
+                (
+                    fn.__module__,
+                    fn.__qualname__,
+                    _tree(treedef),
+                    _spec(static),
+                    _environment(self.compiler_options),
+                    _spec(config.trace_context()),
+                    avals,
+                )
+            )
+        except _Unkeyable as err:
+            _LOG.debug("%s: not stored (%s cannot be keyed)", fn.__qualname__, err)
+            return None
+        return _directory / (hashlib.sha256(text.encode()).hexdigest() + SUFFIX)
 
 
 class _JaxCacheHits(threading.local):
@@ -242,7 +271,7 @@ class _Unpickler(pickle.Unpickler):
         return eqx._module._flatten.MISSING  # pyright: ignore[reportAttributeAccessIssue]
 
 
-def _save(path: Path, compiled) -> None:
+def _save(path: Path, compiled, messages: tuple[str, ...]) -> None:
     """Write `compiled` to `path` (atomically: another process reads the whole entry or none);
     a program JAX cannot serialise is left unstored."""
     from jax.experimental import serialize_executable
@@ -250,8 +279,8 @@ def _save(path: Path, compiled) -> None:
     try:
         payload, in_tree, out_tree = serialize_executable.serialize(compiled)
         buffer = io.BytesIO()
-        _Pickler(buffer).dump((payload, in_tree, out_tree))
-    except (ValueError, NotImplementedError, TypeError, pickle.PicklingError) as err:
+        _Pickler(buffer).dump((payload, in_tree, out_tree, messages))
+    except Exception as err:  # a host callback, a constant argument, …: JAX cannot serialise it
         _LOG.debug("%s: not stored (%s)", path.name, err)
         return
     partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
@@ -264,8 +293,8 @@ def _save(path: Path, compiled) -> None:
 
 
 def _load(path: Path):
-    """The compiled program stored at `path`, or None (absent, or unreadable: then removed, and
-    the program compiled again and stored, or loaded from JAX's cache)."""
+    """`(compiled program, failure messages)` stored at `path`, or None (absent, or unreadable:
+    then removed, and the program compiled again and stored, or loaded from JAX's cache)."""
     from jax.experimental import serialize_executable
 
     try:
@@ -273,11 +302,11 @@ def _load(path: Path):
     except OSError:
         return None
     try:
-        payload, in_tree, out_tree = _Unpickler(io.BytesIO(data)).load()
+        payload, in_tree, out_tree, messages = _Unpickler(io.BytesIO(data)).load()
         compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
     except Exception as err:  # any unreadable entry is compiled again
         _LOG.debug("%s: unreadable, removed (%s)", path.name, err)
         path.unlink(missing_ok=True)
         return None
     os.utime(path)  # recently used: `bsjax._cache.trim` keeps it
-    return compiled
+    return compiled, tuple(messages)

@@ -49,15 +49,25 @@ _SCRIPT = textwrap.dedent(
     b = s.blending(12, 12)
     out = collide.contacts(b, s.ctrl, collide.Sphere([0.5, 0.5, 0.05], 0.2))
     jax.block_until_ready(out)
+    if sys.argv[1:] == ["second"]:  # other checks first: a per-process numbering would shift
+        try:
+            collide.contacts(b, s.ctrl, collide.Sphere([0.5, 0.5, 0.05], -1.0))
+        except ValueError:
+            pass
+    try:
+        collide.contacts(b, s.ctrl.at[0, 0, 0].set(float("nan")), collide.Sphere([0.5, 0.5, 0.05], 0.2))
+    except ValueError as err:
+        failure = str(err)
     stored = sorted(p.name for p in where.glob("*-exe"))
-    print(json.dumps({**counts, "dir": str(where), "hit": int(out.hit.sum()), "stored": stored}))
+    print(json.dumps({**counts, "dir": str(where), "hit": int(out.hit.sum()), "stored": stored,
+                      "failure": failure}))
     """
 )
 
 
-def _run(env) -> dict:
+def _run(env, *args) -> dict:
     done = subprocess.run(
-        [sys.executable, "-c", _SCRIPT], env=env, capture_output=True, text=True, timeout=300
+        [sys.executable, "-c", _SCRIPT, *args], env=env, capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -71,11 +81,13 @@ def test_a_second_process_loads_every_program_from_the_cache(tmp_path):
     assert first["dir"] == str(tmp_path / "cache")
     assert first["misses"] > 0 and first["hit"] > 0
     assert "contacts" in first["traced"] and len(first["stored"]) == 1
-    second = _run(env)
+    assert first["failure"].startswith("ctrl: expected finite values, got")
+    second = _run(env, "second")
     assert second["misses"] == 0, second
     assert "contacts" not in second["traced"], second  # loaded whole from the store
     assert second["hits"] == first["misses"] - 1  # the rest (setup programs) from JAX's cache
     assert second["hit"] == first["hit"] and second["stored"] == first["stored"]
+    assert second["failure"] == first["failure"]  # the stored program's own messages
 
 
 def test_cache_dir_off_and_default(monkeypatch, tmp_path):
@@ -310,7 +322,8 @@ tool = collide.Sphere(jnp.array([0.5, 0.5, 0.05]), 0.1)
 direct = collide.contacts(b, s.ctrl, tool).depth
 jitted = jax.jit(lambda c: collide.contacts(b, c, tool).depth)(s.ctrl)
 lifted = jax.grad(lambda c: collide.contacts(b, c, tool).depth.sum())(s.ctrl)
-kvs = {key[-1]: [list(kv) for kv in p._jit_info.compiler_options_kvs]  # key[-1]: top level
+kvs = {key[-1]: [list(kv) for kv in (sorted(p.compiler_options.items()) if key[-1]  # top level
+                                      else p._jit_info.compiler_options_kvs)]
        for key, p in collide.contacts._cache.items()}
 print(json.dumps({
     "options": boundary_options(),
