@@ -10,7 +10,7 @@
 `--cold`: the first call as a new notebook kernel or script meets it. Per entry, two new
 processes share an empty compilation cache (`bsjax.enable_compilation_cache`): the first pays
 tracing and compilation (`first s`), the second loads the programs the first stored (`cached
-s`); `setup s` builds the entry's inputs (other entries' first calls), `second ms` is the call
+s`: a direct call's whole program, untraced, and JAX's cache entries of the setup's programs); `setup s` builds the entry's inputs (other entries' first calls), `second ms` is the call
 once more in the first process. The budgets are on what the first call adds to the call itself
 — `compile s = first − second` ≤ 2 s, `load s = cached − second` ≤ 0.5 s — which is the whole
 first call for every entry but those whose work takes a noticeable time of its own (`vsofm.fit`:
@@ -665,7 +665,7 @@ def _child(args: list[str], cache) -> dict[str, Any]:
 
 def _added(row: dict[str, Any]) -> tuple[float, float]:
     """What the first call adds to the call itself (`second s`): in a new process with an empty
-    cache (trace, compile) and with the first process's cache (trace, lowering, loading)."""
+    cache (trace, compile) and with the first process's cache (loading the stored programs)."""
     return row["first_s"] - row["second_s"], row["cached_s"] - row["second_s"]
 
 

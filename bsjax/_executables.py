@@ -292,6 +292,16 @@ def _save(path: Path, compiled, messages: tuple[str, ...]) -> None:
         partial.unlink(missing_ok=True)
 
 
+@functools.cache
+def _ensure_kernels() -> None:
+    """Give jaxlib's CPU LAPACK kernels their function pointers (from scipy), as lowering a
+    linear-algebra operation does: a program loaded untraced that calls one would otherwise
+    jump to a null pointer (what `jax.export` does before running a deserialised program)."""
+    from jax._src.lax import linalg
+
+    linalg.initialize_lapack()
+
+
 def _load(path: Path):
     """`(compiled program, failure messages)` stored at `path`, or None (absent, or unreadable:
     then removed, and the program compiled again and stored, or loaded from JAX's cache)."""
@@ -301,6 +311,7 @@ def _load(path: Path):
         data = path.read_bytes()
     except OSError:
         return None
+    _ensure_kernels()
     try:
         payload, in_tree, out_tree, messages = _Unpickler(io.BytesIO(data)).load()
         compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)

@@ -127,6 +127,36 @@ def test_trim_removes_the_least_recently_written_entries_beyond_the_bound(tmp_pa
     assert jax.config.jax_compilation_cache_max_size == -1  # pyright: ignore[reportAttributeAccessIssue]
 
 
+_LAPACK_SCRIPT = """
+import json, sys
+import jax
+jax.config.update("jax_enable_x64", True)
+import numpy as np
+import bsjax
+bsjax.enable_compilation_cache()
+from bsjax import sketch
+t = np.linspace(0, 1, 40)
+curves = sketch.fit_stroke(np.stack([t, np.sin(3 * t)], -1), tol=1e-3, split=False)
+print(json.dumps([np.asarray(c.ctrl).tolist() for c in curves]))
+"""
+
+
+def test_a_stored_program_calling_lapack_runs_in_a_process_that_never_lowered_one(tmp_path):
+    """`sketch.fit_stroke`'s fit solves by LAPACK (jaxlib's CPU kernels take their function
+    pointers from scipy when an operation is lowered): the second process loads the programs
+    untraced and must not jump to a null pointer (it crashed the test worker once)."""
+    env = {**os.environ, "BSJAX_CACHE_DIR": str(tmp_path)}
+    runs = []
+    for _ in range(2):
+        done = subprocess.run(
+            [sys.executable, "-c", _LAPACK_SCRIPT], env=env, capture_output=True, text=True, timeout=300
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    assert list(tmp_path.glob("*-exe"))
+    assert runs[0] == runs[1]
+
+
 @compiled
 def _checked_sqrt(x):
     x = _checks.positive(x, "x")
