@@ -52,7 +52,12 @@ import numpy as np
 SUFFIX = "-exe"
 _LOG = logging.getLogger(__name__)
 _OWNERS = ("bsjax", "builtins", "numpy", "jax", "jaxlib", "equinox", "jaxtyping", "collections")
-_MISMATCH = ("Argument types differ", "Function compiled with input pytree", "Computation compiled for")
+_MISMATCH = (
+    "Argument types differ",
+    "Function compiled with input pytree",
+    "Computation compiled for",
+    "Computation was compiled for input",  # shardings: an array on another device
+)
 _directory: Path | None = None
 
 
@@ -149,7 +154,8 @@ def _environment(options) -> str:
 
 class Program:
     """The programs of one direct call structure of a public function (`bsjax._boundary`): one
-    compiled program per trace context and shape signature, with the failure messages of its
+    compiled program per trace context, shape signature and argument placement (an array
+    committed to another device gets a program there, as under `jax.jit`), with the failure messages of its
     value checks (`bsjax._checks.collecting`), each loaded from the store or compiled (and
     stored) on its first call.
 
@@ -163,6 +169,9 @@ class Program:
         self._make_core, self._key_parts, self.compiler_options = make_core, key_parts, options
         self._compiled: dict = {}
         self._last = self._last_context = None
+        # one device: the last call's program takes the call whenever its shapes fit (a compiled
+        # program would move an uncommitted array to its own device: with several, look up each)
+        self._fast = jax.device_count() == 1
 
     def __call__(self, dynamic):
         from jax._src import config
@@ -171,13 +180,13 @@ class Program:
             core = self._make_core()
             return core(dynamic), tuple(core.messages)
         context = config.trace_context()
-        if self._last is not None and context == self._last_context:
+        if self._fast and self._last is not None and context == self._last_context:
             try:
                 return self._last[0](dynamic), self._last[1]
-            except TypeError as err:  # another shape or dtype than the last call's
+            except (TypeError, ValueError) as err:  # another shape, dtype or device than the last call's
                 if not str(err).startswith(_MISMATCH):
                     raise
-        avals = tuple(jax.typeof(x) for x in dynamic)
+        avals = tuple((jax.typeof(x), x.sharding if isinstance(x, jax.Array) else None) for x in dynamic)
         entry = self._compiled.get((context, avals))
         if entry is None:
             entry = self._compiled[context, avals] = self._load_or_compile(dynamic, avals)

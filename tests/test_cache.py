@@ -491,3 +491,36 @@ def test_an_unreadable_entry_is_removed_and_the_program_compiled_again(store):
     forget()
     np.testing.assert_array_equal(_scaled(x, 2, by=1.0), 2 * np.arange(3.0))
     assert _TRACED == [2, 2, 2]  # the new entry loads
+
+
+_DEVICES_SCRIPT = """
+import json
+import jax
+jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp
+from bsjax import shapes
+s = shapes.plate(4, 4)
+b = s.blending(6, 6)
+here = b.points(s.ctrl)
+there = b.points(jax.device_put(s.ctrl, jax.devices()[1]))
+again = b.points(s.ctrl)
+print(json.dumps({
+    "devices": [sorted(d.id for d in x.devices()) for x in (here, there, again)],
+    "same": bool(jnp.array_equal(here, jax.device_put(there, jax.devices()[0]))),
+}))
+"""
+
+
+def test_a_direct_call_runs_where_its_arrays_are_committed():
+    """As under `jax.jit`: an argument committed to another device gets a program there (the
+    programs of a direct call are compiled per placement, not only per shape)."""
+    env = {
+        **os.environ,
+        "XLA_FLAGS": os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2",
+    }
+    done = subprocess.run(
+        [sys.executable, "-c", _DEVICES_SCRIPT], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out == {"devices": [[0], [1], [0]], "same": True}
