@@ -14,9 +14,12 @@ The rule for what is static and what is traced (the same for every public functi
   A new static value compiles once more. Arguments named in `static=` stay static even when
   they are floats (tolerances used in Python control flow).
 
-Value checks inside (`bsjax._checks`) use `eqx.error_if`; when such a check fails in a direct
-call, the error is re-raised here as a `ValueError` carrying the check's message, the same
-message the caller sees inside their own `jit` (as a `JaxRuntimeError`). JAX logs every failed
+A direct call runs through an `_executables.Program`: its programs compiled ahead of time, one
+per shape signature (and kept whole on disk when the compilation cache is on), called through
+JAX's compiled fast path. Value checks inside (`bsjax._checks`) become the program's failure
+code there (`_checks.collecting`: an int32 beside the result, whose messages the program
+carries), raised here as a `ValueError` with the check's message — the same message the caller
+sees inside their own `jit`, where the checks are `eqx.error_if`s (as a `JaxRuntimeError`). JAX logs every failed
 host callback with its traceback; the records of bsjax's own checks (message `name: expected …,
 got …`) are dropped from that log, since the error itself reaches the caller.
 
@@ -28,7 +31,7 @@ check raises its `ValueError` at the call rather than wherever the result is fir
 
 This is `eqx.filter_jit`'s idea with less work per call (equinox's bound methods alone cost
 ~30 µs per attribute access on this machine): `compiled` works on free functions and on methods
-of `eqx.Module`s alike. `clear_caches()` drops every compiled entry point.
+of `eqx.Module`s alike. `clear_caches()` drops every compiled entry point (not the disk's).
 """
 
 from __future__ import annotations

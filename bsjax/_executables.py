@@ -287,8 +287,9 @@ def _save(path: Path, compiled, messages: tuple[str, ...]) -> None:
 
     try:
         payload, in_tree, out_tree = serialize_executable.serialize(compiled)
+        lapack = b"lapack_" in payload  # a custom call of jaxlib's LAPACK kernels (by name)
         buffer = io.BytesIO()
-        _Pickler(buffer).dump((payload, in_tree, out_tree, messages))
+        _Pickler(buffer).dump((payload, in_tree, out_tree, messages, lapack))
     except Exception as err:  # a host callback, a constant argument, …: JAX cannot serialise it
         _LOG.debug("%s: not stored (%s)", path.name, err)
         return
@@ -305,7 +306,8 @@ def _save(path: Path, compiled, messages: tuple[str, ...]) -> None:
 def _ensure_kernels() -> None:
     """Give jaxlib's CPU LAPACK kernels their function pointers (from scipy), as lowering a
     linear-algebra operation does: a program loaded untraced that calls one would otherwise
-    jump to a null pointer (what `jax.export` does before running a deserialised program)."""
+    jump to a null pointer (what `jax.export` does before running a deserialised program).
+    Only for the programs that call one (each entry says so): it imports scipy's LAPACK, 0.08 s."""
     from jax._src.lax import linalg
 
     linalg.initialize_lapack()
@@ -320,9 +322,10 @@ def _load(path: Path):
         data = path.read_bytes()
     except OSError:
         return None
-    _ensure_kernels()
     try:
-        payload, in_tree, out_tree, messages = _Unpickler(io.BytesIO(data)).load()
+        payload, in_tree, out_tree, messages, lapack = _Unpickler(io.BytesIO(data)).load()
+        if lapack:  # the program calls jaxlib's LAPACK kernels
+            _ensure_kernels()
         compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
     except Exception as err:  # any unreadable entry is compiled again
         _LOG.debug("%s: unreadable, removed (%s)", path.name, err)
