@@ -19,9 +19,10 @@ per shape signature (and kept whole on disk when the compilation cache is on), c
 JAX's compiled fast path. Value checks inside (`bsjax._checks`) become the program's failure
 code there (`_checks.collecting`: an int32 beside the result, whose messages the program
 carries), raised here as a `ValueError` with the check's message — the same message the caller
-sees inside their own `jit`, where the checks are `eqx.error_if`s (as a `JaxRuntimeError`). JAX logs every failed
-host callback with its traceback; the records of bsjax's own checks (message `name: expected …,
-got …`) are dropped from that log, since the error itself reaches the caller.
+sees inside their own `jit`, where the checks are `eqx.error_if`s (as a `JaxRuntimeError`).
+JAX logs every failed host callback with its traceback; the records of bsjax's own checks
+(message `name: expected …, got …`) are dropped from that log, since the error itself reaches
+the caller.
 
 Every compiled function is traced with `jax.default_matmul_precision("highest")` (`precise`):
 on GPUs JAX's default lets float32 products run in TF32 (10-bit mantissa), which puts errors of
