@@ -199,9 +199,8 @@ class _Compiled:
         if jitted is None:
             make_core = functools.partial(self._core, treedef, mask, static, functional)
             if top_level:  # compiler options for a program of its own (not one inlined in a jit)
-                jitted = _executables.Program(
-                    make_core, (self._fn, treedef, (mask, static, functional)), _xla.boundary_options()
-                )
+                key_parts = (self._fn, treedef, (mask, tuple(map(_unwrap, static)), functional))
+                jitted = _executables.Program(make_core, key_parts, _xla.boundary_options())
             else:
                 jitted = jax.jit(make_core())
             self._cache[key] = jitted

@@ -91,8 +91,6 @@ def _spec(value) -> str:
         return f"function:{_owned(value)}"
     if isinstance(value, functools.partial):
         return f"partial({_spec(value.func)},{_spec(value.args)},{_spec(value.keywords)})"
-    if hasattr(value, "value") and type(value).__name__ == "_Static":  # bsjax._boundary's marker
-        return f"static({_spec(value.value)})"
     if value is eqx._module._flatten.MISSING:  # pyright: ignore[reportAttributeAccessIssue]
         return "MISSING"
     if type(value).__name__ == "AxisEnv" and not value.axis_sizes:  # the empty axis environment
@@ -130,8 +128,6 @@ def _source_digest() -> str:
 
 
 def _environment(options) -> str:
-    from jax._src import config
-
     device = jax.devices()[0]
     return repr(
         (
@@ -147,7 +143,6 @@ def _environment(options) -> str:
             os.environ.get("XLA_FLAGS", ""),
             os.environ.get("EQX_ON_ERROR", ""),
             sorted((options or {}).items()),
-            _spec(config.trace_context()),
         )
     )
 
@@ -155,14 +150,15 @@ def _environment(options) -> str:
 class Program:
     """The programs of one direct call structure of a public function (`bsjax._boundary`): one
     compiled program per trace context, shape signature and argument placement (an array
-    committed to another device gets a program there, as under `jax.jit`), with the failure messages of its
-    value checks (`bsjax._checks.collecting`), each loaded from the store or compiled (and
-    stored) on its first call.
+    committed to another device gets a program there, as under `jax.jit`), with the failure
+    messages of its value checks (`bsjax._checks.collecting`), each loaded from the store or
+    compiled (and stored) on its first call.
 
     `make_core()` returns a new function of the list of traced leaves (a new function per
     lowering, so JAX traces it afresh and its `messages` — set while tracing — belong to that
-    lowering); `key_parts` `(fn, treedef, static)` key the store; `options` are the compiler
-    options. A call returns `(the program's result, its failure messages)`.
+    lowering); `key_parts` `(fn, treedef, static)` key the store (static leaves unwrapped);
+    `options` are the compiler options. A call returns `(the program's result, its failure
+    messages)`.
     """
 
     def __init__(self, make_core, key_parts, options):
@@ -226,23 +222,25 @@ class Program:
         cfg = jax.config
         if _directory is None or jax.local_device_count() != 1 or cfg.jax_debug_nans or cfg.jax_debug_infs:  # pyright: ignore[reportAttributeAccessIssue]
             return None
+        if self._signature is None:
+            return None
+        try:
+            text = repr((self._signature, _spec(config.trace_context()), avals))
+        except _Unkeyable:  # a trace context of another kind than JAX's own (not at the top level)
+            return None
+        return _directory / (hashlib.sha256(text.encode()).hexdigest() + SUFFIX)
+
+    @functools.cached_property
+    def _signature(self) -> str | None:
+        """The part of the store's key fixed by the call structure (module docstring), or None
+        when something in it cannot be keyed by value."""
         fn, treedef, static = self._key_parts
         try:
-            text = repr(
-                (
-                    fn.__module__,
-                    fn.__qualname__,
-                    _tree(treedef),
-                    _spec(static),
-                    _environment(self.compiler_options),
-                    _spec(config.trace_context()),
-                    avals,
-                )
-            )
+            parts = (fn.__module__, fn.__qualname__, _tree(treedef), _spec(static))
         except _Unkeyable as err:
             _LOG.debug("%s: not stored (%s cannot be keyed)", fn.__qualname__, err)
             return None
-        return _directory / (hashlib.sha256(text.encode()).hexdigest() + SUFFIX)
+        return repr((*parts, _environment(self.compiler_options)))
 
 
 class _JaxCacheHits(threading.local):
