@@ -462,7 +462,7 @@ def _(q):
 def _(q):
     lat, st, dt = hex_model(q)
     tool = collide.Sphere(jnp.array([0.025, 0.025, 0.06]), 0.02)
-    contact = mss.Contact(1e3, 1.0)
+    contact = mss.Penalty(1e3, 1.0)
     plastic = mss.Plasticity(0.01)
     n = q.steps
 

@@ -150,7 +150,7 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
 
     from bsjax.collide import Ellipsoid, Plane, Point, Sphere, contacts, surface_contacts
-    from bsjax.collide.hierarchy import tessellate
+    from bsjax.collide._hierarchy import grid_mesh
 
     dtype = np.float64 if args.x64 else np.float32
     print(
@@ -192,7 +192,7 @@ def main(argv=None) -> int:
         med, p99 = timeit(lambda: jax.block_until_ready(query(ctrl, tool)), args.calls)
         a_u, a_v = np.asarray(b.a_u[0], np.float64), np.asarray(b.a_v[0], np.float64)
         p = np.asarray(surf.ctrl, np.float64)
-        faces = np.asarray(tessellate(b.points(ctrl))[1], np.int64)
+        faces = np.asarray(grid_mesh(b.points(ctrl))[1], np.int64)
         other = fcl_tool()
 
         def fcl_rebuild():  # the surface deformed: sample it and rebuild the BVH
@@ -233,7 +233,7 @@ def main(argv=None) -> int:
         grids = []
         for bl, c in ((bl_a, ca), (bl_b, cb)):
             a_u, a_v, p = (np.asarray(x, np.float64) for x in (bl.a_u[0], bl.a_v[0], c))
-            grids.append((a_u, p, a_v, np.asarray(tessellate(bl.points(c))[1], np.int64)))
+            grids.append((a_u, p, a_v, np.asarray(grid_mesh(bl.points(c))[1], np.int64)))
 
         def fcl_meshes():  # both surfaces deformed: sample them and rebuild both BVHs
             return [

@@ -80,7 +80,7 @@ def old_tool_class(commit=None):
     commit = commit or os.environ.get("BSJAX_OLD_MESH", "026a021")
     tag = f"_old_{commit}".replace("~", "_").replace("^", "_")
     try:
-        _load(commit, "bsjax/collide/mesh_bvh.py", f"bsjax.collide.{tag}_bvh")
+        _load(commit, "bsjax/collide/_mesh_bvh.py", f"bsjax.collide.{tag}_bvh")
     except Exception:  # before the hierarchy
         pass
 
@@ -88,11 +88,11 @@ def old_tool_class(commit=None):
         # the old classes derive from today's AbstractTool, so `contacts` accepts them
         src = src.replace(
             "class AbstractTool(eqx.Module):",
-            "from bsjax.collide.tools import AbstractTool  # noqa: E402\n\n\nclass _OldAbstractTool(eqx.Module):",
+            "from bsjax.collide._tools import AbstractTool  # noqa: E402\n\n\nclass _OldAbstractTool(eqx.Module):",
         )
-        return src.replace("from bsjax.collide.mesh_bvh import", f"from bsjax.collide.{tag}_bvh import")
+        return src.replace("from bsjax.collide._mesh_bvh import", f"from bsjax.collide.{tag}_bvh import")
 
-    return _load(commit, "bsjax/collide/tools.py", f"bsjax.collide.{tag}_tools", edit).TriangleMesh
+    return _load(commit, "bsjax/collide/_tools.py", f"bsjax.collide.{tag}_tools", edit).TriangleMesh
 
 
 def main(argv=None) -> int:
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
     import trimesh
 
     from bsjax import collide
-    from bsjax.collide.hierarchy import tessellate
+    from bsjax.collide._hierarchy import grid_mesh
 
     mesh = part()
     tool = collide.TriangleMesh.from_trimesh(mesh)
@@ -135,7 +135,7 @@ def main(argv=None) -> int:
         c = jax.block_until_ready(collide.contacts(b, ctrl, tool))
         compile_s = time.perf_counter() - t0
         pts = np.asarray(c.points).reshape(-1, 3)
-        faces = np.asarray(tessellate(c.points)[1], np.int64)
+        faces = np.asarray(grid_mesh(c.points)[1], np.int64)
         a_u, a_v, p = np.asarray(b.a_u[0]), np.asarray(b.a_v[0]), np.asarray(surf.ctrl)
 
         def fcl_query():

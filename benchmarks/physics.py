@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from _timing import paired
 
-from bsjax import mss, shapes, vsofm
+from bsjax import collide, mss, shapes, vsofm
 
 THESIS_STEP_MS = {10: 0.1, 15: 0.4, 30: 3.0}  # Table 6.6, single iteration
 THESIS_VSOFM_S = {10: 2.44, 12: 3.471, 15: 7.88, 20: 28.48, 25: 76.9, 30: 213.0, 40: 958.0}  # Table 6.7
@@ -222,8 +222,8 @@ def lattice_section(sizes, calls):
 def contact_section(calls):
     print("\n== haptic case: 12³ jelly lattice + rigid sphere tool in penalty contact, float32")
     lat = mss.hex_lattice(cube(12, 0.005), material=mss.JELLY, fixed=cube(12)[..., 2] == 0)
-    tool = mss.RigidSphere(jnp.array([0.0275, 0.0275, 0.06], jnp.float32), jnp.float32(0.01))
-    contact = mss.Contact(jnp.float32(50.0), jnp.float32(0.1))
+    tool = collide.Sphere(jnp.array([0.0275, 0.0275, 0.06], jnp.float32), jnp.float32(0.01))
+    contact = mss.Penalty(jnp.float32(50.0), jnp.float32(0.1))
     dt = jnp.float32(1e-4)
     state = mss.init(lat)
     one = lambda s, t: mss.step(lat, s, dt, tools=(t,), contact=contact)  # as called

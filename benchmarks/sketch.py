@@ -35,7 +35,7 @@ from _timing import paired, timed  # noqa: E402
 from geomdl import fitting  # noqa: E402
 from scipy.interpolate import make_lsq_spline  # noqa: E402
 
-from bsjax import construct, sketch  # noqa: E402
+from bsjax import collide, construct, sketch  # noqa: E402
 from bsjax.basis import BSplineCurve, clamped_knots  # noqa: E402
 
 N, N_CTRL = 1000, 20
@@ -111,7 +111,7 @@ def bench_features(rows, calls):
         row(rows, f"{name} 1000 samples (as called)", med, p99, compile_s - med)
         row(rows, f"{name} 1000 samples (user's jax.jit)", jmed, jp99, None, jmed / med)
     camera = sketch.Camera([0.0, -5.0, 1.0], [0.0, 0.0, 0.0])
-    plane = sketch.Plane([0.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    plane = collide.Plane([0.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     xy = jnp.asarray(rng.uniform(0.2, 0.8, (N, 2)))
     as_called = lambda: sketch.unproject(xy, camera, plane).block_until_ready()
     jitted_fn = jax.jit(sketch.unproject)

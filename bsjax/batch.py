@@ -14,7 +14,7 @@ devices, the collectives and the process group are JAX's.
 - `initialize(coordinator=None, num_processes=None, process_id=None)` — `jax.distributed`
   from arguments, `BSJAX_*` environment variables or JAX's cluster auto-detection.
 - `mesh(devices=None)` — the 1-D `"batch"` mesh.
-- `report(progress, done, total)` — call a `progress(done, total)` callback from inside
+- `report_progress(progress, done, total)` — call a `progress(done, total)` callback from inside
   compiled code (the progress of long rollouts, trainings and refits).
 
 Source: issue #14 (scale-out through JAX's own runtime); the sharding model is JAX's
@@ -39,7 +39,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from bsjax import _boundary, _checks
 
-__all__ = ["gather", "initialize", "map", "mesh", "report"]
+__all__ = ["gather", "initialize", "map", "mesh", "report_progress"]
 
 AXIS = "batch"
 _CACHE_SIZE = 64
@@ -360,7 +360,7 @@ def map(  # the name users expect, as `jax.lax.map`
 
 
 # --- progress from inside compiled code ------------------------------------------------------
-def report(progress: Callable[[int, int], Any] | None, done, total: int, after: Any = None) -> None:
+def report_progress(progress: Callable[[int, int], Any] | None, done, total: int, after: Any = None) -> None:
     """Call `progress(done, total)` on the host once the computation reaches this point.
 
     For the long computations of the library (`mss.simulate`, `vsofm.fit`, `merge.refit`): when

@@ -32,6 +32,35 @@ from bsjax import _checks, _safe, sculpt
 from bsjax._boundary import compiled
 from bsjax.basis import BSplineCurve
 
+__all__ = [
+    "RULES",
+    "SYMBOLS",
+    "CharacteristicPoints",
+    "Measures",
+    "OperatorResult",
+    "PointParameters",
+    "accelerate",
+    "apply_inverse",
+    "apply_rule",
+    "bifurcation",
+    "canonical",
+    "characteristic_points",
+    "continuation",
+    "convexify",
+    "enumerate_shapes",
+    "is_closed",
+    "is_valid",
+    "measures",
+    "point_parameters",
+    "sharpen",
+    "simplify",
+    "soften",
+    "straighten",
+    "symbols",
+    "tension",
+    "tokens",
+]
+
 # --- the vocabulary ---------------------------------------------------------------------------
 SYMBOLS: tuple[str, ...] = ("0", "M+", "m+", "M-", "m-")
 """Kind codes of `CharacteristicPoints.kind`: index into this tuple (−1 marks an empty slot)."""

@@ -2,7 +2,7 @@
 
 Figures are plain `matplotlib.figure.Figure`s, not pyplot's: no backend is selected or switched
 (a notebook's inline backend, a GUI session and a headless script alike keep theirs), nothing
-is kept in pyplot's registry, and `save` writes through the figure's own canvas (no screen).
+is kept in pyplot's registry, and `save_figure` writes through the figure's own canvas (no screen).
 
 Needs the `plot` extra (`pip install 'bsjax[plot]'`); matplotlib is imported by the functions.
 """
@@ -15,6 +15,8 @@ import numpy as np
 
 from bsjax import _checks
 from bsjax._optional import require
+
+__all__ = ["draw_surface", "equal_axes", "figure", "save_figure"]
 
 
 def _grid(x, name: str, shape: tuple | None = None) -> np.ndarray:
@@ -83,7 +85,7 @@ def equal_axes(ax, xyz):
     ax.set_box_aspect((1, 1, 1))
 
 
-def save(fig, path) -> None:
+def save_figure(fig, path) -> None:
     """Write `fig` to `path` (PNG at 110 dpi, or the format of the extension) and close it.
 
     A missing folder or an extension matplotlib cannot write raises a `ValueError` naming `path`.
@@ -97,4 +99,4 @@ def save(fig, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     if fig.canvas.manager is not None:  # a pyplot figure (a caller's): released from pyplot's registry
-        require("matplotlib.pyplot", "plot", "bsjax.plot.save").close(fig)
+        require("matplotlib.pyplot", "plot", "bsjax.plot.save_figure").close(fig)

@@ -10,6 +10,8 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineSurface, clamped_knots
 
+__all__ = ["plate", "sphere", "spoon_bowl", "spoon_handle", "teardrop"]
+
 
 def _float(value, name: str) -> float:
     """A real scalar as a Python float (a clear TypeError otherwise)."""

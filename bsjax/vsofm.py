@@ -46,7 +46,9 @@ from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _linalg, _safe
 from bsjax._boundary import compiled, host_cache
-from bsjax.batch import report as report_progress
+from bsjax.batch import report_progress
+
+__all__ = ["Report", "Settings", "boundary_mask", "corner_jacobians", "fit", "report"]
 
 
 class Settings(eqx.Module):
@@ -111,7 +113,7 @@ def fit(
     - `key`: `jax.random` key for the batch draws (default `PRNGKey(0)`).
     - `settings`: `Settings`.
     - `progress`: an optional callback `progress(done, cycles)` called on the host after each
-      training cycle as the training runs (`bsjax.batch.report`, an ordered
+      training cycle as the training runs (`bsjax.batch.report_progress`, an ordered
       `jax.debug.callback`); the nodes are the same. A callable is static (the same callback
       reuses the compilation); None (the default) adds nothing to the program.
 

@@ -183,7 +183,7 @@ STRUCTURE_CASES = [
         TypeError,
         "ctrl",
     ),
-    ("tessellate shape", lambda e: collide.tessellate(jnp.zeros((5, 3))), ValueError, "points"),
+    ("tessellate shape", lambda e: collide.grid_mesh(jnp.zeros((5, 3))), ValueError, "points"),
     ("sphere_hierarchy levels", lambda e: collide.sphere_hierarchy(e.s.ctrl, -1), ValueError, "levels"),
     (
         "hex_lattice positions shape",
@@ -194,7 +194,7 @@ STRUCTURE_CASES = [
     ("hex_edges zero size", lambda e: mss.hex_edges((0, 2, 2)), ValueError, "shape"),
     ("grid_edges node_map", lambda e: mss.grid_edges(np.zeros(4, dtype=int)), ValueError, "node_map"),
     ("grid_edges float node_map", lambda e: mss.grid_edges(np.zeros((3, 3))), ValueError, "node_map"),
-    ("Contact stiffness < 0", lambda e: mss.Contact(stiffness=-1.0), ValueError, "stiffness"),
+    ("Contact stiffness < 0", lambda e: mss.Penalty(stiffness=-1.0), ValueError, "stiffness"),
     (
         "step gravity shape",
         lambda e: mss.step(e.lat, e.state, 1e-5, gravity=jnp.zeros(2)),
@@ -383,14 +383,14 @@ def test_plot_bad_input_names_the_argument(tmp_path):
         (lambda: plot.draw_surface(ax, grid, ctrl=np.zeros((3, 3, 2))), ValueError, "ctrl"),
         (lambda: plot.draw_surface(ax, grid, values=np.zeros((5, 4))), ValueError, "values"),
         (lambda: plot.draw_surface(ax, grid, values=np.zeros((4, 5)), cmap="nope"), ValueError, "cmap"),
-        (lambda: plot.save(fig, tmp_path / "no" / "such" / "f.png"), ValueError, "path"),
-        (lambda: plot.save(fig, tmp_path / "f.xyz"), ValueError, "path"),
+        (lambda: plot.save_figure(fig, tmp_path / "no" / "such" / "f.png"), ValueError, "path"),
+        (lambda: plot.save_figure(fig, tmp_path / "f.xyz"), ValueError, "path"),
     ]
     for fn, error, name in cases:
         with pytest.raises(error, match=rf"^{name}[ :]"):
             fn()
     plot.draw_surface(ax, grid + np.arange(5)[None, :, None], values=np.ones((4, 5)))
-    plot.save(fig, tmp_path / "f.png")
+    plot.save_figure(fig, tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 0
 
 

@@ -22,6 +22,7 @@ from bsjax.collide import (
     cell_triangles,
     contact_force,
     contacts,
+    grid_mesh,
     hulls_apart,
     nodal_forces,
     parametric_window,
@@ -29,10 +30,9 @@ from bsjax.collide import (
     sample_window,
     sphere_hierarchy,
     surface_contacts,
-    tessellate,
 )
-from bsjax.collide.flat import block_planes, normal_cones, resolve_flat_pairs
-from bsjax.collide.hierarchy import FlatPairs, block_order, levels_for, traverse
+from bsjax.collide._flat import block_planes, normal_cones, resolve_flat_pairs
+from bsjax.collide._hierarchy import FlatPairs, block_order, levels_for, traverse
 from tests.helpers import check_grad, raises_both, random_surface
 
 # the queries are compiled at their public boundary: the tests call them as users do
@@ -260,8 +260,8 @@ def test_surfaces_hierarchy_matches_dense_and_fcl():
         np.testing.assert_array_equal(np.asarray(hier.mask_a), np.asarray(dense.mask_a))
         np.testing.assert_array_equal(np.asarray(hier.mask_b), np.asarray(dense.mask_b))
         assert int(hier.pair_hit.sum()) > 0
-        va, fa = tessellate(ba.points(ctrl_a))
-        vb, fb = tessellate(bb.points(ctrl_b2))
+        va, fa = grid_mesh(ba.points(ctrl_a))
+        vb, fb = grid_mesh(bb.points(ctrl_b2))
         ma, mb = _fcl_masks(np.asarray(va), np.asarray(fa), np.asarray(vb), np.asarray(fb))
         np.testing.assert_array_equal(np.asarray(dense.mask_a).reshape(-1), ma)
         np.testing.assert_array_equal(np.asarray(dense.mask_b).reshape(-1), mb)
@@ -652,7 +652,7 @@ BAD_INPUTS = {
     "hierarchy NaN": (lambda p: sphere_hierarchy(p, 2), _with_nan(_GRID), "points: expected finite"),
     "hierarchy levels": (lambda p: sphere_hierarchy(p, -1), _GRID, "levels"),
     "cell triangles shape": (cell_triangles, jnp.zeros((4, 3)), "points: expected an array with 3"),
-    "tessellate NaN": (tessellate, _with_nan(_GRID), "points: expected finite"),
+    "grid_mesh NaN": (grid_mesh, _with_nan(_GRID), "points: expected finite"),
 }
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from bsjax import shapes
 from bsjax.basis import BSplineSurface, ProjectionSolver, closest_points
-from bsjax.collide import Penetration, surface_penetration, tessellate
+from bsjax.collide import Penetration, grid_mesh, surface_penetration
 from tests.helpers import raises_both, random_surface
 
 GRID = 24
@@ -73,7 +73,7 @@ def _np(x):
 def _triangle_stats(points, normals):
     """Per triangle of the tessellation of a sample grid: vertices `(F, 3, 3)`, circumradius `(F,)`,
     and the largest angle between a vertex normal and the triangle's normal `(F,)`."""
-    verts, faces = tessellate(points)
+    verts, faces = grid_mesh(points)
     tri = _np(verts)[_np(faces)]
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     la, lb, lc = (np.linalg.norm(e, axis=1) for e in (b - c, a - c, a - b))

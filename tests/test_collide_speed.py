@@ -22,16 +22,16 @@ from bsjax.collide import (
     Sphere,
     closest_point_on_triangle,
     contacts,
+    grid_mesh,
     hulls_apart,
     sample_window,
     sphere_hierarchy,
     surface_contacts,
-    tessellate,
     triangles_intersect,
 )
-from bsjax.collide.contact import points_normals
-from bsjax.collide.hierarchy import block_order, levels_for
-from bsjax.collide.triangles import candidate_pairs_intersect
+from bsjax.collide._contact import points_normals
+from bsjax.collide._hierarchy import block_order, levels_for
+from bsjax.collide._triangles import candidate_pairs_intersect
 from tests.helpers import check_grad, raises_both, random_surface
 
 
@@ -255,7 +255,7 @@ def test_bad_values_raise_eagerly_and_under_jit():
 def _nearest_reference(points, x):
     """Every triangle of the tessellated grid, the nearest to `x` by brute force (numpy):
     `(faces within 1e-12 of the smallest distance, their closest points, barycentrics, faces)`."""
-    verts, faces = (np.asarray(a) for a in tessellate(jnp.asarray(points)))
+    verts, faces = (np.asarray(a) for a in grid_mesh(jnp.asarray(points)))
     closest, bary = (np.asarray(a) for a in closest_point_on_triangle(x, jnp.asarray(verts[faces])))
     dist = np.linalg.norm(closest - x, axis=-1)
     best = np.flatnonzero(dist <= dist.min() + 1e-12)

@@ -184,7 +184,7 @@ def test_batched_candidate_test_agrees_with_the_single_pair_test():
     """The masked batch test of `surface_contacts` (`candidate_pairs_intersect`) gives exactly
     `triangles_intersect` on active pairs — touching at one vertex, along an edge, coplanar,
     zero-area — and False on inactive (padding) pairs."""
-    from bsjax.collide.triangles import candidate_pairs_intersect
+    from bsjax.collide._triangles import candidate_pairs_intersect
 
     rng = np.random.default_rng(6)
     n = 400

@@ -9,7 +9,7 @@ import pytest
 from bsjax import collide, io
 from bsjax._boundary import clear_caches
 from bsjax.basis import BSplineSurface, clamped_knots, greville
-from bsjax.collide import contact as contact_module
+from bsjax.collide import _contact as contact_module
 from tests.helpers import raises_both
 
 HOLE = (0.35, 0.65)  # the hole is HOLE × HOLE in (u, v) and in (x, y)

@@ -14,6 +14,7 @@ import numpy as np
 import optimistix as optx
 import pytest
 
+from bsjax import basis
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.examples import merge_cases as cases
@@ -37,11 +38,11 @@ def test_closest_points_plane_and_clamped_edges():
     want_uv = np.array([[0.3, 0.3], [1.0, 0.7], [0.0, 1.0], [0.5, 0.0]])
     want_d = np.array([0.5, np.hypot(0.4, 0.2), np.sqrt(0.09 + 0.25 + 0.01), 0.4])
     start = jnp.full((4, 2), 0.5)
-    proj = mg.closest_points(plate, pts, start)
+    proj = basis.closest_points(plate, pts, start)
     np.testing.assert_allclose(proj.params, want_uv, atol=1e-9)
     np.testing.assert_allclose(proj.distances, want_d, atol=1e-9)
     assert bool(jnp.all(proj.result == optx.RESULTS.successful))
-    np.testing.assert_allclose(mg.project(plate, pts, start), want_uv, atol=1e-9)
+    np.testing.assert_allclose(basis.project(plate, pts, start), want_uv, atol=1e-9)
 
 
 def test_closest_points_never_worse_than_start():
@@ -53,7 +54,7 @@ def test_closest_points_never_worse_than_start():
     uv_true = rng.uniform(0.05, 0.95, (40, 2))
     pts = ndbspline_surface(s, uv_true[:, 0], uv_true[:, 1]) + 0.02 * rng.normal(size=(40, 3))
     start = jnp.asarray(np.clip(uv_true + rng.normal(scale=0.1, size=(40, 2)), 0, 1))
-    proj = mg.closest_points(s, jnp.asarray(pts), start)
+    proj = basis.closest_points(s, jnp.asarray(pts), start)
     d_start = np.linalg.norm(ndbspline_surface(s, *np.asarray(start).T) - pts, axis=-1)
     d_got = np.linalg.norm(ndbspline_surface(s, *np.asarray(proj.params).T) - pts, axis=-1)
     np.testing.assert_allclose(proj.distances, d_got, atol=1e-12)
@@ -176,7 +177,7 @@ def test_deviation_on_a_closed_merge_is_exact():
     g = np.linspace(0, 1, 41)
     uu, vv = np.meshgrid(g, g, indexing="ij")
     pts = jnp.concatenate([q.evaluate(uu, vv).reshape(-1, 3) for q in quarters])
-    one = mg.closest_points(merged, pts, None, mg.ProjectionSolver(), None, 1)
+    one = basis.closest_points(merged, pts, None, basis.ProjectionSolver(), None, 1)
     assert float(one.distances.max()) > 1e-2  # the single start fails at the seam (the old report)
 
 
@@ -191,7 +192,7 @@ def test_closest_points_global_matches_brute_force_near_a_seam():
     on = ndbspline_surface(tube, u, v)
     radial = on * np.array([1.0, 1.0, 0.0])[None]
     pts = on + rng.uniform(-0.1, 0.1, (200, 1)) * radial / np.linalg.norm(radial, axis=-1, keepdims=True)
-    proj = mg.closest_points(merged, jnp.asarray(pts))
+    proj = basis.closest_points(merged, jnp.asarray(pts))
     brute, cell = _brute(merged, pts)
     d = np.asarray(proj.distances)
     assert np.all(d <= brute + 1e-9) and np.all(d >= brute - cell)
@@ -212,7 +213,7 @@ def test_closest_points_periodic_crosses_the_seam():
     v_true = np.array([0.4, 0.6, 0.5])
     pts = ring.evaluate(jnp.asarray(u_true), jnp.asarray(v_true))
     starts = jnp.asarray([[0.97, 0.4], [0.03, 0.6], [0.45, 0.5]])
-    proj = mg.closest_points(ring, pts, starts)
+    proj = basis.closest_points(ring, pts, starts)
     np.testing.assert_allclose(proj.distances, 0.0, atol=1e-9)
     wrapped = np.mod(np.asarray(proj.params[:, 0]) - u_true + 0.5, 1.0) - 0.5
     np.testing.assert_allclose(wrapped, 0.0, atol=1e-7)
@@ -222,7 +223,7 @@ def test_closest_points_periodic_crosses_the_seam():
     uu, vv = np.meshgrid(g, np.linspace(0, 1, 201), indexing="ij")
     dense = np.asarray(ring.evaluate(jnp.asarray(uu), jnp.asarray(vv))).reshape(-1, 3)
     brute = np.min(np.linalg.norm(dense[None] - np.asarray(far)[:, None], axis=-1), axis=1)
-    got = np.asarray(mg.closest_points(ring, far).distances)
+    got = np.asarray(basis.closest_points(ring, far).distances)
     assert np.all(got <= brute + 1e-9) and np.all(got >= brute - 0.02)
 
 
@@ -231,11 +232,11 @@ def test_projection_bad_input_eager_and_jit():
 
     plate = _plate()
     pts = jnp.asarray([[0.6, 0.3, 0.5], [np.nan, 0.0, 0.0]])
-    raises_both(lambda p: mg.closest_points(plate, p, jnp.full((2, 2), 0.5)).params, pts, match="points")
-    raises_both(lambda p: mg.project(plate, p), pts, match="points")
+    raises_both(lambda p: basis.closest_points(plate, p, jnp.full((2, 2), 0.5)).params, pts, match="points")
+    raises_both(lambda p: basis.project(plate, p), pts, match="points")
     raises_both(lambda p: mg.closest_parameters(plate, p)[1], pts, match="points")
     good = pts.at[1, 0].set(0.0)
-    raises_both(lambda uv: mg.project(plate, good, uv), jnp.asarray([[0.5, 0.5], [1.5, 0.2]]), match="uv0")
-    raises_both(lambda p: mg.closest_points(plate, p[:, :2]).params, good, match="points")
+    raises_both(lambda uv: basis.project(plate, good, uv), jnp.asarray([[0.5, 0.5], [1.5, 0.2]]), match="uv0")
+    raises_both(lambda p: basis.closest_points(plate, p[:, :2]).params, good, match="points")
     with pytest.raises(TypeError, match="solver"):
-        mg.closest_points(plate, good, None, 3)
+        basis.closest_points(plate, good, None, 3)

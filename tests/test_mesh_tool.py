@@ -13,9 +13,9 @@ import pytest
 import trimesh
 
 from bsjax import collide
-from bsjax.collide import mesh_bvh
-from bsjax.collide.tools import _winding_number
-from bsjax.collide.triangles import _closest_point_on_triangle
+from bsjax.collide import _mesh_bvh as mesh_bvh
+from bsjax.collide._tools import _winding_number
+from bsjax.collide._triangles import _closest_point_on_triangle
 from tests.helpers import check_grad, raises_both
 
 

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bsjax import mss, shapes
+from bsjax import collide, mss, shapes
 from tests.helpers import check_grad, raises_both
 
 GRAVITY = jnp.array([0.0, 0.0, -9.81])
@@ -407,9 +407,9 @@ def test_bad_simulate_inputs():
 def test_sphere_tool_and_table_contact():
     g = grid((5, 5, 2), 0.1) + np.array([-0.2, -0.2, 0.0])
     lat = mss.Lattice(g.reshape(-1, 3), mss.hex_edges((5, 5, 2)), 200.0, 1.0, 0.01, node_damping=0.05)
-    table = mss.RigidPlane(jnp.array([0.0, 0, 0]), jnp.array([0.0, 0, 1]))
-    tool = mss.RigidSphere(jnp.array([0.0, 0.0, 0.12]), 0.06)
-    contact = mss.Contact(2e3, 1.0)
+    table = collide.Plane(jnp.array([0.0, 0, 0]), jnp.array([0.0, 0, 1]))
+    tool = collide.Sphere(jnp.array([0.0, 0.0, 0.12]), 0.06)
+    contact = mss.Penalty(2e3, 1.0)
     state = mss.init(lat)
     out = simulate(lat, state, 2e-4, n_steps=5000, gravity=GRAVITY, tools=(table, tool), contact=contact)
     x = np.asarray(out.position)
@@ -508,11 +508,11 @@ def test_grad_wrt_tool_trajectory_and_initial_ctrl():
         path = (
             eqx.tree_at(
                 lambda s: (s.center, s.radius),
-                mss.RigidSphere(jnp.zeros(3), 0.05),
+                collide.Sphere(jnp.zeros(3), 0.05),
                 (centers, jnp.full((n,), 0.05)),
             ),
         )
-        out = mss.simulate(lat, mss.init(lat), 2e-3, n, tool_path=path, contact=mss.Contact(500.0))
+        out = mss.simulate(lat, mss.init(lat), 2e-3, n, tool_path=path, contact=mss.Penalty(500.0))
         return jnp.sum(out.position[:, 2])
 
     check_grad(jax.jit(pushed), jnp.array(1.0).reshape(()), eps=1e-6, rtol=1e-4, n_dirs=1)
@@ -692,7 +692,7 @@ _UNSTABLE = 1.0  # stable_dt of the two-node lattice is 2/sqrt(200) ≈ 0.14
         (lambda c: mss.simulate(_two_nodes(damping=c), _S, 1e-3, 5), (-1.0,), "damping: expected finite"),
         (
             lambda k: mss.simulate(
-                _LAT, _S, 1e-3, 5, tools=(mss.RigidSphere(jnp.zeros(3), 0.5),), contact=mss.Contact(k)
+                _LAT, _S, 1e-3, 5, tools=(collide.Sphere(jnp.zeros(3), 0.5),), contact=mss.Penalty(k)
             ),
             (-1.0,),
             "stiffness",

@@ -26,7 +26,7 @@ def _reference_tick(model, carry, inputs, sphere):
             e = model.seam.edges
             rest_seam = _safe.norm(x[e[:, 0]] - x[e[:, 1]])
     tools = (tool,) if pressing > 0 else ()
-    contact = mss.Contact(model.tool_stiffness * pressing, 0.0)
+    contact = mss.Penalty(model.tool_stiffness * pressing, 0.0)
     for _ in range(model.substeps):
         seam = mss.spring_forces(model.seam, state.position, state.velocity, rest_seam)
         state, ctrl = mss.coupled_step(

@@ -307,7 +307,7 @@ def test_bad_input_names_the_argument():
     with pytest.raises(TypeError, match=r"bodies\[1\]"):
         mss.Scene((a, "b"))
     with pytest.raises(TypeError, match="contact"):
-        mss.Scene((a,), contact=mss.Contact(1.0))
+        mss.Scene((a,), contact=mss.Penalty(1.0))
     with pytest.raises(ValueError, match="states"):
         mss.simulate_scene(scene, states[:1], 1e-4, 2)
     with pytest.raises(ValueError, match="dt"):

@@ -19,7 +19,7 @@ def test_figure_and_save_leave_the_backend_and_pyplot_alone(tmp_path):
         fig, (ax,) = plot.figure(1)
         grid = np.stack([*np.meshgrid(np.arange(4.0), np.arange(5.0), indexing="ij"), np.zeros((4, 5))], -1)
         plot.draw_surface(ax, grid, values=grid[..., 0])
-        plot.save(fig, tmp_path / "plate.png")
+        plot.save_figure(fig, tmp_path / "plate.png")
         assert matplotlib.get_backend() == "pdf"
         assert plt.get_fignums() == open_figures  # nothing left in pyplot's registry
         assert (tmp_path / "plate.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -132,7 +132,7 @@ def test_merge_refit_reports_rounds_and_the_net_is_identical():
 
 def test_report_concrete_and_traced():
     seen = Recorder()
-    batch.report(seen, 2, 5)
-    batch.report(None, 2, 5)
-    jax.block_until_ready(jax.jit(lambda x: (batch.report(seen, 3, 5, after=x), x)[1])(jnp.ones(2)))
+    batch.report_progress(seen, 2, 5)
+    batch.report_progress(None, 2, 5)
+    jax.block_until_ready(jax.jit(lambda x: (batch.report_progress(seen, 3, 5, after=x), x)[1])(jnp.ones(2)))
     assert seen.calls == [(2, 5), (3, 5)]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
-from bsjax import sketch
+from bsjax import collide, sketch
 from bsjax.basis import BSplineCurve, clamped_knots
 from tests.helpers import check_grad, raises_both
 
@@ -223,7 +223,7 @@ def test_unproject_lands_on_plane_and_camera_ray():
     eye, target, up = np.array([0.3, -5.0, 1.0]), np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.0, 1.0])
     fov, aspect = 0.8, 1.5
     camera = sketch.Camera(eye, target, up, fov, aspect)
-    plane = sketch.Plane([0.0, 0.2, 0.0], [0.1, 1.0, 0.2])
+    plane = collide.Plane([0.0, 0.2, 0.0], [0.1, 1.0, 0.2])
     xy = np.array([[0.5, 0.5], [0.1, 0.9], [0.7, 0.2]])
     x = np.asarray(sketch.unproject(xy, camera, plane))
     n = np.array([0.1, 1.0, 0.2]) / np.linalg.norm([0.1, 1.0, 0.2])
@@ -271,13 +271,13 @@ def test_bad_oversketch_and_unproject():
     with pytest.raises(TypeError, match="stroke_curve: expected a BSplineCurve"):
         sketch.oversketch(straight(), np.zeros((4, 2)))  # type: ignore[arg-type]
     camera = sketch.Camera([0.0, -5.0, 0.0], [0.0, 0.0, 0.0])
-    side = sketch.Plane([0.0, 0.0, 0.0], [1.0, 0.0, 0.0])  # contains the view direction
+    side = collide.Plane([0.0, 0.0, 0.0], [1.0, 0.0, 0.0])  # contains the view direction
     raises_both(
         lambda xy: sketch.unproject(xy, camera, side),
         np.array([[0.5, 0.5]]),
         match="window_xy: expected points",
     )
-    plane = sketch.Plane([0.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    plane = collide.Plane([0.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     raises_both(lambda xy: sketch.unproject(xy, camera, plane), np.array([[np.nan, 0.5]]), match="finite")
     with pytest.raises(ValueError, match="fov: expected an angle"):
         sketch.Camera([0.0, -5.0, 0.0], [0.0, 0.0, 0.0], fov=4.0)

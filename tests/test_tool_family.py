@@ -281,7 +281,7 @@ def one_step_push(tool, lattice, k=1e3, dt=1e-3):
     """Node displacement after one step with the tool minus one step without it (the penalty only)."""
     s0 = mss.init(lattice)
     free = mss.step(lattice, s0, dt)
-    pushed = mss.step(lattice, s0, dt, tools=(tool,), contact=mss.Contact(k))
+    pushed = mss.step(lattice, s0, dt, tools=(tool,), contact=mss.Penalty(k))
     return np.asarray(pushed.position - free.position)
 
 
@@ -301,7 +301,7 @@ def test_simulate_with_a_torus_pushes_the_tube_and_not_the_hole():
     np.testing.assert_allclose(moved, expected, atol=1e-12)
     # the issue's 3-step case: the hole moves only through the (light) springs, 1e-4 of the tube
     s0 = mss.init(lattice)
-    contact = mss.Contact(1e3)
+    contact = mss.Penalty(1e3)
     shift = np.linalg.norm(
         mss.simulate(lattice, s0, 1e-3, 3, tools=(torus,), contact=contact).position
         - mss.simulate(lattice, s0, 1e-3, 3).position,
@@ -341,8 +341,7 @@ def test_simulate_refuses_a_point_and_foreign_tools():
         mss.tool_forces((object(),), s0.position, s0.velocity, 1e3)
 
 
-def test_rigid_sphere_and_plane_are_the_collide_tools():
-    assert mss.RigidSphere is collide.Sphere and mss.RigidPlane is collide.Plane
+def test_sphere_penalty_closed_form():
     x = points(50)
     v = jnp.asarray(np.random.default_rng(3).normal(size=(50, 3)))
     f = mss.sphere_penalty(x, v, jnp.zeros(3), 0.5, 100.0, 2.0)
@@ -376,7 +375,7 @@ def test_coupled_step_on_a_volumetric_lattice_refits_the_surface_layer():
     with pytest.raises(ValueError, match="position"):
         coupling.nodes(surf.ctrl)
     tool = collide.Sphere(jnp.array([0.75, 0.0, 0.0]), 0.25)
-    contact = mss.Contact(100.0)
+    contact = mss.Penalty(100.0)
     after, ctrl = mss.coupled_step(lattice, coupling, state, 1e-3, (tool,), contact)
     ref = mss.step(lattice, state, 1e-3, tools=(tool,), contact=contact)
     np.testing.assert_allclose(after.position, ref.position, atol=1e-15)

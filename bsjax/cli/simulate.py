@@ -109,7 +109,7 @@ def _body(args) -> int:
     )
     tools = _tools(args, dtype)
     contact = (
-        mss.Contact(jnp.asarray(args.contact_stiffness, dtype), jnp.asarray(0.0, dtype)) if tools else None
+        mss.Penalty(jnp.asarray(args.contact_stiffness, dtype), jnp.asarray(0.0, dtype)) if tools else None
     )
     limit = float(mss.stable_dt(lattice, args.contact_stiffness if tools else 0.0))
     dt = args.dt if args.dt is not None else (0.5 * limit if args.method == "semi_implicit" else 1e-3)

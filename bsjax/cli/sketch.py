@@ -170,7 +170,7 @@ def picture(surface, curves, path: str, samples) -> None:
         pts = np.asarray(curve.evaluate(np.linspace(0.0, 1.0, 200)))
         pts = np.pad(pts, ((0, 0), (0, 3 - pts.shape[1])))
         ax.plot(pts[:, 0], pts[:, 1], pts[:, 2], color="#2c3e50", linewidth=1.5)
-    plot.save(fig, path)
+    plot.save_figure(fig, path)
 
 
 def _body(args) -> int:

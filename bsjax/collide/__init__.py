@@ -5,38 +5,38 @@
   `surface_contacts(blending_a, ctrl_a, blending_b, ctrl_b)` → `SurfaceContact`;
   `surface_penetration(blending_a, ctrl_a, blending_b, ctrl_b, reach=…)` → a `Penetration` per
   side (per-sample closest-point depth and contact normal).
-- Kernels: `triangles_intersect`, `closest_point_on_triangle`, `hulls_apart`, `tessellate`.
+- Kernels: `triangles_intersect`, `closest_point_on_triangle`, `hulls_apart`, `grid_mesh`.
 - Forces: the contact model `DistributedSprings` (Gao & Gibson eq. 3.3: per-sample springs, equal
   and opposite pairs); `contact_force`, `sample_forces`, `nodal_forces`.
 """
 
-from bsjax.collide.broad import hulls_apart, parametric_window
-from bsjax.collide.contact import Contact, SurfaceContact, contacts, sample_window, surface_contacts
-from bsjax.collide.force import DistributedSprings, contact_force, nodal_forces, sample_forces
-from bsjax.collide.hierarchy import cell_triangles, sphere_hierarchy, tessellate
-from bsjax.collide.penetration import Penetration, surface_penetration
-from bsjax.collide.tools import (
+from bsjax.collide._broad import hulls_apart, parametric_window
+from bsjax.collide._contact import Contact, SurfaceContact, contacts, sample_window, surface_contacts
+from bsjax.collide._force import DistributedSprings, contact_force, nodal_forces, sample_forces
+from bsjax.collide._hierarchy import cell_triangles, grid_mesh, sphere_hierarchy
+from bsjax.collide._mesh_bvh import FaceTree
+from bsjax.collide._penetration import Penetration, surface_penetration
+from bsjax.collide._tools import (
     AbstractTool,
     Ellipsoid,
     Implicit,
     Plane,
     Point,
-    ProjectionSolver,
     Sphere,
     TriangleMesh,
 )
-from bsjax.collide.triangles import closest_point_on_triangle, triangles_intersect
+from bsjax.collide._triangles import closest_point_on_triangle, triangles_intersect
 
 __all__ = [
     "AbstractTool",
     "Contact",
     "DistributedSprings",
     "Ellipsoid",
+    "FaceTree",
     "Implicit",
     "Penetration",
     "Plane",
     "Point",
-    "ProjectionSolver",
     "Sphere",
     "SurfaceContact",
     "TriangleMesh",
@@ -44,6 +44,7 @@ __all__ = [
     "closest_point_on_triangle",
     "contact_force",
     "contacts",
+    "grid_mesh",
     "hulls_apart",
     "nodal_forces",
     "parametric_window",
@@ -52,6 +53,5 @@ __all__ = [
     "sphere_hierarchy",
     "surface_contacts",
     "surface_penetration",
-    "tessellate",
     "triangles_intersect",
 ]

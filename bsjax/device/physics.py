@@ -342,7 +342,7 @@ class SculptModel(AbstractHapticModel):
         centre, axes, rot = inputs[0:3], inputs[3:6], inputs[6:15].reshape(3, 3)
         pressing, settle, count = inputs[15], inputs[16] > 0, inputs[17].astype(jnp.int32)
         tool = self._tool(centre, axes, rot, sphere)
-        contact = mss.Contact(self.tool_stiffness * pressing, jnp.zeros((), self.dtype))
+        contact = mss.Penalty(self.tool_stiffness * pressing, jnp.zeros((), self.dtype))
         carry = self._settled(carry, settle)
 
         # The tool pushes with `tool_stiffness × pressing`: zero while the button is up (its

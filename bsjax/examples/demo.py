@@ -96,7 +96,7 @@ def shapes_step(out: Path, report: dict) -> dict:
         print(
             f"  {name:<13} net {surface.shape}  points {1e6 * steady:7.1f} µs  refit error {refit_error:.1e}"
         )
-    plot.save(fig, out / "shapes.png")
+    plot.save_figure(fig, out / "shapes.png")
     io.save(list(named.values()), out / "shapes.3dm")
     io.save(list(named.values()), out / "shapes.glb")
     report["shapes"] = rows
@@ -244,7 +244,7 @@ def pictures_step(out: Path, bent, placed, merged, dev, study, finals):
     plot.equal_axes(ax, np.concatenate([bowl.reshape(-1, 3), *finals.values()]))
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title("jelly after each tilt (spoon frame)", fontsize=9)
-    plot.save(fig, out / "spoon.png")
+    plot.save_figure(fig, out / "spoon.png")
 
 
 def _finite_or_none(value):

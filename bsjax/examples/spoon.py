@@ -71,7 +71,7 @@ def bend_handle(
     path = jax.vmap(collide.Sphere)(  # the rising ball, one tool per step
         start[None] + lift * jnp.array([0.0, 0.0, push], dtype=dtype)[None], jnp.full((steps,), 0.006, dtype)
     )
-    plastic, state = _push(lattice, coupling, path, dt, mss.Contact(5e3, 1.0), mss.Plasticity(yield_strain))
+    plastic, state = _push(lattice, coupling, path, dt, mss.Penalty(5e3, 1.0), mss.Plasticity(yield_strain))
     rest, taken, converged = mss.relax(
         plastic,
         mss.State(state.position, jnp.zeros_like(state.velocity)),

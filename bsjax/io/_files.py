@@ -165,7 +165,7 @@ def _json_type(value) -> str:
 
 # --- meshes -------------------------------------------------------------------------------
 def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82, mask=None):
-    """Triangle mesh of the `m × n` sample grid as a `trimesh.Trimesh`: `collide.tessellate`'s
+    """Triangle mesh of the `m × n` sample grid as a `trimesh.Trimesh`: `collide.grid_mesh`'s
     triangulation (two triangles per cell, split along the shorter diagonal).
 
     **Arguments:** `surface`; `m`, `n` (ints ≥ 2): the uniform sample grid; `mask (m, n)`:
@@ -181,7 +181,7 @@ def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82, mask=None):
     if not isinstance(surface, BSplineSurface):
         _checks.fail("surface", "a BSplineSurface", type(surface).__name__)
     m, n = _checks.check_count(m, "m", 2), _checks.check_count(n, "n", 2)
-    vertices, faces = collide.tessellate(surface.blending(m, n).points(surface.ctrl))  # the one triangulation
+    vertices, faces = collide.grid_mesh(surface.blending(m, n).points(surface.ctrl))  # the one triangulation
     points, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
     if mask is not None:
         faces = faces[np.all(_grid_mask(mask, m, n).reshape(-1)[faces], axis=1)]

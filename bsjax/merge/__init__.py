@@ -16,7 +16,7 @@ seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made unif
 * `merge_knots`, `average_knots`, `cross_knots`, `common_degree`, `merged_knots`: the knot and
   degree rules (the merged basis without building matrices).
 * `deviation(originals, merged)` → `Deviation` (mean, median, std, max, close points) by
-  closest-point projection (`closest_points`: batched Gauss–Newton); `plot_deviation`
+  closest-point projection (`basis.closest_points`: batched Gauss–Newton); `plot_deviation`
   draws the heat map.
 * `refit(layout, ctrls, RefitSolver())` → `RefitSolution` (net, corrected parameters, RMS
   history, status): nonlinear refit with parameter correction (beyond the thesis);
@@ -58,23 +58,16 @@ from bsjax.merge._orient import orient_surface as orient_surface
 from bsjax.merge._overlap import contact_masks as contact_masks
 from bsjax.merge._overlap import grid_overlap_windows as grid_overlap_windows
 from bsjax.merge._overlap import overlap_trims as overlap_trims
-from bsjax.merge._project import Projection as Projection
-from bsjax.merge._project import ProjectionSolver as ProjectionSolver
-from bsjax.merge._project import closest_points as closest_points
-from bsjax.merge._project import project as project
 
 __all__ = [
     "Deviation",
     "MergeLayout",
-    "Projection",
-    "ProjectionSolver",
     "RefitSolution",
     "RefitSolver",
     "average_knots",
     "cache_info",
     "clear_cache",
     "closest_parameters",
-    "closest_points",
     "combine_knots",
     "common_degree",
     "contact_masks",
@@ -93,7 +86,6 @@ __all__ = [
     "plan",
     "plan_grid",
     "plot_deviation",
-    "project",
     "refine",
     "refit",
 ]

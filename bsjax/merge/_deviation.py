@@ -16,8 +16,7 @@ from jaxtyping import Array, Float, Int
 from bsjax import _checks
 from bsjax._boundary import compiled
 from bsjax._optional import require
-from bsjax.basis import BSplineSurface
-from bsjax.merge._project import ProjectionSolver, closest_points
+from bsjax.basis import BSplineSurface, ProjectionSolver, closest_points
 
 
 @compiled

@@ -38,8 +38,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, batch
 from bsjax._boundary import compiled
-from bsjax.basis import BSplineSurface, closest_points
-from bsjax.merge._project import ProjectionSolver
+from bsjax.basis import BSplineSurface, ProjectionSolver, closest_points
 
 
 class RefitSolver(eqx.Module):
@@ -179,7 +178,7 @@ def _refit(
         with _checks.trusted():
             proj = closest_points(current, points, uv, projection)
         ctrl, d = fit_scattered(current, proj.params, points)
-        batch.report(progress, i + 1, rounds, after=ctrl)
+        batch.report_progress(progress, i + 1, rounds, after=ctrl)
         return ctrl, proj.params, hist.at[i + 1].set(_rms(d)), i + 1, proj.result
 
     carry = (surface.ctrl, uv0, history, jnp.asarray(0), status0)
@@ -201,7 +200,7 @@ def refit(
     - `ctrls`: the input control nets, as for `layout.apply` (finite).
     - `solver`: a `RefitSolver` (rounds ≥ 1, tolerance `rtol` ≥ 0, projection settings).
     - `progress`: an optional callback `progress(done, solver.rounds)` called on the host after
-      each round as the refit runs (`bsjax.batch.report`, an ordered `jax.debug.callback`; a
+      each round as the refit runs (`bsjax.batch.report_progress`, an ordered `jax.debug.callback`; a
       refit that settles early stops reporting before `solver.rounds`); the result is the same.
       A callable is static (the same callback reuses the compilation); None adds nothing.
 

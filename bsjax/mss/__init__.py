@@ -4,7 +4,7 @@ integrators, surface coupling.
 
 Pure functions over pytrees: `init(lattice) -> State`, `step(lattice, state, dt, …) -> State`,
 `simulate(lattice, state, dt, n_steps, …) -> State` (a `lax.scan`). Rigid tools are the solid
-`bsjax.collide` tools (`RigidSphere`/`RigidPlane` are `collide.Sphere`/`collide.Plane`);
+`bsjax.collide` tools (`collide.Sphere`, `collide.Plane`, …);
 `coupled_step` is the chain surface → contacts → forces → step → refit.
 """
 
@@ -15,8 +15,6 @@ from bsjax.mss._coupling import (
     surface_lattice,
 )
 from bsjax.mss._forces import (
-    RigidPlane,
-    RigidSphere,
     behind_plane,
     contact_tangent,
     edge_lengths,
@@ -28,7 +26,7 @@ from bsjax.mss._forces import (
     tool_forces,
 )
 from bsjax.mss._integrators import (
-    Contact,
+    Penalty,
     Plasticity,
     check_dt,
     energy,
@@ -78,12 +76,10 @@ __all__ = [
     "PRESETS",
     "STEEL",
     "Body",
-    "Contact",
     "Lattice",
     "Material",
+    "Penalty",
     "Plasticity",
-    "RigidPlane",
-    "RigidSphere",
     "Scene",
     "State",
     "SurfaceCoupling",

@@ -20,7 +20,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from bsjax import _checks
 from bsjax._boundary import compiled
 from bsjax.basis import Blending
-from bsjax.mss._integrators import Contact, _check_method, implicit_step, step
+from bsjax.mss._integrators import Penalty, _check_method, implicit_step, step
 from bsjax.mss._lattice import Lattice, State, from_material, grid_edges, merge_coincident
 from bsjax.mss._materials import Material
 from bsjax.mss._rollout import trajectory
@@ -229,7 +229,7 @@ def coupled_step(
     state: State,
     dt: Float[ArrayLike, ""],
     tools=(),
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     external_force: Float[ArrayLike, "N 3"] | None = None,
     gravity: Float[ArrayLike, " 3"] | None = None,
     rest_length: Float[ArrayLike, " E"] | None = None,
@@ -244,7 +244,7 @@ def coupled_step(
     2. Contacts: every `bsjax.collide` tool in `tools` (`Sphere`, `Ellipsoid`, `Plane`,
        `Implicit`, `TriangleMesh`) reports each node's penetration depth `δ` and outward normal
        `n` by its `push` (`mss.tool_contacts`).
-    3. Forces: penalty `k δ n − c min(v·n, 0) n` (`mss.tool_forces`, `contact = Contact(k, c)`),
+    3. Forces: penalty `k δ n − c min(v·n, 0) n` (`mss.tool_forces`, `contact = Penalty(k, c)`),
        plus springs, node damping, `external_force (N, 3)` and `gravity (3,)`.
     4. Step: semi-implicit Euler (`mss.step`, thesis eqs. 5.14–5.16; `dt` at most
        `stable_dt(lattice, k)` unless `check_stability=False`) or, with `method="implicit"`,

@@ -246,11 +246,6 @@ def _penalty(depth, n, v, stiffness, damping):
     return mag[..., None] * n
 
 
-# The rigid tools of the mass-spring system are the collide tools (same constructor arguments).
-RigidSphere = collide.Sphere
-RigidPlane = collide.Plane
-
-
 @compiled
 def behind_plane(positions: Float[Array, "N 3"], point, normal) -> Array:
     """Boolean mask of nodes on the solid side of a plane (`(x − p)·n ≤ 0`) — e.g. the nodes a

@@ -34,7 +34,7 @@ def _check_method(method, lattice: Lattice | None = None) -> None:
         )
 
 
-class Contact(eqx.Module):
+class Penalty(eqx.Module):
     """Penalty contact settings: `stiffness` in N/m per unit depth, `damping` in N·s/m (both ≥ 0)."""
 
     stiffness: Float[Array, ""]
@@ -106,7 +106,7 @@ def _net_force(lattice, state, external_force=None, gravity=None, tools=(), cont
     if gravity is not None:
         f = f + lattice.mass[:, None] * jnp.asarray(gravity, dtype=x.dtype)[None]
     if tools:
-        c = Contact() if contact is None else contact
+        c = Penalty() if contact is None else contact
         f = f + tool_forces(tools, x, v, c.stiffness.astype(x.dtype), c.damping.astype(x.dtype))
     return f
 
@@ -118,12 +118,12 @@ def forces(
     external_force: Float[ArrayLike, "N 3"] | None = None,
     gravity: Float[ArrayLike, " 3"] | None = None,
     tools=(),
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     rest_length: Float[ArrayLike, " E"] | None = None,
 ) -> Float[Array, "N 3"]:
     """Net force on every node in N, `(N, 3)`: `f − D_i ẋ − g` of thesis eq. 5.12 (springs,
     Voigt dampers, ground damping), plus the weight `ρ_i g`, `external_force (N, 3)` and the
-    penalty contact of `tools` (`contact`: `Contact`, default `Contact()`)."""
+    penalty contact of `tools` (`contact`: `Penalty`, default `Penalty()`)."""
     state, external_force, gravity = _checked_inputs(lattice, state, external_force, gravity)
     tools = tuple(tools)
     return _net_force(lattice, state, external_force, gravity, tools, contact, rest_length)
@@ -267,7 +267,7 @@ def check_dt(lattice: Lattice, dt: Float[ArrayLike, ""], contact_stiffness: Floa
 
 
 def _contact_stiffness(tools, contact) -> Array | float:
-    return (Contact() if contact is None else contact).stiffness if tools else 0.0
+    return (Penalty() if contact is None else contact).stiffness if tools else 0.0
 
 
 # --- steps --------------------------------------------------------------------------------------------
@@ -308,7 +308,7 @@ def step(
     external_force: Float[ArrayLike, "N 3"] | None = None,
     gravity: Float[ArrayLike, " 3"] | None = None,
     tools=(),
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     rest_length: Float[ArrayLike, " E"] | None = None,
     *,
     check_stability: bool = True,
@@ -366,7 +366,7 @@ def _implicit(
     h = jnp.asarray(dt, dtype=state.position.dtype)
     x, v = state.position, state.velocity
     rest = lattice.rest_length if rest_length is None else rest_length
-    contact = Contact() if (tools and contact is None) else contact
+    contact = Penalty() if (tools and contact is None) else contact
     free = ~lattice.fixed[:, None]
     pair = _tangent_pair(h)
     cdiag = contact_tangent(tools, x, contact.stiffness.astype(x.dtype)) if tools else None
@@ -406,7 +406,7 @@ def implicit_step(
     external_force: Float[ArrayLike, "N 3"] | None = None,
     gravity: Float[ArrayLike, " 3"] | None = None,
     tools=(),
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     rest_length: Float[ArrayLike, " E"] | None = None,
     cg_iterations: int = 20,
 ) -> State:

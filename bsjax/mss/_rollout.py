@@ -19,7 +19,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from bsjax import _checks, _safe, batch
 from bsjax._boundary import compiled
 from bsjax.mss._integrators import (
-    Contact,
+    Penalty,
     Plasticity,
     _check_method,
     _checked_dt,
@@ -83,7 +83,7 @@ def _prepare(lattice, state, dt, method, cg_iterations, tools, contact, check_st
     _check_method(method, lattice)
     _checks.check_count(cg_iterations, "cg_iterations")
     state = _checked_inputs(lattice, state)[0]
-    contact = Contact() if (tools and contact is None) else contact
+    contact = Penalty() if (tools and contact is None) else contact
     k_c = contact.stiffness if contact is not None else 0.0
     if method != "semi_implicit":
         return state, _checked_implicit_dt(lattice, dt, k_c), contact
@@ -186,14 +186,14 @@ def _scan(body, carry, xs, n_steps, checkpoint_every, progress=None):
     def chunk(carry, item):
         k, xs_chunk = item
         carry = steps(carry, xs_chunk)
-        batch.report(progress, (k + 1) * c, n_steps, after=carry[0].position)
+        batch.report_progress(progress, (k + 1) * c, n_steps, after=carry[0].position)
         return carry, None
 
     carry = jax.lax.scan(chunk, carry, (jnp.arange(n_outer), head), length=n_outer)[0]
     if not rem:
         return carry
     carry = jax.lax.scan(body, carry, tail, length=rem)[0]
-    batch.report(progress, n_steps, n_steps, after=carry[0].position)
+    batch.report_progress(progress, n_steps, n_steps, after=carry[0].position)
     return carry
 
 
@@ -212,7 +212,7 @@ def _scan_saving(body, carry, xs, n_steps, save_every, progress=None):
     def reporting(carry, item):
         i, xs_chunk = item
         carry = jax.lax.scan(body, carry, xs_chunk, length=save_every)[0]
-        batch.report(progress, (i + 1) * save_every, n_steps, after=carry[0].position)
+        batch.report_progress(progress, (i + 1) * save_every, n_steps, after=carry[0].position)
         return carry, carry[0]
 
     return jax.lax.scan(reporting, carry, (jnp.arange(k), chunked), length=k)
@@ -229,7 +229,7 @@ def simulate(
     *,
     tools=(),
     tool_path=None,
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     method: str = "semi_implicit",
     cg_iterations: int = 20,
     checkpoint_every: int | None = None,
@@ -252,14 +252,14 @@ def simulate(
     - `n_steps`: number of steps, an int ≥ 1.
     - `external_force`: `(N, 3)` constant, or `(n_steps, N, 3)` one per step (N).
     - `gravity`: `(3,)` acceleration (m/s²), e.g. `(0, 0, -9.81)`.
-    - `tools`: rigid tools (the `bsjax.collide` solids, `mss.RigidSphere`/`RigidPlane`) in penalty
+    - `tools`: rigid tools (the solid `bsjax.collide` tools) in penalty
       contact; `tool_path`: tools whose arrays have a leading `n_steps` axis (a moving tool);
-      `contact`: `Contact(stiffness, damping)` of the penalty.
+      `contact`: `Penalty(stiffness, damping)` of the penalty.
     - `checkpoint_every`: an int ≥ 1: rematerialise chunks of this many steps in reverse mode
       (`jax.checkpoint`), so `jax.grad` through 10 000 steps keeps only `n/c + c` states.
     - `progress`: an optional callback `progress(done, n_steps)` called on the host after each
       chunk of steps (`checkpoint_every`, else `⌈n_steps / 100⌉`) as the rollout runs
-      (`bsjax.batch.report`: an ordered `jax.debug.callback`, also inside the caller's
+      (`bsjax.batch.report_progress`: an ordered `jax.debug.callback`, also inside the caller's
       `jit`/`vmap`/`grad`); the result is the same. A callable is static: the same callback
       reuses the compilation, a new one compiles once more. None (the default) adds nothing.
 
@@ -299,7 +299,7 @@ def trajectory(
     save_every: int = 1,
     tools=(),
     tool_path=None,
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     method: str = "semi_implicit",
     cg_iterations: int = 20,
     check_stability: bool = True,
@@ -341,7 +341,7 @@ def simulate_plastic(
     *,
     tools=(),
     tool_path=None,
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     method: str = "semi_implicit",
     cg_iterations: int = 20,
     check_stability: bool = True,
@@ -386,7 +386,7 @@ def relax(
     max_steps: int = 100_000,
     check_every: int = 50,
     tools=(),
-    contact: Contact | None = None,
+    contact: Penalty | None = None,
     method: str = "semi_implicit",
     cg_iterations: int = 20,
 ) -> tuple[State, Int[Array, ""], Bool[Array, ""]]:

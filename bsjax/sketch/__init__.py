@@ -3,7 +3,7 @@
 thesis, University of Trento, 2007).
 
 * `_strokes`: the stroke chain — `features` → `corners` → `resample` → `fit_curve` /
-  `fit_stroke`; `oversketch`; `unproject` onto a drawing `Plane` seen by a `Camera`.
+  `fit_stroke`; `oversketch`; `unproject` onto a drawing plane (a `collide.Plane`) seen by a `Camera`.
 * `_recognise`: `recognise` — one stroke → a `Recognised` primitive of `KINDS`, regularised
   (its line, circle, ellipse and polygon fits in `_fits`).
 * `_relations`: `relations` — how one recognised stroke stands to another (`RELATIONS`).
@@ -27,7 +27,6 @@ from bsjax.sketch._strokes import Camera as Camera
 from bsjax.sketch._strokes import CurveFit as CurveFit
 from bsjax.sketch._strokes import Features as Features
 from bsjax.sketch._strokes import Oversketch as Oversketch
-from bsjax.sketch._strokes import Plane as Plane
 from bsjax.sketch._strokes import Resampled as Resampled
 from bsjax.sketch._strokes import corners as corners
 from bsjax.sketch._strokes import features as features
@@ -47,7 +46,6 @@ __all__ = [
     "DecisionTree",
     "Features",
     "Oversketch",
-    "Plane",
     "Recognised",
     "Resampled",
     "Rule",

@@ -46,7 +46,6 @@ __all__ = [
     "CurveFit",
     "Features",
     "Oversketch",
-    "Plane",
     "Resampled",
     "corners",
     "features",

@@ -6,7 +6,7 @@ surfaces with shaped tools*, §3.2, with the other surface in place of the tool)
 X and Y (first A against B, then B against A):
 
 - `x_i` is sample i of X (its blending's `(m, n)` grid); `c_i` the closest point of Y's sampled
-  tessellation (two triangles per cell, as `hierarchy.tessellate`), found per sample (vmapped
+  tessellation (two triangles per cell, as `hierarchy.grid_mesh`), found per sample (vmapped
   over X's samples) with the point tool's certified nearest-triangle search
   (`contact._nearest_on_grid`: the triangles of the cells around the nearest sample, certified
   when no other cell's corner ball comes closer, else every triangle). The search decides the
@@ -66,10 +66,10 @@ from jaxtyping import Array, Bool, Float, Int
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
 from bsjax.collide import _soa
-from bsjax.collide.broad import _hulls_apart, unless_apart
-from bsjax.collide.contact import _BLOCK, _CORNERS, _checked_net, points_normals
-from bsjax.collide.hierarchy import _cell_triangles
-from bsjax.collide.triangles import _closest_point_on_triangle
+from bsjax.collide._broad import _hulls_apart, unless_apart
+from bsjax.collide._contact import _BLOCK, _CORNERS, _checked_net, points_normals
+from bsjax.collide._hierarchy import _cell_triangles
+from bsjax.collide._triangles import _closest_point_on_triangle
 
 
 class Penetration(eqx.Module):

@@ -24,8 +24,8 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
-from bsjax.collide.contact import Contact
-from bsjax.collide.penetration import Penetration
+from bsjax.collide._contact import Contact
+from bsjax.collide._penetration import Penetration
 
 METHODS = ("surface_normal", "probe_normal")
 

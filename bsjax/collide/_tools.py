@@ -26,8 +26,9 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax.basis import ProjectionSolver
 from bsjax.collide import _soa
-from bsjax.collide.broad import hulls_apart
+from bsjax.collide._broad import hulls_apart
 
 
 def _float(x, name: str):
@@ -480,12 +481,9 @@ class Plane(AbstractTool):
         return self.value(low_corner) < 0
 
 
-class ProjectionSolver(eqx.Module):
-    """Settings of the closest-point projection onto an implicit surface (optimistix Newton)."""
-
-    rtol: float = eqx.field(static=True, default=1e-8)
-    atol: float = eqx.field(static=True, default=1e-10)
-    max_steps: int = eqx.field(static=True, default=32)
+# the projection onto fn = 0 is a root-find of the Lagrange conditions: a few more Newton steps
+# than a surface's Gauss–Newton projection, and its own default tolerances
+_IMPLICIT_SOLVER = ProjectionSolver(rtol=1e-8, atol=1e-10, max_steps=32)
 
 
 class Implicit(AbstractTool):
@@ -493,7 +491,8 @@ class Implicit(AbstractTool):
 
     **Fields:** `fn` (static): `fn(x (3,)) -> scalar`, or `fn(x, params)` when `params` is given
     (then the tool is differentiable in `params`); optional bounding sphere `center`, `radius`
-    for the broad phase; `solver` settings.
+    for the broad phase; `solver`, a `basis.ProjectionSolver` (default: rtol 1e-8, atol 1e-10,
+    32 Newton steps).
     Depth: distance to the closest point of `fn = 0`: a start point on the surface along the
     gradient ray (doubling and bisection), refined by an optimistix Newton solve of the Lagrange
     conditions `y − x + λ∇f(y) = 0, f(y) = 0` (differentiated implicitly); the start point is
@@ -504,9 +503,9 @@ class Implicit(AbstractTool):
     params: Any = None
     center: Float[Array, "3"] | None = None
     radius: Float[Array, ""] | None = None
-    solver: ProjectionSolver = eqx.field(static=True, default=ProjectionSolver())
+    solver: ProjectionSolver = eqx.field(static=True, default=_IMPLICIT_SOLVER)
 
-    def __init__(self, fn, params=None, center=None, radius=None, solver=ProjectionSolver()):
+    def __init__(self, fn, params=None, center=None, radius=None, solver=_IMPLICIT_SOLVER):
         if not callable(fn):
             raise TypeError(f"fn: expected a callable f(x) -> scalar, got {type(fn).__name__}")
         if (center is None) != (radius is None):
@@ -555,8 +554,7 @@ class Implicit(AbstractTool):
             fy, gy = jax.value_and_grad(self._f)(y)
             return jnp.concatenate([y - x + lam * gy, fy[None]])
 
-        eps = jnp.finfo(x.dtype).eps
-        rtol, atol = max(self.solver.rtol, float(10 * eps)), max(self.solver.atol, float(100 * eps))
+        rtol, atol = self.solver.tolerances(x.dtype)
         lam0 = jax.lax.stop_gradient(-jnp.dot(y0 - x, grad) / safe)
         sol = optx.root_find(
             residual,
@@ -632,7 +630,7 @@ class TriangleMesh(AbstractTool):
     tree: Any
 
     def __init__(self, vertices, faces):
-        from bsjax.collide.mesh_bvh import build_tree
+        from bsjax.collide._mesh_bvh import build_tree
 
         vertices = _float(vertices, "vertices")
         _checks.check_ndim(vertices, "vertices", 2, last=3)
@@ -684,8 +682,8 @@ class TriangleMesh(AbstractTool):
         """Nearest face of each point `(N,)`, its closest point `(N, 3)` and barycentrics; the
         search is not differentiated, the closest point on the chosen face is. `active (N,)`:
         only these points are searched (tree only; the others get some face)."""
-        from bsjax.collide.mesh_bvh import nearest_faces, nearest_faces_dense
-        from bsjax.collide.triangles import _closest_point_on_triangle
+        from bsjax.collide._mesh_bvh import nearest_faces, nearest_faces_dense
+        from bsjax.collide._triangles import _closest_point_on_triangle
 
         tris = self.triangles
         if self.tree is not None:
@@ -698,7 +696,7 @@ class TriangleMesh(AbstractTool):
     def _inside(self, flat, nearest=None):
         """`(inside (N,), winding (N,))` of points `(N, 3)`: by the pseudo-normal where the mesh
         is closed (winding 1, 0, or ½ on a face), else by the winding number."""
-        from bsjax.collide.mesh_bvh import pseudo_normal_inside
+        from bsjax.collide._mesh_bvh import pseudo_normal_inside
 
         if self.tree is None or not self.tree.closed:
             winding = _winding_number(flat, self.triangles)

@@ -14,7 +14,7 @@ reports overflow when more than `capacity` pairs intersect. The steps are one `l
 over the levels concatenated into one table (`level_table`, `schedule`), so the program holds
 one step whatever the hierarchy's depth.
 
-`sphere_hierarchy`, `cell_triangles` and `tessellate` are compiled at the public boundary
+`sphere_hierarchy`, `cell_triangles` and `grid_mesh` are compiled at the public boundary
 (`bsjax._boundary.compiled`); the queries call their private kernels, and `traverse`,
 `candidate_triangles`, `block_order`, `levels_for`, `level_table` and `schedule` are kernels
 of those queries.
@@ -234,7 +234,7 @@ def candidate_triangles(points: Float[Array, "m n 3"], cells: Int[Array, "K 2"])
 
 
 @compiled
-def tessellate(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[Array, "F 3"]]:
+def grid_mesh(points: Float[Array, "m n 3"]) -> tuple[Float[Array, "V 3"], Int[Array, "F 3"]]:
     """The triangle mesh of a sample grid: `(vertices (m·n, 3), faces (2(m−1)(n−1), 3))`.
 
     **Arguments:** `points (m, n, 3)` (m, n ≥ 2, finite). Each cell is split along its shorter
@@ -272,7 +272,7 @@ def level_table(levels, axes) -> tuple[tuple[Array, ...], Array]:
     """Per-level arrays concatenated along their block axis, and where each level starts.
 
     **Arguments:** `levels`, a list over levels of tuples of arrays (`sphere_hierarchy`'s
-    `(centres (3, N_l), radii (N_l,))`, `collide.flat.normal_cones`' `(axes (N_l, 3), half
+    `(centres (3, N_l), radii (N_l,))`, `collide._flat.normal_cones`' `(axes (N_l, 3), half
     angles (N_l,))`); `axes`, the block axis of each array of the tuple.
 
     **Returns:** `(arrays, offsets)`: each array concatenated over the levels, and
@@ -333,7 +333,7 @@ def traverse(levels_a, levels_b, capacity: int, flat=None):
 
     **Arguments:** the sphere levels of both surfaces (`sphere_hierarchy`); `capacity` (static);
     `flat`: `None`, or `flat(la, lb, ia, ib, valid) → is_flat` (levels and blocks as arrays,
-    e.g. a partial of `collide.flat.flat_pairs`) to take flat pairs of blocks (both at level
+    e.g. a partial of `collide._flat.flat_pairs`) to take flat pairs of blocks (both at level
     ≥ 1) out of the refinement; they are resolved by the caller.
 
     One `lax.fori_loop` over the steps of `schedule`: every step holds `C = min(capacity,

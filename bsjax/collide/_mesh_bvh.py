@@ -39,7 +39,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from bsjax import _safe
-from bsjax.collide.triangles import _cross, _sdot, _sub
+from bsjax.collide._triangles import _cross, _sdot, _sub
 
 LEAF_SIZE = 8  # faces per leaf (the target; a leaf holds ⌈F / 2^depth⌉)
 TILE = 16  # query points per tile

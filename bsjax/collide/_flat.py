@@ -36,7 +36,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _safe
 from bsjax.collide import _soa
-from bsjax.collide.hierarchy import BRANCH, block_order, level_table
+from bsjax.collide._hierarchy import BRANCH, block_order, level_table
 
 
 def _angle(a, b):

@@ -33,9 +33,9 @@ from bsjax import _checks, _safe
 from bsjax._boundary import compiled
 from bsjax.basis import Blending
 from bsjax.collide import _soa
-from bsjax.collide.broad import _blocks, _hulls_apart, _parametric_window, support_start, unless_apart
-from bsjax.collide.flat import block_planes, flat_pairs, flat_slots, resolve_flat_pairs
-from bsjax.collide.hierarchy import (
+from bsjax.collide._broad import _blocks, _hulls_apart, _parametric_window, support_start, unless_apart
+from bsjax.collide._flat import block_planes, flat_pairs, flat_slots, resolve_flat_pairs
+from bsjax.collide._hierarchy import (
     _cell_triangles,
     _sphere_hierarchies,
     block_order,
@@ -43,8 +43,8 @@ from bsjax.collide.hierarchy import (
     levels_for,
     traverse,
 )
-from bsjax.collide.tools import AbstractTool, Point
-from bsjax.collide.triangles import (
+from bsjax.collide._tools import AbstractTool, Point
+from bsjax.collide._triangles import (
     _closest_point_on_triangle,
     _triangles_intersect,
     candidate_pairs_intersect,
@@ -427,7 +427,7 @@ def surface_contacts(
     planes instead of refined (`collide.flat`; thesis §3.3.3.5) — `None` refines everything.
 
     **Returns:** a `SurfaceContact`; `mask_a`/`mask_b` mark the vertices of the triangles of
-    each tessellation (`hierarchy.tessellate`) that intersect the other surface's triangles.
+    each tessellation (`hierarchy.grid_mesh`) that intersect the other surface's triangles.
 
     The flat pass runs only when the exact refinement overflows. Called directly (concrete
     arrays), the two passes are two compiled programs and the host reads `overflow` in between,
