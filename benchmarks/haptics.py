@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from bsjax.device import Proxy, ServoLoop, SimulatedDevice, plot_recording
-from bsjax.device.physics import SculptModel
+from bsjax.device._physics import SculptModel
 
 WALL = Proxy.plane(
     (0.62, 0.0, 0.0), (1.0, 0.0, 0.0), stiffness=30.0, damping=0.3, tool_radius=0.25, stamp=0.0

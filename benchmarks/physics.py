@@ -298,7 +298,7 @@ def scene_section(calls, lattice=12, chunk=50):
 def stylus_samples(count: int, centre, period: int = 150):
     """`DeviceSample`s of a stylus that presses into the body from outside (+x) for `period` ticks
     with the button held, then releases (plastic set) and hovers for `period` ticks, and so on."""
-    from bsjax.device.protocol import DeviceSample
+    from bsjax.device._protocol import DeviceSample
 
     out = []
     for k in range(count):
@@ -325,7 +325,7 @@ def haptic_section(calls, rates=HAPTIC_RATES):
 
 
 def _haptic_rate(calls, physics_hz, substeps):
-    from bsjax.device.physics import SculptModel
+    from bsjax.device._physics import SculptModel
 
     period_ms = 1e3 / physics_hz
     print(

@@ -183,8 +183,8 @@ def _package(module: str) -> str:
 # Imports of another package's private parts still to be replaced by public, unchecked kernels:
 # the haptic device's physics steps the lattice with mss's kernels (issue #25, item 1).
 _PRIVATE_YET = {
-    ("bsjax.device.physics", "bsjax.mss._forces"),
-    ("bsjax.device.physics", "bsjax.mss._integrators"),
+    ("bsjax.device._physics", "bsjax.mss._forces"),
+    ("bsjax.device._physics", "bsjax.mss._integrators"),
 }
 
 

@@ -15,6 +15,8 @@ import pytest
 
 from bsjax import collide, io, merge, mss, shapes, vsofm
 from bsjax.basis import blending_matrix, clamped_knots, greville
+from bsjax.collide import _hierarchy
+from bsjax.mss import _lattice
 from tests.helpers import raises_both
 
 C3 = jnp.array([0.5, 0.5, 0.1])
@@ -184,7 +186,7 @@ STRUCTURE_CASES = [
         "ctrl",
     ),
     ("tessellate shape", lambda e: collide.grid_mesh(jnp.zeros((5, 3))), ValueError, "points"),
-    ("sphere_hierarchy levels", lambda e: collide.sphere_hierarchy(e.s.ctrl, -1), ValueError, "levels"),
+    ("sphere_hierarchy levels", lambda e: _hierarchy.sphere_hierarchy(e.s.ctrl, -1), ValueError, "levels"),
     (
         "hex_lattice positions shape",
         lambda e: mss.hex_lattice(np.zeros((3, 3, 3)), material=mss.JELLY),
@@ -192,8 +194,8 @@ STRUCTURE_CASES = [
         "positions",
     ),
     ("hex_edges zero size", lambda e: mss.hex_edges((0, 2, 2)), ValueError, "shape"),
-    ("grid_edges node_map", lambda e: mss.grid_edges(np.zeros(4, dtype=int)), ValueError, "node_map"),
-    ("grid_edges float node_map", lambda e: mss.grid_edges(np.zeros((3, 3))), ValueError, "node_map"),
+    ("grid_edges node_map", lambda e: _lattice.grid_edges(np.zeros(4, dtype=int)), ValueError, "node_map"),
+    ("grid_edges float node_map", lambda e: _lattice.grid_edges(np.zeros((3, 3))), ValueError, "node_map"),
     ("Contact stiffness < 0", lambda e: mss.Penalty(stiffness=-1.0), ValueError, "stiffness"),
     (
         "step gravity shape",

@@ -19,20 +19,25 @@ from bsjax.collide import (
     Point,
     Sphere,
     TriangleMesh,
-    cell_triangles,
     contact_force,
     contacts,
     grid_mesh,
     hulls_apart,
     nodal_forces,
-    parametric_window,
     sample_forces,
-    sample_window,
-    sphere_hierarchy,
     surface_contacts,
 )
+from bsjax.collide._broad import parametric_window
+from bsjax.collide._contact import sample_window
 from bsjax.collide._flat import block_planes, normal_cones, resolve_flat_pairs
-from bsjax.collide._hierarchy import FlatPairs, block_order, levels_for, traverse
+from bsjax.collide._hierarchy import (
+    FlatPairs,
+    block_order,
+    cell_triangles,
+    levels_for,
+    sphere_hierarchy,
+    traverse,
+)
 from tests.helpers import check_grad, raises_both, random_surface
 
 # the queries are compiled at their public boundary: the tests call them as users do

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from bsjax import sculpt, shapes
+from bsjax.device._constraint_sculpt import ConstraintSculptModel, border_free
 from bsjax.device._model import AbstractHapticModel
-from bsjax.device.constraint_sculpt import ConstraintSculptModel, border_free
-from bsjax.device.physics import SculptModel
-from bsjax.device.protocol import DeviceSample
-from bsjax.device.record import Recording
+from bsjax.device._physics import SculptModel
+from bsjax.device._protocol import DeviceSample
+from bsjax.device._record import Recording
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bsjax.device import decode_frames, encode_force, encode_frame, encode_pose, frames
+from bsjax.device import _frames as frames
+from bsjax.device import decode_frames, encode_force, encode_frame, encode_pose
 
 
 def test_crc_matches_the_ccitt_false_check_value():

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bsjax.device import HapticDevice, HidDevice, HidField, HidLayout, SimulatedDevice, Workspace
-from bsjax.device.hid import force_report, parse_report
+from bsjax.device._hid import force_report, parse_report
 
 
 class FakeHid:

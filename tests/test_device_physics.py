@@ -10,8 +10,8 @@ import pytest
 
 from bsjax import mss
 from bsjax.device import ServoLoop, SimulatedDevice, Workspace
-from bsjax.device.physics import SculptModel, check_step
-from bsjax.device.protocol import DeviceSample
+from bsjax.device._physics import SculptModel, check_step
+from bsjax.device._protocol import DeviceSample
 
 
 @pytest.fixture(scope="module")

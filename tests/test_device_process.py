@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bsjax.device import DeviceError, Proxy, ServoLoop, SimulatedDevice, Workspace, _shm
-from bsjax.device.protocol import DeviceSample
+from bsjax.device._protocol import DeviceSample
 from tests.test_device_safety import STAMPS, WALL, StampingModel, assert_zero_after, recorded
 
 TIMEOUT, RAMP = 0.03, 0.02
@@ -428,6 +428,52 @@ def test_the_default_mode_is_a_servo_process_with_a_plain_simulated_device():
     # the script's pose at some t is on the script's path: radius in [touch - 0.2, touch + 0.35]
     r = math.hypot(snap["position"][0], snap["position"][1])
     assert 0.62 + 0.25 - 0.2 - 1e-9 <= r <= 0.62 + 0.25 + 0.35 + 1e-9
+
+
+UNGUARDED_SCRIPT = textwrap.dedent(
+    """
+    import sys
+    import time
+
+    from bsjax.device import Proxy, ServoLoop, SimulatedDevice
+
+    class Wall:  # the physics model stays in this process: nothing of __main__ is sent
+        def update(self, sample):
+            return Proxy.plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), stiffness=100.0)
+
+    class Stylus(SimulatedDevice):  # a device class of the script itself: sent to the servo process
+        pass
+
+    device = Stylus() if sys.argv[1] == "own-device" else SimulatedDevice()
+    loop = ServoLoop(device, Wall(), physics_hz=200)
+    loop.start()
+    time.sleep(0.3)
+    print("ticks", loop.stop().ticks, flush=True)
+    """
+)
+
+
+@pytest.mark.parametrize("device", ["bsjax-device", "own-device"])
+def test_a_plain_script_without_a_main_guard(tmp_path, device):
+    """multiprocessing's spawn runs the parent's script again in the child: a script with no
+    `if __name__ == "__main__":` guard started a second loop there and failed. The servo
+    process no longer runs it when nothing sent there comes from the script; when something
+    does (a device class written in the script), the error says what to do."""
+    script = tmp_path / "unguarded.py"
+    script.write_text(UNGUARDED_SCRIPT)
+    run = subprocess.run(
+        [sys.executable, str(script), device],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": os.getcwd()},
+    )
+    if device == "bsjax-device":
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert int(run.stdout.split()[-1]) > 20, run.stdout
+    else:
+        assert run.returncode != 0
+        assert 'if __name__ == "__main__":' in run.stderr and "servo process failed to start" in run.stderr
 
 
 def test_a_servo_process_that_fails_to_start_is_reported():

@@ -30,10 +30,10 @@ from bsjax.device import (
     encode_force,
     encode_frame,
     encode_pose,
-    frames,
 )
+from bsjax.device import _frames as frames
+from bsjax.device._protocol import DeviceSample
 from bsjax.device._shaping import ForceShaper, VelocityFilter, fresh
-from bsjax.device.protocol import DeviceSample
 from tests.test_device_serial import Emulator
 
 WALL = dict(point=(0.62, 0.0, 0.0), normal=(1.0, 0.0, 0.0), stiffness=30.0, damping=0.3, tool_radius=0.25)

@@ -13,7 +13,8 @@ import tty
 import numpy as np
 import pytest
 
-from bsjax.device import DeviceTimeout, HapticDevice, Proxy, SerialDevice, ServoLoop, Workspace, frames
+from bsjax.device import DeviceTimeout, HapticDevice, Proxy, SerialDevice, ServoLoop, Workspace
+from bsjax.device import _frames as frames
 
 
 class Emulator:

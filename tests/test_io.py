@@ -208,6 +208,30 @@ def test_3dm_objects_not_loaded_are_listed(tmp_path):
     assert items.held == {"Point": 1, "Mesh": 1, "NurbsSurface": 1, "Brep": 1}
 
 
+def test_3dm_annotations_are_skipped_with_a_warning_not_refused(tmp_path):
+    """Text dots beside a surface (as in OpenNURBS's own example files): annotations are not
+    geometry, so the file loads by default (no `on_unsupported="skip"` needed) and a warning
+    names them; the CLI converts it."""
+    model = rhino3dm.File3dm()
+    model.Objects.AddSurface(
+        rhino3dm.NurbsSurface.CreateFromSphere(rhino3dm.Sphere(rhino3dm.Point3d(0, 0, 0), 1))
+    )
+    model.Objects.AddTextDot("bulb", rhino3dm.Point3d(0, 0, 1.2))
+    model.Objects.AddTextDot("base", rhino3dm.Point3d(0, 0, -1.2))
+    path = tmp_path / "dots.3dm"
+    assert model.Write(str(path), 7)
+    with pytest.warns(
+        UserWarning, match=r"dots.3dm: 2 annotations .*object 1 \(TextDot\), object 2 \(TextDot\)"
+    ):
+        items = io.load_all(path)
+    assert len(items) == 1 and isinstance(items[0], BSplineSurface)
+    from bsjax.cli import convert
+
+    with pytest.warns(UserWarning, match="annotations"):
+        assert convert.main([str(path), str(tmp_path / "dots.json")]) == 0
+    assert io.load(tmp_path / "dots.json").shape == items[0].shape
+
+
 def test_mesh_with_a_non_finite_vertex_is_refused(tmp_path):
     from bsjax.collide import TriangleMesh
 

@@ -17,7 +17,7 @@ from scipy import interpolate
 
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
-from bsjax.merge import _orient
+from bsjax.merge import _orient, _overlap
 from bsjax.merge._layout import changed_degree_knots
 from tests.helpers import check_grad, random_knots, random_surface
 from tests.oracles import ndbspline_surface
@@ -291,7 +291,7 @@ def test_merge_grid_overlap_dropped():
     merge drops the intersecting rows of every column and runs straight through."""
     upper = [_plate(0.0, 1.2, 5, 4, y0=0.0, y1=1.0), _plate(0.0, 1.2, 5, 4, y0=1.0, y1=2.0)]
     lower = [_plate(0.9, 2.0, 5, 4, lambda x, y: 0.5 * (x - 1.0), y0=y0, y1=y0 + 1.0) for y0 in (0.0, 1.0)]
-    windows = mg.grid_overlap_windows([upper, lower], (S, S), method="dense")
+    windows = _overlap.grid_overlap_windows([upper, lower], (S, S), method="dense")
     (u0, u1, v0, v1), (l0, l1, w0, w1) = windows[0][0], windows[1][1]
     assert (u0, v0, v1, w0, w1, l1) == (0.0, 0.0, 1.0, 0.0, 1.0, 1.0)  # the v seam does not cross
     assert 0.6 < u1 < 1.0 / 1.2 and 0.1 / 1.1 < l0 < 0.35

@@ -18,7 +18,7 @@ from bsjax import basis
 from bsjax import merge as mg
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 from bsjax.examples import merge_cases as cases
-from bsjax.merge import _nonlinear
+from bsjax.merge import _deviation, _nonlinear
 from tests.helpers import random_surface
 from tests.oracles import ndbspline_surface
 
@@ -234,7 +234,7 @@ def test_projection_bad_input_eager_and_jit():
     pts = jnp.asarray([[0.6, 0.3, 0.5], [np.nan, 0.0, 0.0]])
     raises_both(lambda p: basis.closest_points(plate, p, jnp.full((2, 2), 0.5)).params, pts, match="points")
     raises_both(lambda p: basis.project(plate, p), pts, match="points")
-    raises_both(lambda p: mg.closest_parameters(plate, p)[1], pts, match="points")
+    raises_both(lambda p: _deviation.closest_parameters(plate, p)[1], pts, match="points")
     good = pts.at[1, 0].set(0.0)
     raises_both(lambda uv: basis.project(plate, good, uv), jnp.asarray([[0.5, 0.5], [1.5, 0.2]]), match="uv0")
     raises_both(lambda p: basis.closest_points(plate, p[:, :2]).params, good, match="points")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bsjax import _safe, collide, mss
-from bsjax.device.physics import SculptModel
+from bsjax.device._physics import SculptModel
 from tests.helpers import check_grad, raises_both
 
 

@@ -13,6 +13,7 @@ import scipy.spatial
 import trimesh
 
 from bsjax import collide, mss, shapes
+from bsjax.mss import _forces
 from tests.helpers import check_grad, raises_both
 
 R_TORUS, r_TORUS = 0.6, 0.25
@@ -344,7 +345,7 @@ def test_simulate_refuses_a_point_and_foreign_tools():
 def test_sphere_penalty_closed_form():
     x = points(50)
     v = jnp.asarray(np.random.default_rng(3).normal(size=(50, 3)))
-    f = mss.sphere_penalty(x, v, jnp.zeros(3), 0.5, 100.0, 2.0)
+    f = _forces.sphere_penalty(x, v, jnp.zeros(3), 0.5, 100.0, 2.0)
     d = np.asarray(x)
     dist = np.linalg.norm(d, axis=-1)
     n = d / dist[:, None]

@@ -26,13 +26,17 @@ import time
 
 from bsjax._optional import require
 from bsjax.cli import _common as c
-from bsjax.device.hid import HidDevice, HidLayout
-from bsjax.device.protocol import DeviceError, Workspace
-from bsjax.device.proxy import Proxy
-from bsjax.device.serial import SerialDevice
-from bsjax.device.servo import ServoLoop
-from bsjax.device.simulated import DEFAULT_WORKSPACE, SimulatedDevice
-from bsjax.device.telemetry import plot_recording
+from bsjax.device import (
+    DeviceError,
+    HidDevice,
+    HidLayout,
+    Proxy,
+    SerialDevice,
+    ServoLoop,
+    SimulatedDevice,
+    Workspace,
+    plot_recording,
+)
 
 
 def _hid_ids(text: str) -> tuple[int, int]:
@@ -60,7 +64,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--baud", type=c.count(), default=921600)
     p.add_argument(
-        "--scale", type=c.positive, default=DEFAULT_WORKSPACE.scale, help="model units per device metre"
+        "--scale",
+        type=c.positive,
+        default=SimulatedDevice.DEFAULT_WORKSPACE.scale,
+        help="model units per device metre",
     )
     p.add_argument("--duration", type=c.positive, default=10.0, help="seconds (> 0; Ctrl-C stops earlier)")
     p.add_argument("--rate", type=c.positive, default=1000.0, help="servo rate, Hz")
@@ -138,10 +145,10 @@ def _model(args):
             stamp=0.0,
         )
     if args.sculpt == "drag":
-        from bsjax.device.constraint_sculpt import ConstraintSculptModel
+        from bsjax.device import ConstraintSculptModel
 
         return ConstraintSculptModel(tool_radius=args.tool_radius, max_force=args.max_force)
-    from bsjax.device.physics import SculptModel
+    from bsjax.device import SculptModel
 
     return SculptModel(physics_hz=args.physics_hz, tool_radius=args.tool_radius, tool_axes=args.ellipsoid)
 

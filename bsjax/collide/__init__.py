@@ -10,10 +10,10 @@
   and opposite pairs); `contact_force`, `sample_forces`, `nodal_forces`.
 """
 
-from bsjax.collide._broad import hulls_apart, parametric_window
-from bsjax.collide._contact import Contact, SurfaceContact, contacts, sample_window, surface_contacts
+from bsjax.collide._broad import hulls_apart
+from bsjax.collide._contact import Contact, SurfaceContact, contacts, surface_contacts
 from bsjax.collide._force import DistributedSprings, contact_force, nodal_forces, sample_forces
-from bsjax.collide._hierarchy import cell_triangles, grid_mesh, sphere_hierarchy
+from bsjax.collide._hierarchy import grid_mesh
 from bsjax.collide._mesh_bvh import FaceTree
 from bsjax.collide._penetration import Penetration, surface_penetration
 from bsjax.collide._tools import (
@@ -40,17 +40,13 @@ __all__ = [
     "Sphere",
     "SurfaceContact",
     "TriangleMesh",
-    "cell_triangles",
     "closest_point_on_triangle",
     "contact_force",
     "contacts",
     "grid_mesh",
     "hulls_apart",
     "nodal_forces",
-    "parametric_window",
     "sample_forces",
-    "sample_window",
-    "sphere_hierarchy",
     "surface_contacts",
     "surface_penetration",
     "triangles_intersect",

@@ -14,9 +14,9 @@ the `haptics` extra (pyserial, hidapi), `plot_recording` the `plot` extra.
 
 from typing import TYPE_CHECKING
 
-from bsjax.device.frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
-from bsjax.device.hid import HidDevice, HidField, HidLayout
-from bsjax.device.protocol import (
+from bsjax.device._frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
+from bsjax.device._hid import HidDevice, HidField, HidLayout
+from bsjax.device._protocol import (
     BUTTON_PRESS,
     DeviceError,
     DeviceSample,
@@ -24,16 +24,16 @@ from bsjax.device.protocol import (
     HapticDevice,
     Workspace,
 )
-from bsjax.device.proxy import Proxy
-from bsjax.device.record import Recorder, Recording
-from bsjax.device.serial import SerialDevice
-from bsjax.device.servo import ServoLoop
-from bsjax.device.simulated import SimulatedDevice, sculpt_script
-from bsjax.device.telemetry import ServoStats, plot_recording
+from bsjax.device._proxy import Proxy
+from bsjax.device._record import Recorder, Recording
+from bsjax.device._serial import SerialDevice
+from bsjax.device._servo import ServoLoop
+from bsjax.device._simulated import SimulatedDevice, sculpt_script
+from bsjax.device._telemetry import ServoStats, plot_recording
 
 if TYPE_CHECKING:  # loaded on first use at run time (`__getattr__` below); named here for checkers
-    from bsjax.device.constraint_sculpt import ConstraintSculptModel, border_free
-    from bsjax.device.physics import PhysicsModel, SculptModel
+    from bsjax.device._constraint_sculpt import ConstraintSculptModel, border_free
+    from bsjax.device._physics import PhysicsModel, SculptModel
 
 __all__ = [
     "BUTTON_PRESS",
@@ -71,11 +71,11 @@ def __getattr__(name: str):
     # The physics model pulls in bsjax.mss and bsjax.collide: loaded on first use, so that the
     # devices, the frame codec and the servo loop import quickly (e.g. `bsjax haptics --proxy-only`).
     if name in ("SculptModel", "PhysicsModel"):
-        from bsjax.device import physics
+        from bsjax.device import _physics as physics
 
         return getattr(physics, name)
     if name in ("ConstraintSculptModel", "border_free"):
-        from bsjax.device import constraint_sculpt
+        from bsjax.device import _constraint_sculpt as constraint_sculpt
 
         return getattr(constraint_sculpt, name)
     raise AttributeError(f"module 'bsjax.device' has no attribute {name!r}")

@@ -14,8 +14,8 @@ import threading
 
 import numpy as np
 
-from bsjax.device.protocol import DeviceSample
-from bsjax.device.proxy import Proxy
+from bsjax.device._protocol import DeviceSample
+from bsjax.device._proxy import Proxy
 
 
 class AbstractHapticModel:

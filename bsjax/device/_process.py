@@ -24,7 +24,7 @@ import os
 import signal
 
 from bsjax.device import _shm
-from bsjax.device.proxy import Proxy
+from bsjax.device._proxy import Proxy
 
 TELEMETRY_EVERY = 8  # ticks between telemetry records (125 Hz at 1 kHz)
 PARENT_CHECK_EVERY = 20  # ticks between checks that the parent process is alive
@@ -95,7 +95,7 @@ class ChildLink:
     def publish(self, loop, out, sample, now: int, gain: float) -> None:
         pos = sample.position if sample is not None else (math.nan,) * 3
         counters = getattr(loop.device, "counters", {}) or {}
-        from bsjax.device.telemetry import DROPPED_COUNTERS
+        from bsjax.device._telemetry import DROPPED_COUNTERS
 
         self.telemetry.write(
             [

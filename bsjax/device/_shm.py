@@ -23,8 +23,8 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from bsjax.device.protocol import DeviceSample
-from bsjax.device.proxy import NONE, PLANE, SPHERE, Proxy
+from bsjax.device._protocol import DeviceSample
+from bsjax.device._proxy import NONE, PLANE, SPHERE, Proxy
 
 _KINDS = (NONE, PLANE, SPHERE)
 PROXY_SIZE = 13

@@ -324,7 +324,8 @@ def load_all(
       `bsjax.io.UNITS`) scales them into that unit (the file must have a unit system).
     - `on_unsupported`: `"raise"` (default) refuses a file holding objects bsjax cannot load
       (meshes, points, SubD, …) with a message listing them; `"skip"` loads the rest and warns
-      with the same list.
+      with the same list. Annotations of a `.3dm` (text, text dots, dimensions, leaders) are
+      not geometry: they are never refused, the geometry loads and a warning lists them.
     - `trims`: `False` returns the splines; `True` returns a `CadObject` per surface or curve
       (a Brep face with its `Trim` loops in [0, 1]² and its orientation flag `reversed`).
 

@@ -173,6 +173,7 @@ class _Reader:
         self.model, self.path, self.scale, self.trims = model, path, scale, trims
         self.objects: list[CadObject] = []
         self.unsupported: list[str] = []
+        self.annotations: list[str] = []  # text, dots, dimensions, leaders: not geometry
         self.held: Counter = Counter()
         self.untrimmed = self.reversed = 0
         self.layers = [layer.FullPath for layer in model.Layers]
@@ -193,7 +194,9 @@ class _Reader:
         self.held[kind] += 1
         name, layer = attributes.Name or "", self._layer(attributes.LayerIndex)
         label = f"{where} ({kind}{f' {name!r}' if name else ''})"
-        if isinstance(geometry, rhino3dm.InstanceReference):
+        if isinstance(geometry, (rhino3dm.TextDot, rhino3dm.AnnotationBase)):
+            self.annotations.append(label)
+        elif isinstance(geometry, rhino3dm.InstanceReference):
             for k, member in enumerate(self.members.get(geometry.ParentIdefId, [])):
                 placed = member.Geometry.Duplicate()
                 placed.Transform(geometry.Xform)
@@ -314,6 +317,9 @@ def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) ->
     reader.read()
     report(path, reader.unsupported, on_unsupported)
     notes = []
+    if reader.annotations:
+        listed = ", ".join(reader.annotations[:5]) + (" …" if len(reader.annotations) > 5 else "")
+        notes.append(f"{len(reader.annotations)} annotations (text, dots, dimensions) not loaded: {listed}")
     if reader.untrimmed:
         notes.append(
             f"{reader.untrimmed} trimmed faces loaded as their untrimmed surfaces (trims=True keeps trims)"

@@ -31,18 +31,15 @@ compiled apply. `clear_cache()` empties it (so does `bsjax._boundary.clear_cache
 """
 
 from bsjax.merge._deviation import Deviation as Deviation
-from bsjax.merge._deviation import closest_parameters as closest_parameters
 from bsjax.merge._deviation import deviation as deviation
 from bsjax.merge._deviation import plot_deviation as plot_deviation
 from bsjax.merge._knots import average_knots as average_knots
-from bsjax.merge._knots import combine_knots as combine_knots
 from bsjax.merge._knots import cross_knots as cross_knots
 from bsjax.merge._knots import merge_knots as merge_knots
 from bsjax.merge._layout import MergeLayout as MergeLayout
 from bsjax.merge._layout import cache_info as cache_info
 from bsjax.merge._layout import clear_cache as clear_cache
 from bsjax.merge._layout import common_degree as common_degree
-from bsjax.merge._layout import grid_orientations as grid_orientations
 from bsjax.merge._layout import merge as merge
 from bsjax.merge._layout import merge_grid as merge_grid
 from bsjax.merge._layout import merged_knots as merged_knots
@@ -53,10 +50,7 @@ from bsjax.merge._nonlinear import RefitSolver as RefitSolver
 from bsjax.merge._nonlinear import refine as refine
 from bsjax.merge._nonlinear import refit as refit
 from bsjax.merge._orient import orient_grid as orient_grid
-from bsjax.merge._orient import orient_row as orient_row
 from bsjax.merge._orient import orient_surface as orient_surface
-from bsjax.merge._overlap import contact_masks as contact_masks
-from bsjax.merge._overlap import grid_overlap_windows as grid_overlap_windows
 from bsjax.merge._overlap import overlap_trims as overlap_trims
 
 __all__ = [
@@ -67,20 +61,14 @@ __all__ = [
     "average_knots",
     "cache_info",
     "clear_cache",
-    "closest_parameters",
-    "combine_knots",
     "common_degree",
-    "contact_masks",
     "cross_knots",
     "deviation",
-    "grid_orientations",
-    "grid_overlap_windows",
     "merge",
     "merge_grid",
     "merge_knots",
     "merged_knots",
     "orient_grid",
-    "orient_row",
     "orient_surface",
     "overlap_trims",
     "plan",

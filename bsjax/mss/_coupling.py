@@ -6,7 +6,7 @@ stored least-squares refit `P = A_u⁺ M A_v⁺ᵀ` (thesis eq. 3.7) — every s
 The one chain from a surface to its deformed surface, `coupled_step`:
 surface samples = lattice nodes → contacts (each tool's `push`) → penalty forces on the nodes →
 one integration step → refit of the control points. The haptic sculpting model
-(`bsjax.device.physics`) and the spoon study (`bsjax.examples.spoon`) run it.
+(`bsjax.device._physics`) and the spoon study (`bsjax.examples.spoon`) run it.
 """
 
 from __future__ import annotations

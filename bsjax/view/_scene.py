@@ -83,7 +83,7 @@ def from_file(path: str | os.PathLike, tool_radius: float = 0.25):
     path = os.fspath(path)
     title = os.path.basename(path)
     if path.endswith(".npz"):
-        from bsjax.device.record import Recording
+        from bsjax.device import Recording
 
         rec = Recording.load(path)
         step = (

@@ -24,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import logging
 import math
 import mimetypes
 import threading
@@ -32,7 +33,8 @@ from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 
 from bsjax._optional import require
-from bsjax.device.telemetry import log
+
+log = logging.getLogger("bsjax.view")
 
 _STATIC = "static"
 

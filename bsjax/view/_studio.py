@@ -36,6 +36,7 @@ the error naming the command and the field (`stroke.window: expected …`); no c
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 import threading
@@ -46,10 +47,11 @@ import numpy as np
 
 from bsjax import io, sculpt, sketch
 from bsjax.basis import BSplineCurve, BSplineSurface
-from bsjax.device.telemetry import log
 from bsjax.view import _studio_geometry as geo
 from bsjax.view._scene import SurfaceMesh, _polyline
 from bsjax.view._studio_geometry import BUILDS, DEFAULT_PLANE, Body, CommandError, DrawingPlane, Item
+
+log = logging.getLogger("bsjax.view")
 
 FORMATS = (".json", ".3dm", ".step", ".stp")
 COMMANDS = ("plane", "stroke", "oversketch", "build", "adapt", "drag", "target", "delete", "clear",

@@ -22,8 +22,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from bsjax.device.protocol import DeviceBase, DeviceSample, Workspace, force_vector, positive_number
-from bsjax.device.record import Recording
+from bsjax.device._protocol import DeviceBase, DeviceSample, Workspace, force_vector, positive_number
+from bsjax.device._record import Recording
 
 Script = Callable[[float], tuple]  # t → (position (3,), buttons) or (position, orientation, buttons)
 
@@ -38,11 +38,13 @@ class SimulatedDevice(DeviceBase):
     - `duration`: seconds after which `read()` raises `EOFError` (None: forever).
     """
 
+    DEFAULT_WORKSPACE = Workspace(scale=10.0)  # the mapping `sculpt_script` was written for
+
     def __init__(
         self, script: Script | None = None, workspace: Workspace | None = None, duration: float | None = None
     ):
         super().__init__(
-            workspace if workspace is not None else (DEFAULT_WORKSPACE if script is None else None)
+            workspace if workspace is not None else (self.DEFAULT_WORKSPACE if script is None else None)
         )
         if script is not None and not callable(script):
             raise TypeError(
@@ -134,9 +136,6 @@ class SimulatedDevice(DeviceBase):
 
 # The default script works in device metres; this workspace maps 10 cm of stylus travel to one
 # model unit around the teardrop (height 2, equator radius ≈ 0.62).
-DEFAULT_WORKSPACE = Workspace(scale=10.0)
-
-
 def sculpt_script(
     equator: float = 0.62, tool_radius: float = 0.25, period: float = 4.0, scale: float = 10.0
 ) -> Script:

@@ -64,23 +64,26 @@ scanning the whole (JAX-sized) heap inside a servo tick. Both are process-wide a
 from __future__ import annotations
 
 import atexit
+import contextlib
 import dataclasses
 import gc
 import math
 import numbers
 import os
+import pickle
 import sys
 import threading
 import time
+import types
 
 import numpy as np
 
 from bsjax.device import _process
+from bsjax.device._protocol import DeviceError, DeviceSample, positive_number
+from bsjax.device._proxy import Proxy
+from bsjax.device._record import Recorder, Recording
 from bsjax.device._shaping import ForceShaper, VelocityFilter, Watchdog, fresh
-from bsjax.device.protocol import DeviceError, DeviceSample, positive_number
-from bsjax.device.proxy import Proxy
-from bsjax.device.record import Recorder, Recording
-from bsjax.device.telemetry import DROPPED_COUNTERS, ServoStats, log, percentiles
+from bsjax.device._telemetry import DROPPED_COUNTERS, ServoStats, log, percentiles
 
 _WINDOW = 1 << 17  # ticks kept for percentiles (about two minutes at 1 kHz)
 _MAX_RATE_HZ = 1e5  # a period of 10 µs: beyond that the tick's own work cannot keep up
@@ -94,7 +97,7 @@ class ServoLoop:
     - `device`: a `HapticDevice` (`SimulatedDevice`, `SerialDevice`, `HidDevice`).
     - `model`: a physics model with `update(sample) -> Proxy` (and optionally `warmup()`, and
       `accepts(sample) -> bool`, asked in the servo thread for every new sample: keep it to a
-      few microseconds), e.g. `bsjax.device.physics.SculptModel`; or a fixed `Proxy` (no
+      few microseconds), e.g. `bsjax.device._physics.SculptModel`; or a fixed `Proxy` (no
       physics thread, never stale).
     - `rate_hz`: servo rate (1000). `physics_hz`: physics rate (100).
     - `max_force`: newtons, the hard bound on `|F|` written. `max_force_rate`: N/s (default
@@ -668,8 +671,10 @@ class ServoLoop:
             target=_process.servo_process, args=(config, child_conn), name="bsjax-servo", daemon=True
         )
         self._final, self._stopping = None, False
+        needs_main = _needs_main(config)
         try:
-            proc.start()
+            with contextlib.nullcontext() if needs_main else _main_hidden():
+                proc.start()
         except Exception as err:  # e.g. a device that cannot be pickled
             self._running = False
             parent.close()
@@ -691,7 +696,13 @@ class ServoLoop:
                 parent.close()
                 self._parent = None
                 error, self.error = self.error, None
-                raise DeviceError(f"servo process failed to start: {error!r}") from error
+                hint = (
+                    "; what it was sent is defined in your __main__, which multiprocessing runs again "
+                    'there: start the loop under `if __name__ == "__main__":` (or pass mode="thread")'
+                    if needs_main
+                    else ""
+                )
+                raise DeviceError(f"servo process failed to start: {error!r}{hint}") from error
             time.sleep(0.005)
         c = parent.counters()
         self._t_start = int(c["t_start"])
@@ -861,3 +872,29 @@ def _wait_until(deadline_ns: int, spin_ns: int) -> None:
         time.sleep((remaining - spin_ns) * 1e-9)
     while time.perf_counter_ns() < deadline_ns:
         pass
+
+
+def _needs_main(payload) -> bool:
+    """Whether something sent to the servo process is defined in the caller's `__main__` (a
+    device class written in the user's script): the child then has to run that script again
+    to find it (multiprocessing's "spawn"). A payload that cannot be pickled is left to
+    `Process.start` to report."""
+    try:
+        return b"__main__" in pickle.dumps(payload)
+    except Exception:
+        return True
+
+
+@contextlib.contextmanager
+def _main_hidden():
+    """Start a "spawn" child without the caller's `__main__`: multiprocessing runs the parent's
+    main script again in the child (to find what the parent defined there), which starts a
+    second loop from a plain script with no `if __name__ == "__main__":` guard. The servo
+    process needs only bsjax's modules, so for the start its main module is an empty one."""
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is not None:
+            sys.modules["__main__"] = main

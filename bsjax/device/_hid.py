@@ -17,7 +17,7 @@ import numpy as np
 
 from bsjax import _checks
 from bsjax._optional import require
-from bsjax.device.protocol import (
+from bsjax.device._protocol import (
     DeviceBase,
     DeviceSample,
     DeviceTimeout,

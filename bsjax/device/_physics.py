@@ -56,8 +56,8 @@ import numpy as np
 from bsjax import _checks, _safe, collide, mss, shapes
 from bsjax._boundary import precise
 from bsjax.device._model import AbstractHapticModel
-from bsjax.device.protocol import DeviceSample, positive_number
-from bsjax.device.proxy import Proxy
+from bsjax.device._protocol import DeviceSample, positive_number
+from bsjax.device._proxy import Proxy
 from bsjax.mss._forces import _grid_sum, _pair_force
 from bsjax.mss._integrators import _position_step, _velocity_step
 

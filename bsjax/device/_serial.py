@@ -20,8 +20,8 @@ import time
 import numpy as np
 
 from bsjax._optional import require
-from bsjax.device import frames
-from bsjax.device.protocol import (
+from bsjax.device import _frames as frames
+from bsjax.device._protocol import (
     DeviceBase,
     DeviceSample,
     DeviceTimeout,

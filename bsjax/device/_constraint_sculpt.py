@@ -47,8 +47,8 @@ from bsjax import _checks, _safe, basis, sculpt, shapes
 from bsjax._boundary import compiled
 from bsjax.basis import Blending, BSplineSurface
 from bsjax.device._model import AbstractHapticModel
-from bsjax.device.protocol import DeviceSample, positive_number
-from bsjax.device.proxy import Proxy
+from bsjax.device._protocol import DeviceSample, positive_number
+from bsjax.device._proxy import Proxy
 
 
 # --- compiled kernels -------------------------------------------------------------------------
