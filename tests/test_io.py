@@ -208,28 +208,42 @@ def test_3dm_objects_not_loaded_are_listed(tmp_path):
     assert items.held == {"Point": 1, "Mesh": 1, "NurbsSurface": 1, "Brep": 1}
 
 
-def test_3dm_annotations_are_skipped_with_a_warning_not_refused(tmp_path):
+def test_3dm_annotations_are_skipped_with_a_warning_and_carried_to_a_3dm(tmp_path):
     """Text dots beside a surface (as in OpenNURBS's own example files): annotations are not
     geometry, so the file loads by default (no `on_unsupported="skip"` needed) and a warning
-    names them; the CLI converts it."""
+    names them; they travel in `CadList.annotations` and `bsjax convert` to a `.3dm` writes them
+    back (text, place, name, layer), scaled with the geometry when units are converted."""
     model = rhino3dm.File3dm()
+    model.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
     model.Objects.AddSurface(
         rhino3dm.NurbsSurface.CreateFromSphere(rhino3dm.Sphere(rhino3dm.Point3d(0, 0, 0), 1))
     )
-    model.Objects.AddTextDot("bulb", rhino3dm.Point3d(0, 0, 1.2))
+    notes = model.Layers.AddLayer("notes", (0, 0, 0, 255))
+    attributes = rhino3dm.ObjectAttributes()
+    attributes.Name, attributes.LayerIndex = "label", notes
+    model.Objects.AddTextDot("bulb", rhino3dm.Point3d(0, 0, 1.2), attributes)
     model.Objects.AddTextDot("base", rhino3dm.Point3d(0, 0, -1.2))
     path = tmp_path / "dots.3dm"
     assert model.Write(str(path), 7)
-    with pytest.warns(
-        UserWarning, match=r"dots.3dm: 2 annotations .*object 1 \(TextDot\), object 2 \(TextDot\)"
-    ):
+    with pytest.warns(UserWarning, match=r"dots.3dm: 2 annotations .*object 1 \(TextDot 'label'\), object 2"):
         items = io.load_all(path)
-    assert len(items) == 1 and isinstance(items[0], BSplineSurface)
+    assert len(items) == 1 and isinstance(items[0], BSplineSurface) and len(items.annotations) == 2
     from bsjax.cli import convert
 
     with pytest.warns(UserWarning, match="annotations"):
-        assert convert.main([str(path), str(tmp_path / "dots.json")]) == 0
+        assert convert.main([str(path), str(tmp_path / "dots.json")]) == 0  # geometry only there
     assert io.load(tmp_path / "dots.json").shape == items[0].shape
+    with pytest.warns(UserWarning, match="annotations"):
+        assert convert.main([str(path), str(tmp_path / "copy.3dm")]) == 0
+    copy = rhino3dm.File3dm.Read(str(tmp_path / "copy.3dm"))
+    dots = [o for o in copy.Objects if isinstance(o.Geometry, rhino3dm.TextDot)]
+    assert sorted(d.Geometry.Text for d in dots) == ["base", "bulb"]
+    bulb = next(d for d in dots if d.Geometry.Text == "bulb")
+    assert bulb.Attributes.Name == "label" and copy.Layers[bulb.Attributes.LayerIndex].Name == "notes"
+    assert bulb.Geometry.Point.Z == pytest.approx(1.2)
+    with pytest.warns(UserWarning, match="annotations"):
+        in_mm = io.load_all(path, units="mm")
+    assert in_mm.annotations[0][0].Point.Z == pytest.approx(1200.0)
 
 
 def test_mesh_with_a_non_finite_vertex_is_refused(tmp_path):

@@ -54,7 +54,7 @@ def _body(args) -> int:
         return tuple(map(_cast, g)) if isinstance(g, tuple) else g.with_ctrl(np.asarray(g.ctrl, dt))
 
     cast = [eqx.tree_at(lambda o: o.geometry, o, _cast(o.geometry)) for o in loaded]
-    items = io.CadList(cast, loaded.units, cast, loaded.held)
+    items = io.CadList(cast, loaded.units, cast, loaded.held, loaded.annotations)
     if args.target.lower().endswith(io.MESH_FORMATS):
         surfaces = [o for o in cast if isinstance(o.geometry, BSplineSurface)]
         if not surfaces:

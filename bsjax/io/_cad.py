@@ -292,12 +292,17 @@ class CadObject(eqx.Module):
 
 class CadList(list):
     """The splines `bsjax.io.load_all` read (a `list`), with the file's `units` (a key of
-    `bsjax.io.UNITS` or `None`), `objects` (a `CadObject` per item) and `held` (a `Counter` of
-    every kind of object the file held)."""
+    `bsjax.io.UNITS` or `None`), `objects` (a `CadObject` per item), `held` (a `Counter` of
+    every kind of object the file held) and `annotations` (a `.3dm`'s text, text dots,
+    dimensions and leaders, as rhino3dm objects in `units`: not geometry bsjax computes with,
+    written back by `bsjax.io.save` to a `.3dm`)."""
 
-    def __init__(self, items=(), units: str | None = None, objects=(), held: Counter | None = None):
+    def __init__(
+        self, items=(), units: str | None = None, objects=(), held: Counter | None = None, annotations=()
+    ):
         super().__init__(items)
         self.units, self.objects, self.held = units, list(objects), held or Counter()
+        self.annotations = list(annotations)
 
     def holding(self) -> str:
         """'2 Brep faces, 1 Mesh' — what the file held, for error messages."""

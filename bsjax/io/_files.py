@@ -245,8 +245,9 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
     **Arguments:**
     - `surfaces`: a `BSplineSurface`, `BSplineCurve` or `CadObject`, a list of them, or what
       `load_all` returned (its `objects` — names, layers, domains, trims, orientation — and its
-      `units` are written). A list of `BSplineCurve`s inside the list is one polycurve (a `.3dm`
-      `PolyCurve`, a STEP/IGES wire: its segments must meet end to start).
+      `units` are written; to a `.3dm`, its `annotations` too). A list of `BSplineCurve`s inside
+      the list is one polycurve (a `.3dm` `PolyCurve`, a STEP/IGES wire: its segments must meet
+      end to start).
     - `path`: `.json`, `.3dm`, `.step`/`.stp`, `.iges`/`.igs` keep the splines exactly; `.obj`,
       `.stl`, `.ply`, `.glb` hold the tessellated `m × n` sample grid (surfaces only).
     - `units`: the unit system recorded in the file (a key of `bsjax.io.UNITS`); default the
@@ -263,7 +264,7 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
         require("rhino3dm", "cad", f"writing {path.name!r}")
         from bsjax.io._rhino import save_3dm
 
-        save_3dm(objects, path, units)
+        save_3dm(objects, path, units, getattr(surfaces, "annotations", ()))
     elif ext in _CAD:
         require("OCP", "cad", f"writing {path.name!r}")
         from bsjax.io._occt import save_occt
@@ -346,7 +347,7 @@ def load_all(
     read = _read_all(Path(path), units, on_unsupported, trims)
     objects = [o for o in read.objects if kind is None or (kind == "curve") == o.is_curve]
     items = objects if trims else [o.item for o in objects]
-    return CadList(items, read.units, objects, read.held)
+    return CadList(items, read.units, objects, read.held, read.annotations)
 
 
 def _read_all(path: Path, units, on_unsupported: str, trims: bool) -> CadList:

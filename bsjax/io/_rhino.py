@@ -174,6 +174,7 @@ class _Reader:
         self.objects: list[CadObject] = []
         self.unsupported: list[str] = []
         self.annotations: list[str] = []  # text, dots, dimensions, leaders: not geometry
+        self.carried: list = []  # (geometry in the loaded units, attributes): for a .3dm save
         self.held: Counter = Counter()
         self.untrimmed = self.reversed = 0
         self.layers = [layer.FullPath for layer in model.Layers]
@@ -196,6 +197,7 @@ class _Reader:
         label = f"{where} ({kind}{f' {name!r}' if name else ''})"
         if isinstance(geometry, (rhino3dm.TextDot, rhino3dm.AnnotationBase)):
             self.annotations.append(label)
+            self.carried.append(self._carry(geometry, name, layer))
         elif isinstance(geometry, rhino3dm.InstanceReference):
             for k, member in enumerate(self.members.get(geometry.ParentIdefId, [])):
                 placed = member.Geometry.Duplicate()
@@ -217,6 +219,15 @@ class _Reader:
             self.objects.append(CadObject(surface, name, layer, domain))
         else:
             self.unsupported.append(label)
+
+    def _carry(self, geometry, name: str, layer: str):
+        """`(geometry, name, layer)` of an annotation, scaled to the loaded units."""
+        rhino3dm = _rhino()
+
+        copy = geometry.Duplicate()
+        if self.scale != 1.0:
+            copy.Transform(rhino3dm.Transform.Scale(rhino3dm.Point3d(0.0, 0.0, 0.0), self.scale))
+        return copy, name, layer
 
     def add_brep(self, brep, name: str, layer: str, label: str) -> None:
         stored = brep.GetUserString(_TRIM_KEY)
@@ -319,7 +330,10 @@ def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) ->
     notes = []
     if reader.annotations:
         listed = ", ".join(reader.annotations[:5]) + (" …" if len(reader.annotations) > 5 else "")
-        notes.append(f"{len(reader.annotations)} annotations (text, dots, dimensions) not loaded: {listed}")
+        notes.append(
+            f"{len(reader.annotations)} annotations (text, dots, dimensions) not loaded as geometry "
+            f"(kept in CadList.annotations, written back to a .3dm): {listed}"
+        )
     if reader.untrimmed:
         notes.append(
             f"{reader.untrimmed} trimmed faces loaded as their untrimmed surfaces (trims=True keeps trims)"
@@ -329,7 +343,9 @@ def load_3dm(path: Path, units: str | None, on_unsupported: str, trims: bool) ->
     if notes:
         warnings.warn(f"{path}: " + "; ".join(notes), stacklevel=4)
     held = reader.held
-    return CadList([o.item for o in reader.objects], units or file_units, reader.objects, held)
+    return CadList(
+        [o.item for o in reader.objects], units or file_units, reader.objects, held, reader.carried
+    )
 
 
 def report(path: Path, unsupported: list[str], on_unsupported: str) -> None:
@@ -353,19 +369,27 @@ def _units_of(system) -> str | None:
 
 
 # --- writing ------------------------------------------------------------------------------
-def save_3dm(objects: list[CadObject], path: Path, units: str | None) -> None:
+def save_3dm(objects: list[CadObject], path: Path, units: str | None, annotations=()) -> None:
+    """Write `objects` and the carried `annotations` (`CadList.annotations`) to a `.3dm`."""
     rhino3dm = _rhino()
 
     model = rhino3dm.File3dm()
     model.Settings.ModelUnitSystem = getattr(rhino3dm.UnitSystem, _RHINO_UNITS[units] if units else "None")
     layers = {}
-    for obj in objects:
+
+    def attributes_of(name: str, layer: str):
         attributes = rhino3dm.ObjectAttributes()
-        attributes.Name = obj.name
-        if obj.layer:
-            if obj.layer not in layers:
-                layers[obj.layer] = model.Layers.AddLayer(obj.layer, (0, 0, 0, 255))
-            attributes.LayerIndex = layers[obj.layer]
+        attributes.Name = name
+        if layer:
+            if layer not in layers:
+                layers[layer] = model.Layers.AddLayer(layer, (0, 0, 0, 255))
+            attributes.LayerIndex = layers[layer]
+        return attributes
+
+    for geometry, name, layer in annotations:
+        model.Objects.Add(geometry, attributes_of(name, layer))
+    for obj in objects:
+        attributes = attributes_of(obj.name, obj.layer)
         if isinstance(obj.geometry, tuple):
             model.Objects.AddCurve(_polycurve_to_rhino(obj), attributes)
         elif isinstance(obj.geometry, BSplineCurve):
