@@ -281,6 +281,37 @@ def test_a_composite_drag_and_save_load_from_the_page_equal_python(studio_page):
     assert "save.name" in page.inner_text("#message")
 
 
+@needs_browser
+def test_drop_and_press_from_the_page(studio_page):
+    """The page's drop and press buttons act on the selected surface: the session's physics
+    (checked against the physics itself in the session tests below) reaches the page."""
+    page, session, _ = studio_page
+    _send(page, {"cmd": "clear"})
+    page.click("[data-mode='draw']")
+    page.evaluate(f"window.bsjaxCamera.set({json.dumps(TOP)})")
+    _draw(page, _path([(250, 220), (550, 220)]))
+    first = _last_reply(page)  # the latest by sequence number (the module's page saw errors)
+    _draw(page, _path([(250, 380), (550, 380)]))
+    second = _last_reply(page)
+    assert first["type"] == second["type"] == "update", (first, second)
+    _rows(page, first["result"]["id"], second["result"]["id"])
+    page.click("[data-op='loft']")
+    sid = _last_reply(page)["result"]["id"]
+    page.evaluate(f"window.bsjaxStudio.select([{sid}])")
+    before = session.state.bodies[-1].surface
+    page.click("#drop")
+    dropped = _last_reply(page)
+    assert dropped["type"] == "update" and dropped["command"] == "drop", dropped
+    assert float(_grid(session.state.bodies[-1].surface)[..., 2].mean()) < float(_grid(before)[..., 2].mean())
+    page.click("#undo")
+    assert _last_reply(page)["scene"]["history"]["redo"] == 1
+    page.click("#press")
+    pressed = _last_reply(page)
+    assert pressed["type"] == "update" and pressed["command"] == "press", pressed
+    moved = np.linalg.norm(_grid(session.state.bodies[-1].surface) - _grid(before), axis=-1)
+    assert np.all(np.isfinite(moved)) and moved[4, 4] > 0.5 * moved.max() > 0  # a dent in the middle
+
+
 # --- the session, directly ----------------------------------------------------------------------
 D, FOV = 5.0, 0.8
 TOP_CAMERA = {
@@ -504,6 +535,59 @@ def test_target_curve_sculpting_with_lambda(tmp_path):
     )
 
 
+@pytest.fixture(scope="module")
+def lofted(tmp_path_factory):
+    """A session holding a flat lofted plate (1 × 1 in the plane z = 0)."""
+    s = Studio(tmp_path_factory.mktemp("physics"), samples=(8, 8))
+    t = np.linspace(0.0, 1.0, 30)
+    a = _stroke(s, np.stack([t - 0.5, 0 * t - 0.5], 1))
+    b = _stroke(s, np.stack([t - 0.5, 0 * t + 0.5], 1))
+    return s, _ok(s, {"cmd": "build", "op": "loft", "curves": [a, b]})["result"]["id"]
+
+
+def _grid(surface, n=9):
+    return np.asarray(surface.blending(n, n).points(surface.ctrl))
+
+
+def test_drop_the_surface_on_a_table_as_a_jelly_body(lofted):
+    """The plate as a jelly shell released above a table: it falls (the table is 5 % of its size
+    below the shell's lowest node) and comes to rest on it flat, its centre where it was (no
+    sideways force), finite; one undo step restores it; bad fields are named."""
+    s, sid = lofted
+    before = _body(s, sid).surface
+    reply = _ok(s, {"cmd": "drop", "surface": sid, "seconds": 0.3})
+    p0, p1 = _grid(before), _grid(_body(s, sid).surface)
+    size = float(np.linalg.norm(p0.reshape(-1, 3).max(0) - p0.reshape(-1, 3).min(0)))
+    assert reply["result"]["steps"] > 10 and np.all(np.isfinite(p1))
+    fall = float(np.mean(p0[..., 2] - p1[..., 2]))
+    assert 0.05 * size <= fall <= (0.05 + 2 * 0.05 + 0.02) * size, fall / size  # gap (+ shell, sinking)
+    assert np.ptp(p1[..., 2]) < 1e-3 * size  # resting flat
+    np.testing.assert_allclose(p1[..., :2].mean((0, 1)), p0[..., :2].mean((0, 1)), atol=1e-6 * size)
+    _ok(s, {"cmd": "undo"})
+    assert _body(s, sid).surface is before
+    bad = s.handle({"cmd": "drop", "surface": sid, "seconds": -1})
+    assert bad["error"].startswith("drop.seconds: expected a number in [0.001, 5.0]")
+
+
+def test_press_the_surface_with_a_sphere(lofted):
+    """A sphere pushed into the plate's middle along its normal, the plate held from behind: a
+    dent under the sphere (against the outward normal), deepest there, finite; one undo step."""
+    s, sid = lofted
+    before = _body(s, sid).surface
+    reply = _ok(s, {"cmd": "press", "surface": sid, "u": 0.5, "v": 0.5, "depth": 0.02, "seconds": 0.3})
+    p0, p1 = _grid(before), _grid(_body(s, sid).surface)
+    assert reply["result"]["steps"] > 10 and np.all(np.isfinite(p1))
+    size = float(np.linalg.norm(p0.reshape(-1, 3).max(0) - p0.reshape(-1, 3).min(0)))
+    moved = np.linalg.norm(p1 - p0, axis=-1)
+    assert moved[4, 4] > 1e-3 * size and moved[4, 4] == pytest.approx(moved.max())  # the dent's bottom
+    assert moved[0, 0] < 0.25 * moved[4, 4]  # a corner, far from the sphere
+    _ok(s, {"cmd": "undo"})
+    assert _body(s, sid).surface is before
+    assert s.handle({"cmd": "press", "surface": sid, "u": 1.5, "v": 0.5})["error"].startswith(
+        "press.u: expected a number in [0.0, 1.0]"
+    )
+
+
 def test_undo_redo_clear_delete(tmp_path):
     s = Studio(tmp_path, samples=(8, 8))
     assert s.handle({"cmd": "undo"})["error"] == "undo: nothing to undo"
@@ -631,6 +715,8 @@ BAD = [
         {"cmd": "adapt", "curves": [], "name": "", "construction": "ruled"},
         "adapt.name: expected a non-empty string",
     ),
+    ({"cmd": "drop", "surface": 99}, "drop.surface: expected the id of a surface"),
+    ({"cmd": "press", "surface": 99, "u": 0.5, "v": 0.5}, "press.surface: expected the id of a surface"),
     ({"cmd": "delete", "id": 12345}, "delete.id: expected the id of a curve or surface"),
     ({"cmd": "save", "name": "a/b.json"}, "save.name: expected a bare file name"),
     ({"cmd": "save", "name": "model.obj"}, "save.name: expected a file name ending in one of .json, .3dm"),

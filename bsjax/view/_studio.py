@@ -25,6 +25,11 @@ without a browser. Commands (`{"cmd": NAME, …}`; an optional `seq` is echoed i
   the camera) by the minimum-norm edit (`sculpt.prefactor` once per gesture, then
   `Factor.drag`: ch. 6); the drags of one `gesture` are one undo step;
 * `target {surface, curve, lam}` — target-curve sculpting with stiffness λ (`sculpt.target_sculpt`);
+* `drop {surface, seconds?}` — the surface as a jelly body (a shell, or a volume for a closed
+  surface) falling onto a table for `seconds` (default 0.3 s); `press {surface, u, v, depth?,
+  seconds?}` — lying on a table, pressed by a sphere above S(u, v) `depth` (default 0.05) of its
+  size deep: the scene physics of `bsjax.mss` (`_studio_physics`), the deformed surface replaces
+  the surface (one undo step);
 * `delete {id}`, `clear`, `undo`, `redo`, `scene`;
 * `save {name}` / `load {name}` — `.json`, `.3dm`, `.step`/`.stp` in the session's folder
   (`bsjax.io`; a bare file name: the page cannot reach outside that folder).
@@ -48,14 +53,15 @@ import numpy as np
 from bsjax import io, sculpt, sketch
 from bsjax.basis import BSplineCurve, BSplineSurface
 from bsjax.view import _studio_geometry as geo
+from bsjax.view import _studio_physics as physics
 from bsjax.view._scene import SurfaceMesh, _polyline
 from bsjax.view._studio_geometry import BUILDS, DEFAULT_PLANE, Body, CommandError, DrawingPlane, Item
 
 log = logging.getLogger("bsjax.view")
 
 FORMATS = (".json", ".3dm", ".step", ".stp")
-COMMANDS = ("plane", "stroke", "oversketch", "build", "adapt", "drag", "target", "delete", "clear",
-            "undo", "redo", "scene", "save", "load")  # fmt: skip
+COMMANDS = ("plane", "stroke", "oversketch", "build", "adapt", "drag", "target", "drop", "press",
+            "delete", "clear", "undo", "redo", "scene", "save", "load")  # fmt: skip
 _UNDO = 100  # undo steps kept
 
 
@@ -246,6 +252,27 @@ class Studio:
         moved = dataclasses.replace(body, surface=result.surface)
         self._commit(s._replace(bodies=tuple(moved if b.id == body.id else b for b in s.bodies)))
         return {"id": body.id, "status": int(result.status)}
+
+    def _drop(self, f: _Fields):
+        body = self._body(f, "surface")
+        seconds = f.number("seconds", 1e-3, 5.0) if "seconds" in f.message else 0.3
+        surface, steps = physics.dropped(body.surface, seconds)
+        self._replace(body, surface)
+        return {"id": body.id, "seconds": seconds, "steps": steps}
+
+    def _press(self, f: _Fields):
+        body = self._body(f, "surface")
+        u, v = f.unit("u"), f.unit("v")
+        depth = f.number("depth", 1e-4, 0.5) if "depth" in f.message else 0.05
+        seconds = f.number("seconds", 1e-3, 5.0) if "seconds" in f.message else 0.3
+        surface, steps = physics.pressed(body.surface, u, v, depth, seconds)
+        self._replace(body, surface)
+        return {"id": body.id, "seconds": seconds, "steps": steps}
+
+    def _replace(self, body: Body, surface: BSplineSurface) -> None:
+        """`body` with a new surface, one undo step."""
+        s, moved = self.state, dataclasses.replace(body, surface=surface)
+        self._commit(s._replace(bodies=tuple(moved if b.id == body.id else b for b in s.bodies)))
 
     def _delete(self, f: _Fields):
         value, s = f.int("id"), self.state

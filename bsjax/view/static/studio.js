@@ -209,6 +209,10 @@
     const surface = studio.selection.find((id) => !isItem(id)), curve = studio.selection.filter(isItem).at(-1);
     studio.send({ cmd: "target", surface, curve, lam: Number(document.getElementById("lam").value) });
   };
+  const selectedSurface = () => studio.selection.find((id) => !isItem(id));
+  document.getElementById("drop").onclick = () => studio.send({ cmd: "drop", surface: selectedSurface() });
+  document.getElementById("press").onclick = () =>
+    studio.send({ cmd: "press", surface: selectedSurface(), u: 0.5, v: 0.5 });
   for (const name of ["undo", "redo", "clear"]) document.getElementById(name).onclick = () => studio.send({ cmd: name });
   document.getElementById("delete").onclick = () => {
     for (const id of studio.selection) studio.send({ cmd: "delete", id });
