@@ -282,6 +282,57 @@ def test_a_composite_drag_and_save_load_from_the_page_equal_python(studio_page):
 
 
 @needs_browser
+def test_every_construction_from_the_page_buttons(studio_page):
+    """Strokes drawn with the mouse, selected, and each construction's button pressed: the
+    page's surface is `bsjax.construct`'s of the page's own curves (revolve, loft, ruled) to
+    1e-12, and extrude, sweep and Coons build from the same buttons."""
+    page, session, _ = studio_page
+    _send(page, {"cmd": "clear"})
+    page.click("[data-mode='draw']")
+    page.uncheck("#timed")
+    page.evaluate(f"window.bsjaxCamera.set({json.dumps(TOP)})")
+    t = np.linspace(0.0, 1.0, N)
+    strokes = {
+        "profile": np.stack([560 + 30 * np.sin(3 * t), 450 - 250 * t], 1),
+        "axis": _path([(400, 470), (400, 180)]),
+        "section": np.stack([250 + 300 * t, 430 + 15 * np.sin(2 * np.pi * t)], 1),
+        "section2": np.stack([250 + 300 * t, 220 + 12 * np.sin(2 * np.pi * t)], 1),
+        "bottom": _path([(250, 420), (550, 420)]),
+        "top": _path([(250, 220), (550, 220)]),
+        "left": _path([(250, 420), (250, 220)]),
+        "right": _path([(550, 420), (550, 220)]),
+    }
+    ids = {}
+    for name, pixels in strokes.items():
+        _draw(page, pixels)
+        reply = _last_reply(page)
+        assert reply["type"] == "update", (name, reply)
+        ids[name] = reply["result"]["id"]
+    page.check("#timed")
+    curve = {k: next(i.curve for i in session.state.items if i.id == v) for k, v in ids.items()}
+
+    def build(op, names):
+        page.evaluate(f"window.bsjaxStudio.select({json.dumps([ids[n] for n in names])})")
+        page.click(f"[data-op='{op}']")
+        reply = _last_reply(page)
+        assert reply["type"] == "update" and reply["result"]["op"] == op, (op, reply)
+        return reply["scene"]["surfaces"][-1]["spline"]
+
+    ends = np.asarray(curve["axis"].evaluate(np.asarray([0.0, 1.0])))
+    revolved = construct.revolve(curve["profile"], ends[0], ends[1] - ends[0])
+    _same_spline(build("revolve", ["profile", "axis"]), revolved)
+    _same_spline(
+        build("loft", ["section", "section2"]), construct.loft([curve["section"], curve["section2"]])
+    )
+    _same_spline(
+        build("ruled", ["section", "section2"]), construct.ruled(curve["section"], curve["section2"])
+    )
+    build("extrude", ["section", "axis"])
+    build("sweep", ["profile", "section"])
+    build("coons", ["bottom", "top", "left", "right"])
+
+
+@needs_browser
 def test_drop_and_press_from_the_page(studio_page):
     """The page's drop and press buttons act on the selected surface: the session's physics
     (checked against the physics itself in the session tests below) reaches the page."""
