@@ -24,13 +24,11 @@ from bsjax.collide import (
     contacts,
     grid_mesh,
     hulls_apart,
-    sample_window,
-    sphere_hierarchy,
     surface_contacts,
     triangles_intersect,
 )
-from bsjax.collide._contact import points_normals
-from bsjax.collide._hierarchy import block_order, levels_for
+from bsjax.collide._contact import points_normals, sample_window
+from bsjax.collide._hierarchy import block_order, levels_for, sphere_hierarchy
 from bsjax.collide._triangles import candidate_pairs_intersect
 from tests.helpers import check_grad, raises_both, random_surface
 
