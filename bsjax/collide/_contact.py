@@ -432,19 +432,40 @@ def surface_contacts(
     The flat pass runs only when the exact refinement overflows. Called directly (concrete
     arrays), the two passes are two compiled programs and the host reads `overflow` in between,
     so the common case compiles and runs only the exact one (a program that also holds the
-    unused flat branch ran about twice as long on CPU); inside the caller's `jit`/`vmap` one
-    program decides with `lax.cond`. Both give the same result.
+    unused flat branch ran about twice as long on CPU); the exact program does not depend on
+    `flat_angle` (one compilation per capacity). Inside the caller's `jit`/`vmap` one program
+    decides: a `lax.while_loop` of at most two runs of one refinement body, the flat pairs
+    enabled in the second (one copy of the refinement in the program instead of two). Both give
+    the same result.
     """
     args = (blending_a, ctrl_a, blending_b, ctrl_b)
     if capacity is None:
         capacity = _default_capacity(blending_a, blending_b)
-    options = dict(capacity=capacity, method=method, flat_angle=flat_angle)
-    if method != "hierarchy" or flat_angle is None or _traced(args):
-        return _surface_contacts(*args, **options, passes="cond")
-    exact = _surface_contacts(*args, **options, passes="exact")
+    _check_options(capacity, method, flat_angle)
+    if method != "hierarchy":  # the dense reference: capacity and flat angle play no part
+        return _surface_contacts(*args, capacity=1, method=method, flat_angle=None, passes="exact")
+    options = dict(capacity=capacity, method=method)
+    if flat_angle is None:
+        return _surface_contacts(*args, **options, flat_angle=None, passes="exact")
+    if _traced(args):
+        return _surface_contacts(*args, **options, flat_angle=flat_angle, passes="cond")
+    exact = _surface_contacts(*args, **options, flat_angle=None, passes="exact")
     if not bool(exact.overflow):  # the host decides: one small read-back
         return exact
-    return _surface_contacts(*args, **options, passes="flat")
+    return _surface_contacts(*args, **options, flat_angle=flat_angle, passes="flat")
+
+
+def _check_options(capacity, method, flat_angle) -> None:
+    """The static options of `surface_contacts` (raised before any compilation)."""
+    if method not in ("hierarchy", "dense"):
+        _checks.fail("method", "'hierarchy' or 'dense'", repr(method))
+    _checks.check_count(capacity, "capacity")
+    if flat_angle is not None and not (
+        isinstance(flat_angle, (int, float, np.integer, np.floating))
+        and not isinstance(flat_angle, bool)
+        and 0 <= flat_angle < np.pi / 2
+    ):
+        _checks.fail("flat_angle", "None or an angle in radians in [0, π/2)", flat_angle)
 
 
 def _default_capacity(blending_a, blending_b) -> int:
@@ -466,17 +487,9 @@ def _surface_contacts(
     blending_a, ctrl_a, blending_b, ctrl_b, *, capacity, method, flat_angle, passes: str
 ) -> SurfaceContact:
     """`surface_contacts` compiled: `passes` (static) is `"cond"` (the exact refinement, then the
-    flat pass under `lax.cond` when it overflows), `"exact"` (the first only) or `"flat"` (the
+    flat pass when it overflows, in one loop), `"exact"` (the first only) or `"flat"` (the
     second only)."""
-    if method not in ("hierarchy", "dense"):
-        _checks.fail("method", "'hierarchy' or 'dense'", repr(method))
-    capacity = _checks.check_count(capacity, "capacity")
-    if flat_angle is not None and not (
-        isinstance(flat_angle, (int, float, np.integer, np.floating))
-        and not isinstance(flat_angle, bool)
-        and 0 <= flat_angle < np.pi / 2
-    ):
-        _checks.fail("flat_angle", "None or an angle in radians in [0, π/2)", flat_angle)
+    _check_options(capacity, method, flat_angle)
     ctrl_a = _checked_net(blending_a, ctrl_a, "ctrl_a", "blending_a")
     ctrl_b = _checked_net(blending_b, ctrl_b, "ctrl_b", "blending_b")
     if method == "dense":
@@ -503,26 +516,43 @@ def _vertex_mask(faces, hit, shape) -> Array:
 def _hierarchy_surfaces(blending_a, ctrl_a, blending_b, ctrl_b, capacity, flat_angle, passes="cond"):
     """Refine every candidate pair down to triangles; only when that overflows the capacity
     (flat contact: every sphere intersects) run again with flat pairs resolved by planes, so
-    the common case pays nothing for the flat test (`lax.cond`; `passes`: see
-    `_surface_contacts`)."""
+    the common case pays nothing for the flat test (`passes`: see `_surface_contacts`; `"cond"`
+    is a `lax.while_loop` over one body whose flat pairs are enabled by a traced flag in its
+    second run, which runs only after an overflow)."""
     pa, pb = blending_a.points(ctrl_a), blending_b.points(ctrl_b)
     lev_a = levels_for(max(pa.shape[0], pa.shape[1]) - 1)
     lev_b = levels_for(max(pb.shape[0], pb.shape[1]) - 1)
     spheres = _sphere_hierarchies(((pa, lev_a), (pb, lev_b)))  # built once for both passes
-    flat = lambda: _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle)
-    if flat_angle is not None and passes == "flat":
-        return flat()
-    exact = _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, None)
+    refine = functools.partial(_refine_pairs, pa, lev_a, pb, lev_b, spheres, capacity)
     if flat_angle is None or passes == "exact":
-        return exact
-    return jax.lax.cond(exact.overflow, flat, lambda: exact)
+        return refine(None)
+    if passes == "flat":
+        return refine(flat_angle)
+    run = lambda use_flat: refine(flat_angle, use_flat)
+    empty = jax.tree_util.tree_map(
+        lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(run, jnp.zeros((), bool))
+    )
+
+    def again(state):  # the first run, and the flat one after an overflow
+        k, result = state
+        return (k == 0) | ((k == 1) & result.overflow)
+
+    return jax.lax.while_loop(again, lambda state: (state[0] + 1, run(state[0] == 1)), (0, empty))[1]
 
 
-def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
+def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle, use_flat=None):
+    """One refinement: without flat pairs (`flat_angle` None), with them, or with them when the
+    traced flag `use_flat` holds (the planes and the flat resolution then run under `lax.cond`;
+    without the flag the result is the exact refinement's)."""
     planes = flat = None
     if flat_angle is not None:
-        planes = (block_planes(pa, lev_a), block_planes(pb, lev_b))
-        flat = functools.partial(flat_pairs, *planes, flat_angle)
+        planes_of = lambda: (block_planes(pa, lev_a), block_planes(pb, lev_b))
+        if use_flat is None:
+            planes = planes_of()
+            flat = functools.partial(flat_pairs, *planes, flat_angle)
+        else:
+            planes = _when(use_flat, planes_of)
+            flat = lambda *a: flat_pairs(*planes, flat_angle, *a) & use_flat
     leaf_a, leaf_b, valid, overflow, count, pairs = traverse(*spheres, capacity, flat)
     cell_a = _cells(leaf_a, lev_a, pa.shape)
     cell_b = _cells(leaf_b, lev_b, pb.shape)
@@ -535,9 +565,10 @@ def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
     flat_hit = jnp.zeros((), jnp.int32)
     if pairs is not None and planes is not None:
         size = valid.shape[0]
-        flat_a, flat_b, flat_hit, flat_overflow = resolve_flat_pairs(
+        resolve = lambda: resolve_flat_pairs(
             pa, planes[0], pb, planes[1], pairs, flat_slots(size, lev_a), flat_slots(size, lev_b)
         )
+        flat_a, flat_b, flat_hit, flat_overflow = resolve() if use_flat is None else _when(use_flat, resolve)
         mask_a, mask_b, overflow = mask_a | flat_a, mask_b | flat_b, overflow | flat_overflow
     return SurfaceContact(
         hit=jnp.any(pair_hit) | (flat_hit > 0),
@@ -551,6 +582,12 @@ def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle):
         flat_pairs=flat_hit,
         apart=jnp.zeros((), bool),
     )
+
+
+def _when(flag, fn):
+    """`fn()` when the traced `flag` holds, else zeros of its shapes (`lax.cond`)."""
+    zeros = lambda: jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(fn))
+    return jax.lax.cond(flag, fn, zeros)
 
 
 def _cells(leaf, levels, shape):

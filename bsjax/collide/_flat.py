@@ -114,7 +114,7 @@ def block_planes(points: Float[Array, "m n 3"], levels: int) -> BlockPlanes:
     per_level = []
     for lv, (axis, half) in enumerate(normal_cones(points, levels)):
         blocks = BRANCH ** (2 * (levels - lv))
-        quad = _block_quad(points, levels, lv, jnp.arange(blocks))
+        quad = _block_quad(points, levels, lv)
         level = jnp.sum(quad.mean(-2) * axis, -1)
         dy = jnp.einsum("bpjc,bc->bpj", x.reshape(blocks, -1, 4, 3), axis) - level[:, None, None]
         inside = present.reshape(blocks, -1)[..., None]
@@ -140,14 +140,16 @@ def _cell_corners(points, cells):
     return jnp.stack([i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1], -1)
 
 
-def _block_quad(points, levels: int, level: int, blocks):
-    """The block's corners on the intermittent rows, `(K, 4, 3)` in quad order."""
+def _block_quad(points, levels: int, level: int):
+    """Every block's corners on the intermittent rows, `(9^(levels − level), 4, 3)` in quad
+    order, block-major (one gather with a static index table)."""
     m, n = points.shape[:2]
     rows, cols = block_order(levels - level)
     step = BRANCH**level
-    r, c = jnp.asarray(rows)[blocks] * step, jnp.asarray(cols)[blocks] * step
-    r1, c1 = jnp.minimum(r + step, m - 1), jnp.minimum(c + step, n - 1)
-    return jnp.stack([points[r, c], points[r1, c], points[r1, c1], points[r, c1]], -2)
+    r, c = rows * step, cols * step
+    r1, c1 = np.minimum(r + step, m - 1), np.minimum(c + step, n - 1)
+    index = np.stack([r * n + c, r1 * n + c, r1 * n + c1, r * n + c1], -1).astype(np.int32)
+    return points.reshape(-1, 3)[jnp.asarray(index)]
 
 
 def _over_quad(x, quad, normal):
