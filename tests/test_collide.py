@@ -291,7 +291,7 @@ def test_surface_contacts_direct_jit_vmap_and_retry():
     assert [bool(r.hit) for r in direct] == [True, True, False] and bool(direct[2].apart)
     batched = jax.jit(jax.vmap(query))(shifts)  # one compilation for both transformations
     # every field: the direct call (the exact program, the flat one only after an overflow) is
-    # the one program that decides with `lax.cond` inside the caller's `jit`
+    # the one program that decides in one loop inside the caller's `jit`
     for name in direct[0].__dataclass_fields__:
         for k in range(3):
             got, want = getattr(batched, name)[k], getattr(direct[k], name)

@@ -2,7 +2,7 @@
 
 References are independent of the kernels under test: the basis's own `Blending.points` and
 `Blending.normals`, the tools' closed forms written with numpy, a fixed-step Frank–Wolfe loop
-in numpy for the hull test, the one-program (`lax.cond`) path of `surface_contacts` inside
+in numpy for the hull test, the one-program (`lax.while_loop`) path of `surface_contacts` inside
 the caller's `jit` for its two-program direct path, a brute-force nearest triangle for the
 point tool, the thesis's three-point spheres in numpy for the sphere hierarchy, and the
 every-pair triangle test for the gathered candidate pairs.
@@ -229,9 +229,10 @@ def test_hulls_apart_stops_early_with_the_same_answer():
 def test_surface_contacts_direct_equals_one_program_after_an_overflow():
     """Two coplanar plates: every sphere intersects, the exact pass overflows, and the direct
     call (the exact program, then the flat one) gives the result of the one program that decides
-    with `lax.cond` inside the caller's `jit` (the sheets of test_collide's flat-contact test, so
+    in one loop inside the caller's `jit` (the sheets of test_collide's flat-contact test, so
     the suite compiles their direct programs once; test_collide's direct/jit/vmap test covers a
-    crossing without overflow)."""
+    crossing without overflow). A NaN in a control net raises eagerly and under `jit` (the
+    direct exact program and this `jit` program: no more compilations for the bad value)."""
     plate = shapes.plate(6, 6)
     b, ca = plate.blending(22, 22), jnp.asarray(plate.ctrl)
     cb = ca + jnp.array([0.3, 0.2, 0.0])[None, None]
@@ -240,13 +241,14 @@ def test_surface_contacts_direct_equals_one_program_after_an_overflow():
     for field in direct.__dataclass_fields__:
         np.testing.assert_array_equal(np.asarray(getattr(direct, field)), np.asarray(getattr(jitted, field)))
     assert int(direct.flat_pairs) > 0 and bool(direct.hit)
+    raises_both(query, ca, cb.at[1, 2, 0].set(jnp.nan), match="ctrl_b")
 
 
 def test_bad_values_raise_eagerly_and_under_jit():
     _, b, ctrl = _surface("clamped 3x2")
     bad = ctrl.at[1, 2, 0].set(jnp.nan)
     raises_both(lambda p: contacts(b, p, TOOLS["sphere"]), bad, match="ctrl")
-    raises_both(lambda p: surface_contacts(b, ctrl, b, p, capacity=64), bad, match="ctrl_b")
+    # surface_contacts' NaN check: test_surface_contacts_direct_equals_one_program_after_an_overflow
     raises_both(lambda a: hulls_apart(a, jnp.ones((2, 3))), jnp.full((3, 3), jnp.inf), match="a")
 
 
