@@ -255,9 +255,13 @@ def solve(
                 parts.append((plan["rows"] @ (ctrl - ctrl0) - plan["b"]).reshape(-1))
         return jnp.concatenate(parts)
 
+    def jacobian_and_residuals(d, args):
+        """`(J, c)` at `d` from one trace of `residuals` (its value is jacfwd's primal): a
+        nonlinear constraint's foot-point search (`OnSurface`) is compiled once per use, not twice."""
+        return jax.jacfwd(lambda x: (residuals(x, args),) * 2, has_aux=True)(d)
+
     def step(d, args):
-        c = residuals(d, args)
-        j = jax.jacfwd(residuals)(d, args)
+        j, c = jacobian_and_residuals(d, args)
         return scale * (_pinv(j * scale[None, :]) @ (j @ d - c))
 
     eps = float(jnp.finfo(ctrl0.dtype).eps)
@@ -266,10 +270,10 @@ def solve(
     args = (plans, ctrl0)
     sol = optx.fixed_point(step, solver, d0, args, max_steps=max_steps, throw=False)
     d = sol.value
-    c_end, c_start = residuals(d, args), residuals(d0, args)
+    j, c_end = jacobian_and_residuals(d, args)
+    j, c_start = jax.lax.stop_gradient(j), residuals(d0, args)
     residual = _safe.norm(c_end)
     met = residual <= np.sqrt(eps) * (1.0 + _safe.norm(c_start))
-    j = jax.lax.stop_gradient(jax.jacfwd(residuals)(d, args))
     converged = sol.result == optx.RESULTS.successful
     status = jnp.where(met, 0, jnp.where(converged, 1, 2)).astype(jnp.int32)
     return Edit(
