@@ -50,6 +50,46 @@ def _grid(surface, m=9, n=7):
     return u, v, np.asarray(surface.evaluate(u, v))
 
 
+def _jit_vmap_grad(
+    f, x, far, reduce=lambda y: jnp.sum(jnp.sin(y)), close=None, n_dirs=2, eps=1e-6, rtol=1e-5, atol=1e-7
+):
+    """The jit, vmap and gradient checks of `f` in one compiled program,
+    `jit(vmap(value_and_grad(reduce ∘ f)))`, over the batch `[x, x + eps d_i, x − eps d_i, far]`
+    (`x`, `far`: pytrees of arrays; `d_i`: `n_dirs` random directions, as `tests.helpers.check_grad`
+    draws them; the batch is built and the differences taken in numpy, so nothing else compiles):
+    its `f` at `x` and at `far` equal the direct (eager) calls `f(x)`, `f(far)` (`far` far from
+    `x`: the batch's elements are not mixed up) to `close` (assert_allclose's arguments, default
+    `atol=1e-13`); the gradient at `x` is finite and matches the central differences of
+    `reduce(f)` along each `d_i` (`check_grad`'s tolerances). Returns the batched outputs of `f`,
+    their reduced values and the gradient at `x` (numpy)."""
+    leaves, tree = jax.tree.flatten(jax.tree.map(np.asarray, x))
+    rng = np.random.default_rng(0)
+    dirs = [[rng.normal(size=a.shape) for a in leaves] for _ in range(n_dirs)]
+    points = [leaves] + [[a + eps * d for a, d in zip(leaves, ds)] for ds in dirs]
+    points += [[a - eps * d for a, d in zip(leaves, ds)] for ds in dirs] + [jax.tree.leaves(far)]
+    batch = jax.tree.unflatten(
+        tree, [np.stack([np.asarray(p[i]) for p in points]) for i in range(len(leaves))]
+    )
+
+    def loss(p):
+        y = f(p)
+        return reduce(y), y
+
+    out = jax.jit(jax.vmap(jax.value_and_grad(loss, has_aux=True)))(batch)
+    (values, outs), grads = jax.tree.map(np.asarray, out)
+    close = {"atol": 1e-13} if close is None else close
+    for k, point in ((0, x), (-1, far)):
+        direct = f(jax.tree.map(jnp.asarray, point))
+        jax.tree.map(lambda o, e: np.testing.assert_allclose(o[k], e, **close), outs, direct)
+    g = [a[0] for a in jax.tree.leaves(grads)]
+    assert all(np.isfinite(a).all() for a in g), "gradient has non-finite entries"
+    for i, ds in enumerate(dirs):
+        fd = (values[1 + i] - values[1 + n_dirs + i]) / (2 * eps)
+        an = sum(float(np.vdot(a, d)) for a, d in zip(g, ds))
+        assert abs(float(fd - an)) <= atol + rtol * abs(float(fd)), (float(fd), float(an))
+    return outs, values, jax.tree.unflatten(tree, g)
+
+
 # --- compatible ----------------------------------------------------------------------------------
 def test_compatible_leaves_each_curve_unchanged():
     rng, d = np.random.default_rng(2), 2
@@ -73,20 +113,25 @@ def test_compatible_under_jit_and_grad():
     rng = np.random.default_rng(1)
     a, b = _curve(rng, 5, 2), _curve(rng, 6, 3)
     ref = construct.compatible([a, b])
+
     # knots closed over (concrete): control points traced
-    jitted = jax.jit(lambda p: construct.compatible([a.with_ctrl(p), b])[0].ctrl)(a.ctrl)
-    np.testing.assert_allclose(jitted, ref[0].ctrl, atol=1e-13)
-    check_grad(
-        lambda p: jnp.sum(construct.compatible([a.with_ctrl(p), b])[0].evaluate(T) ** 2), a.ctrl, n_dirs=2
-    )
+    def f(p):
+        c = construct.compatible([a.with_ctrl(p), b])[0]
+        return c.ctrl, jnp.sum(c.evaluate(T) ** 2)
+
+    # under jit (and vmap), with the gradient: one program; its first element is a's own net
+    far = a.ctrl + 0.1 * jnp.asarray(rng.normal(size=(5, 3)))
+    (jitted, _), _, _ = _jit_vmap_grad(f, a.ctrl, far, reduce=lambda y: y[1])
+    np.testing.assert_allclose(jitted[0], ref[0].ctrl, atol=1e-13)
     # curves as jit arguments (traced knots): fine when already compatible, refused otherwise
-    same = jax.jit(lambda c0, c1: construct.compatible([c0, c1])[1].ctrl)(ref[0], ref[1])
+    second = jax.jit(lambda c0, c1: construct.compatible([c0, c1])[1].ctrl)  # one program for both pairs
+    same = second(ref[0], ref[1])
     np.testing.assert_allclose(same, ref[1].ctrl, atol=1e-13)
     with pytest.raises(ValueError, match="outside jit"):
-        jax.jit(lambda c0, c1: construct.compatible([c0, c1])[1].ctrl)(a, b)
+        second(a, b)
     other = BSplineCurve(ref[1].ctrl, np.sort(np.asarray(ref[1].knots)) ** 1.5, 3)
     with pytest.raises(Exception, match="knot vector of the first curve"):
-        jax.block_until_ready(jax.jit(lambda c0, c1: construct.compatible([c0, c1])[1].ctrl)(ref[0], other))
+        jax.block_until_ready(second(ref[0], other))
 
 
 def test_compatible_periodic_curves_and_bad_input():
@@ -217,11 +262,14 @@ def test_revolve_jit_vmap_grad():
             u, v
         )
 
-    ref = f(profile.ctrl)
-    np.testing.assert_allclose(jax.jit(f)(profile.ctrl), ref, atol=1e-13)
-    batch = profile.ctrl[None] + 0.1 * jnp.asarray(rng.normal(size=(3, 5, 3)))
-    np.testing.assert_allclose(jax.vmap(f)(batch)[1], f(batch[1]), atol=1e-13)
-    check_grad(lambda p: jnp.sum(jnp.sin(f(p))), profile.ctrl, n_dirs=2)
+    # jit, vmap and the gradient in the control points and the axis direction: one program
+    far = (profile.ctrl + 0.1 * jnp.asarray(rng.normal(size=(5, 3))), jnp.array([0.3, 1.0, 0.8]))
+    _jit_vmap_grad(
+        lambda x: construct.revolve(profile.with_ctrl(x[0]), [0.0, 0.0, 0.0], x[1]).evaluate(u, v),
+        (profile.ctrl, jnp.array([0.0, 1.0, 1.0])),
+        far,
+        n_dirs=3,
+    )
     # a traced angle uses 4 arcs (a concrete 2.5 rad uses 2): the same surface, another v-parametrisation
     traced = jax.jit(lambda a: construct.revolve(profile, [0.0, 0.0, 0.0], [0.0, 1.0, 1.0], a))(2.5)
     concrete = construct.revolve(profile, [0.0, 0.0, 0.0], [0.0, 1.0, 1.0], 2.5)
@@ -231,29 +279,26 @@ def test_revolve_jit_vmap_grad():
         traced.evaluate(t, np.ones_like(t)), concrete.evaluate(t, np.ones_like(t)), atol=1e-12
     )
     check_grad(jax.jit(lambda a: jnp.sum(jnp.sin(f(profile.ctrl, a)))), jnp.asarray(2.5), n_dirs=2)
-    axis_grad = jax.grad(
-        lambda a: jnp.sum(construct.revolve(profile, [0.0, 0.0, 0.0], a).evaluate(u, v) ** 2)
-    )(jnp.array([0.0, 1.0, 1.0]))
-    assert bool(jnp.all(jnp.isfinite(axis_grad)))
 
 
 def test_revolve_bad_input():
     rng = np.random.default_rng(10)
     profile = _curve(rng, 5, 2)
     o = np.zeros(3)
-    raises_both(
-        lambda a: construct.revolve(profile, o, a), np.zeros(3), match="axis_dir: expected a finite nonzero"
-    )
-    raises_both(lambda a: construct.revolve(profile, o, a), np.array([0.0, np.nan, 1.0]), match="axis_dir")
+
+    def by_axis(a):  # one function (one program under jit) for both axis_dir cases
+        return construct.revolve(profile, o, a)
+
+    def by_angle(ang):  # one program under jit for the four angles
+        return construct.revolve(profile, o, [0.0, 0, 1], ang)
+
+    raises_both(by_axis, np.zeros(3), match="axis_dir: expected a finite nonzero")
+    raises_both(by_axis, np.array([0.0, np.nan, 1.0]), match="axis_dir")
     raises_both(
         lambda p: construct.revolve(profile, p, [0.0, 0, 1]), np.array([np.inf, 0, 0]), match="axis_point"
     )
     for bad in (0.0, -1.0, 7.0, np.nan):
-        raises_both(
-            lambda ang: construct.revolve(profile, o, [0.0, 0, 1], ang),
-            np.float64(bad),
-            match=r"angle: expected",
-        )
+        raises_both(by_angle, np.float64(bad), match=r"angle: expected")
     with pytest.raises(ValueError, match="axis_dir: expected trailing dimension 3"):
         construct.revolve(profile, o, [0.0, 1.0])
     with pytest.raises(TypeError, match="profile: expected a BSplineCurve"):
@@ -328,10 +373,8 @@ def test_coons_jit_vmap_grad():
         return construct.coons(bottom, top.with_ctrl(ctrl), left, right).evaluate(u, v)
 
     x = jnp.asarray(top.ctrl)[1:-1]
-    np.testing.assert_allclose(jax.jit(f)(x), f(x), atol=1e-13)
-    batch = x[None] + jnp.asarray(rng.normal(size=(3, 2, 3)))
-    np.testing.assert_allclose(jax.vmap(f)(batch)[2], f(batch[2]), atol=1e-13)
-    check_grad(lambda p: jnp.sum(jnp.cos(f(p))), x, n_dirs=2)
+    far = x + jnp.asarray(rng.normal(size=(2, 3)))
+    _jit_vmap_grad(f, x, far, reduce=lambda y: jnp.sum(jnp.cos(y)))  # jit, vmap and grad: one program
 
 
 def test_coons_bad_input():
@@ -419,10 +462,8 @@ def test_ruled_jit_vmap_grad_and_bad_input():
     def f(ctrl):
         return construct.ruled(c0.with_ctrl(ctrl), c1).evaluate(u, v)
 
-    np.testing.assert_allclose(jax.jit(f)(c0.ctrl), f(c0.ctrl), atol=1e-13)
-    batch = c0.ctrl[None] + 0.1 * jnp.asarray(rng.normal(size=(4, 5, 3)))
-    np.testing.assert_allclose(jax.vmap(f)(batch)[3], f(batch[3]), atol=1e-13)
-    check_grad(lambda p: jnp.sum(jnp.sin(f(p))), c0.ctrl, n_dirs=2)
+    far = c0.ctrl + 0.1 * jnp.asarray(rng.normal(size=(5, 3)))
+    _jit_vmap_grad(f, c0.ctrl, far)  # jit, vmap and grad: one program
     with pytest.raises(TypeError, match="c1: expected a BSplineCurve"):
         construct.ruled(c0, np.zeros((3, 3)))  # pyright: ignore[reportArgumentType]
     closed = BSplineCurve(rng.normal(size=(5, 3)), None, 2, periodic=True)
@@ -481,13 +522,12 @@ def test_interpolate_grid_jit_vmap_grad():
     u, v = (jnp.asarray(x) for x in rng.uniform(0, 1, (2, 7)))
 
     def f(p):
-        return jnp.sum(construct.interpolate_grid(p).evaluate(u, v) ** 2)
+        surface = construct.interpolate_grid(p)
+        return surface.ctrl, jnp.sum(surface.evaluate(u, v) ** 2)
 
-    assert abs(float(jax.jit(f)(points)) - float(f(points))) <= 1e-9 * abs(float(f(points)))
-    check_grad(f, points, n_dirs=2)
-    batch = jnp.stack([points, 2.0 * points])
-    nets = jax.vmap(lambda p: construct.interpolate_grid(p).ctrl)(batch)
-    np.testing.assert_allclose(nets[1], 2.0 * nets[0], atol=1e-10)  # chord parameters scale-free
+    # jit, vmap and grad in one program; the batch ends with the grid doubled
+    (nets, _), _, _ = _jit_vmap_grad(f, points, 2.0 * points, reduce=lambda y: y[1], close={"rtol": 1e-9})
+    np.testing.assert_allclose(nets[-1], 2.0 * nets[0], atol=1e-10)  # chord parameters scale-free
 
 
 def test_interpolate_grid_bad_input():
@@ -597,16 +637,17 @@ def test_sweep_jit_vmap_grad():
     path, profile = _s_path(), _planar_circle(0.2)
     u, v = (jnp.asarray(x) for x in np.random.default_rng(8).uniform(0, 1, (2, 5)))
 
-    def f(profile_ctrl, path_ctrl):
+    def f(ctrls):
+        profile_ctrl, path_ctrl = ctrls
         fit = construct.sweep(profile.with_ctrl(profile_ctrl), path.with_ctrl(path_ctrl), n_sections=6)
         return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
 
-    args = (profile.ctrl, path.ctrl)
-    assert float(jax.jit(f)(*args)) == pytest.approx(float(f(*args)), rel=1e-12)
-    check_grad(lambda p: f(p, path.ctrl), profile.ctrl, n_dirs=1)
-    check_grad(lambda p: f(profile.ctrl, p), path.ctrl, n_dirs=1)
-    batch = jax.vmap(lambda s: f(s * profile.ctrl, path.ctrl))(jnp.asarray([1.0, 2.0]))
-    assert batch.shape == (2,) and float(batch[0]) == pytest.approx(float(f(*args)), rel=1e-12)
+    # jit, vmap and grad (in both curves' control points) in one program; the batch ends with the
+    # profile doubled
+    _, values, _ = _jit_vmap_grad(
+        f, (profile.ctrl, path.ctrl), (2.0 * profile.ctrl, path.ctrl), lambda y: y, {"rtol": 1e-12}
+    )
+    assert values.shape == (2 * 2 + 2,)
 
 
 def test_sweep_bad_input():
@@ -617,14 +658,18 @@ def test_sweep_bad_input():
         construct.sweep(profile, path, n_sections=1)
     with pytest.raises(TypeError, match="path"):
         construct.sweep(profile, path.ctrl)
-    point = np.ones((7, 3))
-    raises_both(lambda p: construct.sweep(profile, path.with_ctrl(p), n_sections=4).max_error, point,
-                match="path: expected a regular path")  # fmt: skip
+
+    # 9 sections: the eager calls reuse the kernels compiled by the planar-path test above;
+    # the path and normal checks share one program under jit
+    def rmf(p, n):
+        return construct.sweep(profile, path.with_ctrl(p), n_sections=9, normal=n).max_error
+
+    point, up = np.ones((7, 3)), np.array([0.0, 2.0, 0.0])
+    raises_both(rmf, point, up, match="path: expected a regular path")
     line = np.linspace([0.0, 0, 0], [1.0, 1, 1], 7)
-    raises_both(lambda p: construct.sweep(profile, path.with_ctrl(p), "frenet", 4).max_error, line,
+    raises_both(lambda p: construct.sweep(profile, path.with_ctrl(p), "frenet", 9).max_error, line,
                 match="nonzero curvature")  # fmt: skip
-    raises_both(lambda n: construct.sweep(profile, path, n_sections=4, normal=n).max_error,
-                np.array([1.0, 0, 0]), match="normal")  # fmt: skip
+    raises_both(rmf, np.asarray(path.ctrl), np.array([1.0, 0, 0]), match="normal")
 
 
 # --- boundary_rotation -----------------------------------------------------------------------------
@@ -678,16 +723,18 @@ def test_boundary_rotation_jit_vmap_grad_and_bad_input():
         return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
 
     normal = jnp.asarray([0.1, 0.0, 1.0])
-    assert float(jax.jit(f)(left.ctrl, normal)) == pytest.approx(float(f(left.ctrl, normal)), rel=1e-12)
-    check_grad(lambda c: f(c, normal), left.ctrl + 0.1, n_dirs=1)  # (outlines apart: |D| > 0 inside)
-    check_grad(lambda n: f(left.ctrl, n), normal, n_dirs=1)
-    batch = jax.vmap(lambda n: f(left.ctrl, n))(jnp.stack([normal, 2.0 * normal]))
-    assert float(batch[0]) == pytest.approx(float(batch[1]), rel=1e-12)  # any normal length
-    raises_both(
-        lambda n: construct.boundary_rotation(left, right, n).max_error, np.zeros(3), match="plane_normal"
+    # jit, vmap and grad (control points, normal) in one program; outlines apart: |D| > 0 inside
+    ctrl = left.ctrl + 0.1
+    _, values, _ = _jit_vmap_grad(
+        lambda x: f(*x), (ctrl, normal), (ctrl, 2.0 * normal), lambda y: y, {"rtol": 1e-12}
     )
-    raises_both(lambda n: construct.boundary_rotation(left, right, n).max_error, np.array([np.nan, 0, 1.0]),
-                match="plane_normal")  # fmt: skip
+    assert float(values[-1]) == pytest.approx(float(values[0]), rel=1e-12)  # any normal length
+
+    def by_normal(n):  # one program under jit for both bad normals
+        return construct.boundary_rotation(left, right, n).max_error
+
+    raises_both(by_normal, np.zeros(3), match="plane_normal")
+    raises_both(by_normal, np.array([np.nan, 0, 1.0]), match="plane_normal")
     with pytest.raises(ValueError, match="plane_normal"):
         construct.boundary_rotation(left, right, [0.0, 1.0])
     with pytest.raises(ValueError, match="right: expected a polynomial"):
@@ -745,8 +792,10 @@ def test_rail_rotation_grad_and_bad_input():
         fit = construct.rail_rotation(rail_a.with_ctrl(ctrl), rail_b, profile, n_sections=5)
         return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
 
-    assert float(jax.jit(f)(rail_a.ctrl)) == pytest.approx(float(f(rail_a.ctrl)), rel=1e-12)
-    check_grad(f, rail_a.ctrl, n_dirs=1)
+    far = rail_a.ctrl + 0.05 * jnp.asarray(np.random.default_rng(13).normal(size=(3, 3)))
+    _jit_vmap_grad(
+        f, rail_a.ctrl, far, lambda y: y, {"rtol": 1e-12}, n_dirs=1
+    )  # jit, vmap, grad: one program
     raises_both(lambda p: construct.rail_rotation(rail_a, rail_b.with_ctrl(p), profile, 5).max_error,
                 np.asarray(rail_a.ctrl), match="rail_b: expected rails apart")  # fmt: skip
     closed = profile.with_ctrl(np.asarray(profile.ctrl) * [1, 1, 0])
