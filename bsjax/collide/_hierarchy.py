@@ -140,9 +140,10 @@ def _sphere_hierarchies(grids):
         tables.append(index + start)
         masks.append(valid)
         start += points.shape[0] * points.shape[1]
-    flat = _soa.split(jnp.concatenate([points.reshape(-1, 3) for points, _ in grids]))
+    flat = jnp.concatenate([points.reshape(-1, 3) for points, _ in grids])
     index, valid = np.concatenate(tables, axis=1).astype(np.int32), np.concatenate(masks)
-    corners = [tuple(c[jnp.asarray(index[k])] for c in flat) for k in range(4)]
+    gathered = flat[jnp.asarray(index)]  # (4, all blocks, 3): one gather, one index table
+    corners = [_soa.split(gathered[k]) for k in range(4)]
     centres = _three_point_sphere(*corners)  # 3 × (all blocks,)
     neg = jnp.array(-jnp.inf, dtype)
     out, start = [], 0

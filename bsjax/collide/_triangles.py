@@ -290,9 +290,10 @@ def candidate_pairs_intersect(t1, t2, active):
     """
     batch = jnp.broadcast_shapes(t1.shape[:-2], t2.shape[:-2], active.shape)
     size1, size2 = int(np.prod(t1.shape[:-2])), int(np.prod(t2.shape[:-2]))
-    # each pair's row in the flattened t1 and t2 (static), so that only gathered pairs are copied
-    row1 = np.broadcast_to(np.arange(size1, dtype=np.int32).reshape(t1.shape[:-2]), batch).reshape(-1)
-    row2 = np.broadcast_to(np.arange(size2, dtype=np.int32).reshape(t2.shape[:-2]), batch).reshape(-1)
+    # each pair's row in the flattened t1 and t2, so that only gathered pairs are copied (iotas
+    # in the program, not index tables baked into it as constants)
+    row1 = jnp.broadcast_to(jnp.arange(size1, dtype=jnp.int32).reshape(t1.shape[:-2]), batch).reshape(-1)
+    row2 = jnp.broadcast_to(jnp.arange(size2, dtype=jnp.int32).reshape(t2.shape[:-2]), batch).reshape(-1)
     t1, t2 = t1.reshape(-1, 3, 3), t2.reshape(-1, 3, 3)
     active = jnp.broadcast_to(active, batch).reshape(-1)
     f1, f2 = t1[row1], t2[row2]
@@ -305,7 +306,6 @@ def candidate_pairs_intersect(t1, t2, active):
     position = jnp.cumsum(live, dtype=jnp.int32) - 1  # rank of each live pair
     chunk = position // slots  # the round that finishes it
     rounds = (position[-1] + slots) // slots
-    row1, row2 = jnp.asarray(row1), jnp.asarray(row2)
     pair = jnp.arange(n, dtype=jnp.int32)
 
     def finish(carry):
