@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: demo test test-min bench
+.PHONY: demo test test-min bench docs
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -18,12 +18,16 @@ demo: $(PY)
 CHROMIUM := command -v chromium-headless-shell >/dev/null || command -v chromium >/dev/null || \
 	(apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium-headless-shell)
 
+# the docs build of `make test`, which tests/test_docs.py then checks instead of building again
+TEST_SITE := $(CURDIR)/build/test-site
+test: export BSJAX_DOCS_SITE := $(TEST_SITE)
 test: $(PY)
 	$(CHROMIUM)
-	$(PY) -m pip install -q -e ".[test,all,notebooks]"
+	$(PY) -m pip install -q -e ".[test,all,notebooks,docs]"
 	$(VENV)/bin/ruff format --check bsjax tests benchmarks
 	$(VENV)/bin/ruff check bsjax tests benchmarks
 	$(VENV)/bin/pyright
+	$(MAKE) docs-build SITE=$(TEST_SITE)
 	# The 20 slowest tests are printed at the end (the suite's budget is 15 min on 2 cores).
 	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --durations=20
 
@@ -47,6 +51,16 @@ $(MIN_PY):
 test-min: $(MIN_PY)
 	$(MIN_PY) -m pip install -q -c constraints-min.txt -e ".[test]"
 	BSJAX_CACHE_DIR=.cache/jax-min $(MIN_PY) -m pytest -q -p no:cacheprovider $(SMOKE)
+
+# The documentation site (mkdocs.yml, docs/): built with --strict, so a broken link, anchor or
+# API reference fails; `make test` runs the build (into a temporary directory).
+SITE ?= build/site
+docs: $(PY)
+	$(PY) -m pip install -q -e ".[docs]"
+	$(MAKE) docs-build SITE=$(SITE)
+
+docs-build:
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet -d $(SITE)
 
 bench: $(PY)
 	$(PY) -m pip install -q -e ".[bench,all]"
