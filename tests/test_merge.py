@@ -518,7 +518,16 @@ def test_float32_merge_keeps_dtype():
 
 
 # --- jit, vmap, grad --------------------------------------------------------------------------
-_apply = jax.jit(lambda layout, ctrls: layout.apply(ctrls))
+def _apply_fn(layout, ctrls):
+    return layout.apply(ctrls)
+
+
+def _refine_fn(layout, ctrls):
+    return mg.refine(layout, ctrls)
+
+
+# one function object per kernel: jax.jit of it here and in the bad-input checks is one program
+_apply = jax.jit(_apply_fn)
 
 
 def test_layout_jit_vmap_grad(surface):
@@ -616,9 +625,9 @@ def test_bad_input_eager_and_jit(surface):
     a, b = split(surface, "u", 0.5)
     layout = mg.plan([a, b], "u", 2, samples=S)
     bad = a.ctrl.at[1, 2, 0].set(jnp.nan)
-    raises_both(lambda p: layout.apply([p, b.ctrl]), bad, match="finite")
+    raises_both(_apply_fn, layout, [bad, b.ctrl], match="finite")  # the program of test_layout_jit_vmap_grad
     raises_both(lambda p: layout.points([p, b.ctrl]), bad, match="finite")
-    raises_both(lambda p: mg.refine(layout, [p, b.ctrl], 2), bad, match="finite")
+    raises_both(_refine_fn, layout, [bad, b.ctrl], match="finite")  # one program with the test below
     raises_both(lambda p: mg.refit(layout, [a.ctrl, p]).ctrl, bad[: b.shape[0]], match="ctrls")
     raises_both(lambda p: mg.deviation([a.with_ctrl(p)], a, samples=5).max, bad, match="finite")
     raises_both(
@@ -649,5 +658,5 @@ def test_merge_inside_jit_with_a_planned_layout(surface):
     a, b = split(surface, "u", 0.5)
     layout = mg.plan([a, b], "u", 2, samples=S)
     want = mg.merge([a, b], "u", 2, samples=S, refine=True).ctrl
-    got = jax.jit(lambda lay, p: mg.refine(lay, [p, b.ctrl]))(layout, a.ctrl)
+    got = jax.jit(_refine_fn)(layout, [a.ctrl, b.ctrl])
     np.testing.assert_allclose(got, want, atol=1e-12)
