@@ -134,10 +134,14 @@ def test_overflow_flag():
         grammar.symbols(peanut(), capacity=3)
 
 
+def _closed_points(curve):
+    return grammar.characteristic_points(curve, closed=True)
+
+
 def test_jit_and_vmap():
     curve = ellipse()
     eager = grammar.characteristic_points(curve, closed=True)
-    jitted = jax.jit(lambda c: grammar.characteristic_points(c, closed=True))(curve)
+    jitted = jax.jit(_closed_points)(curve)  # the program test_bad_input's NaN net raises in
     np.testing.assert_allclose(jitted.params, eager.params, atol=1e-14)
     batch = jax.vmap(lambda ctrl: grammar.characteristic_points(curve.with_ctrl(ctrl), closed=True))(
         jnp.stack([ellipse_ctrl(2.0, 1.0), ellipse_ctrl(1.0, 3.0)])
@@ -157,10 +161,6 @@ def test_bad_input():
     with pytest.raises(TypeError, match="capacity"):
         grammar.characteristic_points(curve, capacity=2.5)  # type: ignore[arg-type]
 
-    def nan_points(ctrl):
-        bad = eqx_set_ctrl(curve, ctrl)
-        return grammar.characteristic_points(bad, closed=True).params
-
     def nan_measures(ctrl):
         return grammar.measures(eqx_set_ctrl(curve, ctrl), closed=True).tension
 
@@ -170,7 +170,9 @@ def test_bad_input():
 
     nan = ellipse_ctrl(2, 1)
     nan[3, 1] = np.nan
-    for fn in (nan_points, nan_measures, nan_parameters):
+    # the whole curve as the argument: under jit, the program of test_jit_and_vmap
+    raises_both(_closed_points, eqx_set_ctrl(curve, jnp.asarray(nan)), match="curve.ctrl: expected finite")
+    for fn in (nan_measures, nan_parameters):
         raises_both(fn, jnp.asarray(nan), match="curve.ctrl: expected finite")
 
 
