@@ -37,14 +37,27 @@ def lattice():
     return lat, mss.init(lat)
 
 
-# (label, function of the traced array, the array, the argument the message must name)
+def _sphere_radius(r):
+    return collide.Sphere(C3, r)
+
+
+def _point(p):
+    return collide.Point(p)
+
+
+def _ellipsoid_radii(r):
+    return collide.Ellipsoid(C3, r)
+
+
+# (label, function of the traced array, the array, the argument the message must name); cases of
+# one function share its function object: under jit, one program serves them all
 ARRAY_CASES = [
     ("Sphere centre NaN", lambda c: collide.Sphere(c, 0.2), NAN3, "center"),
-    ("Sphere radius < 0", lambda r: collide.Sphere(C3, r), jnp.asarray(-1.0), "radius"),
-    ("Sphere radius inf", lambda r: collide.Sphere(C3, r), jnp.asarray(np.inf), "radius"),
-    ("Ellipsoid radii < 0", lambda r: collide.Ellipsoid(C3, r), jnp.array([1.0, -1.0, 1.0]), "radii"),
+    ("Sphere radius < 0", _sphere_radius, jnp.asarray(-1.0), "radius"),
+    ("Sphere radius inf", _sphere_radius, jnp.asarray(np.inf), "radius"),
+    ("Ellipsoid radii < 0", _ellipsoid_radii, jnp.array([1.0, -1.0, 1.0]), "radii"),
     ("Plane point inf", lambda p: collide.Plane(p, jnp.array([0.0, 0.0, 1.0])), INF3, "point"),
-    ("Point position NaN", lambda p: collide.Point(p), NAN3, "position"),
+    ("Point position NaN", _point, NAN3, "position"),
     ("closest_point_on_triangle NaN", lambda x: collide.closest_point_on_triangle(x, jnp.eye(3)), NAN3, "x"),
     ("stable_dt contact < 0", None, jnp.asarray(-1e3), "contact_stiffness"),
     ("step dt NaN", None, jnp.asarray(np.nan), "dt"),
@@ -57,9 +70,9 @@ ARRAY_CASES = [
     ("hex_lattice positions NaN", None, jnp.full((2, 2, 2, 3), np.nan), "positions"),
     ("vsofm.fit points inf", lambda p: vsofm.fit(p, (3, 3, 3), cycles=2), None, "points"),
     # extreme but finite: refused where the quadratics of the depth would overflow
-    ("Sphere radius 1e300", lambda r: collide.Sphere(C3, r), jnp.asarray(1e300), "radius"),
-    ("Point position 1e300", lambda p: collide.Point(p), jnp.array([1e300, 0.0, 0.0]), "position"),
-    ("Ellipsoid aspect 1e13", lambda r: collide.Ellipsoid(C3, r), jnp.array([1e13, 1.0, 1.0]), "radii"),
+    ("Sphere radius 1e300", _sphere_radius, jnp.asarray(1e300), "radius"),
+    ("Point position 1e300", _point, jnp.array([1e300, 0.0, 0.0]), "position"),
+    ("Ellipsoid aspect 1e13", _ellipsoid_radii, jnp.array([1e13, 1.0, 1.0]), "radii"),
     (
         "Sphere float32 radius 1e39",
         lambda r: collide.Sphere(jnp.zeros(3, jnp.float32), r),
@@ -77,12 +90,31 @@ ARRAY_CASES = [
 ]
 
 
+_LATTICE_TABLE: dict = {}
+
+
 def _lattice_case(label, lat, state):
+    """The case's function of the lattice fixture's lattice and state; built once per lattice,
+    so that cases of one function share its function object (one program under jit)."""
+    if _LATTICE_TABLE.get("lattice") is not lat:
+        _LATTICE_TABLE.clear()
+        _LATTICE_TABLE.update(_lattice_table(lat, state), lattice=lat)
+    return _LATTICE_TABLE[label]
+
+
+def _lattice_table(lat, state):
     n = lat.n_nodes
+
+    def step_dt(dt):
+        return mss.step(lat, state, dt)
+
+    def hex_lattice(x):
+        return mss.hex_lattice(x, material=mss.JELLY)
+
     return {
         "stable_dt contact < 0": lambda k: mss.stable_dt(lat, k),
-        "step dt NaN": lambda dt: mss.step(lat, state, dt),
-        "step dt < 0": lambda dt: mss.step(lat, state, dt),
+        "step dt NaN": step_dt,
+        "step dt < 0": step_dt,
         "implicit_step dt inf": lambda dt: mss.implicit_step(lat, state, dt),
         "step force NaN": (lambda f: mss.step(lat, state, 1e-5, external_force=f), jnp.full((n, 3), np.nan)),
         "step gravity inf": lambda g: mss.step(lat, state, 1e-5, gravity=g),
@@ -91,13 +123,10 @@ def _lattice_case(label, lat, state):
             state.position.at[0, 0].set(np.nan),
         ),
         "relax tol < 0": lambda t: mss.relax(lat, state, 1e-5, tol=t, max_steps=2, check_every=1),
-        "hex_lattice positions NaN": lambda x: mss.hex_lattice(x, material=mss.JELLY),
-        "hex_lattice flat grid": (
-            lambda x: mss.hex_lattice(x, material=mss.JELLY),
-            _grid().at[..., 2].set(0.0),
-        ),
-        "hex_lattice overflowing grid": (lambda x: mss.hex_lattice(x, material=mss.JELLY), _grid() * 1e300),
-    }[label]
+        "hex_lattice positions NaN": hex_lattice,
+        "hex_lattice flat grid": (hex_lattice, _grid().at[..., 2].set(0.0)),
+        "hex_lattice overflowing grid": (hex_lattice, _grid() * 1e300),
+    }
 
 
 def _grid():
