@@ -97,6 +97,9 @@ def test_every_guide_page_and_the_main_pages_exist(site):
     for page in PAGES:
         assert (site / page).is_file(), page
     assert (site / "sketch_understanding" / "index.html").is_file()  # the measured page, kept and linked
+    pages = "".join(page.read_text() for page in site.rglob("*.html"))
+    for image in DOCS.glob("*.png"):  # every picture is shown on some page
+        assert image.name in pages and (site / image.name).is_file(), image.name
 
 
 def test_every_notebook_is_rendered(site):
