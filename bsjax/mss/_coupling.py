@@ -148,11 +148,13 @@ class SurfaceCoupling(eqx.Module):
         surface keeps its topology and a well-defined normal there (a refit pole opened by
         rounding has a tiny, noisy `T_v` and a normal of any direction)."""
         ctrl = self.blending.refit(self.grid(position))
-        for side, (axis, index) in zip(self.poles, ((0, 0), (0, -1), (1, 0), (1, -1))):
-            if side:
-                row = jnp.take(ctrl, index, axis=axis)
-                mean = jnp.broadcast_to(jnp.mean(row, 0, keepdims=True), row.shape)
-                ctrl = ctrl.at[index].set(mean) if axis == 0 else ctrl.at[:, index].set(mean)
+        for side, (axis, first) in zip(self.poles, ((0, True), (0, False), (1, True), (1, False))):
+            if side:  # static slices and a concatenation (no gather, no scatter)
+                net = ctrl if axis == 0 else jnp.swapaxes(ctrl, 0, 1)
+                row = net[:1] if first else net[-1:]
+                mean = jnp.broadcast_to(jnp.mean(row, 1, keepdims=True), row.shape)
+                net = jnp.concatenate([mean, net[1:]] if first else [net[:-1], mean])
+                ctrl = net if axis == 0 else jnp.swapaxes(net, 0, 1)
         return ctrl
 
 
