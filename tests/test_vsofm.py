@@ -95,16 +95,20 @@ def test_no_inverted_hexahedra_where_box_edges_meet_the_curved_surface(name, siz
             assert rim[:, 2].max() < 0.6, (key, rim[:, 2].max())
 
 
+# the patch fit and the projection as one program each (eagerly: ~80 one-operation programs)
+_patches, _project = jax.jit(vsofm._patches), jax.jit(vsofm._project)
+
+
 def test_quadric_patches_follow_the_curvature_and_report_measures_distance():
     """Projection onto the samples' quadric patches lands on a unit sphere to well under the sag
     of a tangent plane over the same samples (~ spacing² / 2 ≈ 3e-3), and `report`'s boundary
     distance recovers a known offset."""
     pts = fibonacci_sphere(2000)
     p = jnp.asarray(pts)
-    frame, coef = vsofm._patches(p, vsofm._neighbours(p, vsofm._NEAR)[0])
+    frame, coef = _patches(p, vsofm._neighbours(p, vsofm._NEAR)[0])
     d = np.random.default_rng(0).normal(size=(500, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    on = np.asarray(vsofm._project(jnp.asarray(1.02 * d), p, frame, coef))
+    on = np.asarray(_project(jnp.asarray(1.02 * d), p, frame, coef))
     assert np.abs(np.linalg.norm(on, axis=1) - 1).max() < 2e-4
     g = np.stack(np.meshgrid(*[np.linspace(-0.5, 0.5, 4)] * 3, indexing="ij"), -1)
     nodes = g / np.abs(g).max(axis=-1, keepdims=True).clip(1e-9) * 0.5  # a cube's shell ...
@@ -315,7 +319,7 @@ def test_projection_gradient_matches_finite_differences():
     from tests.helpers import check_grad
 
     p = jnp.asarray(fibonacci_sphere(400))
-    frame, coef = vsofm._patches(p, vsofm._neighbours(p, vsofm._NEAR)[0])
+    frame, coef = _patches(p, vsofm._neighbours(p, vsofm._NEAR)[0])
     y = jnp.asarray(1.03 * fibonacci_sphere(9))
     check_grad(lambda y: jnp.sum(vsofm._project(y, p, frame, coef) ** 2), y, eps=1e-7)
 
