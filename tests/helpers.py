@@ -73,3 +73,43 @@ CHROMIUM = shutil.which("chromium-headless-shell") or shutil.which("chromium")
 needs_browser = pytest.mark.skipif(
     CHROMIUM is None, reason="no system Chromium (apt-get install chromium-headless-shell)"
 )
+
+
+def jit_vmap_grad(
+    f, x, far, reduce=lambda y: jnp.sum(jnp.sin(y)), close=None, n_dirs=2, eps=1e-6, rtol=1e-5, atol=1e-7
+):
+    """The jit, vmap and gradient checks of `f` in one compiled program,
+    `jit(vmap(value_and_grad(reduce ∘ f)))`, over the batch `[x, x + eps d_i, x − eps d_i, far]`
+    (`x`, `far`: pytrees of arrays; `d_i`: `n_dirs` random directions, as `tests.helpers.check_grad`
+    draws them; the batch is built and the differences taken in numpy, so nothing else compiles):
+    its `f` at `x` and at `far` equal the direct (eager) calls `f(x)`, `f(far)` (`far` far from
+    `x`: the batch's elements are not mixed up) to `close` (assert_allclose's arguments, default
+    `atol=1e-13`); the gradient at `x` is finite and matches the central differences of
+    `reduce(f)` along each `d_i` (`check_grad`'s tolerances). Returns the batched outputs of `f`,
+    their reduced values and the gradient at `x` (numpy)."""
+    leaves, tree = jax.tree.flatten(jax.tree.map(np.asarray, x))
+    rng = np.random.default_rng(0)
+    dirs = [[rng.normal(size=a.shape) for a in leaves] for _ in range(n_dirs)]
+    points = [leaves] + [[a + eps * d for a, d in zip(leaves, ds)] for ds in dirs]
+    points += [[a - eps * d for a, d in zip(leaves, ds)] for ds in dirs] + [jax.tree.leaves(far)]
+    batch = jax.tree.unflatten(
+        tree, [np.stack([np.asarray(p[i]) for p in points]) for i in range(len(leaves))]
+    )
+
+    def loss(p):
+        y = f(p)
+        return reduce(y), y
+
+    out = jax.jit(jax.vmap(jax.value_and_grad(loss, has_aux=True)))(batch)
+    (values, outs), grads = jax.tree.map(np.asarray, out)
+    close = {"atol": 1e-13} if close is None else close
+    for k, point in ((0, x), (-1, far)):
+        direct = f(jax.tree.map(jnp.asarray, point))
+        jax.tree.map(lambda o, e: np.testing.assert_allclose(o[k], e, **close), outs, direct)
+    g = [a[0] for a in jax.tree.leaves(grads)]
+    assert all(np.isfinite(a).all() for a in g), "gradient has non-finite entries"
+    for i, ds in enumerate(dirs):
+        fd = (values[1 + i] - values[1 + n_dirs + i]) / (2 * eps)
+        an = sum(float(np.vdot(a, d)) for a, d in zip(g, ds))
+        assert abs(float(fd - an)) <= atol + rtol * abs(float(fd)), (float(fd), float(an))
+    return outs, values, jax.tree.unflatten(tree, g)

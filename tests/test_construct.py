@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from bsjax import construct
 from bsjax.basis import BSplineCurve, clamped_knots, greville
-from tests.helpers import check_grad, raises_both, random_knots
+from tests.helpers import check_grad, jit_vmap_grad, raises_both, random_knots
 
 T = np.concatenate([np.linspace(0.0, 1.0, 21), np.random.default_rng(7).uniform(0, 1, 20)])
 CIRCLE_SQUARE = np.array(
@@ -50,46 +50,6 @@ def _grid(surface, m=9, n=7):
     return u, v, np.asarray(surface.evaluate(u, v))
 
 
-def _jit_vmap_grad(
-    f, x, far, reduce=lambda y: jnp.sum(jnp.sin(y)), close=None, n_dirs=2, eps=1e-6, rtol=1e-5, atol=1e-7
-):
-    """The jit, vmap and gradient checks of `f` in one compiled program,
-    `jit(vmap(value_and_grad(reduce ∘ f)))`, over the batch `[x, x + eps d_i, x − eps d_i, far]`
-    (`x`, `far`: pytrees of arrays; `d_i`: `n_dirs` random directions, as `tests.helpers.check_grad`
-    draws them; the batch is built and the differences taken in numpy, so nothing else compiles):
-    its `f` at `x` and at `far` equal the direct (eager) calls `f(x)`, `f(far)` (`far` far from
-    `x`: the batch's elements are not mixed up) to `close` (assert_allclose's arguments, default
-    `atol=1e-13`); the gradient at `x` is finite and matches the central differences of
-    `reduce(f)` along each `d_i` (`check_grad`'s tolerances). Returns the batched outputs of `f`,
-    their reduced values and the gradient at `x` (numpy)."""
-    leaves, tree = jax.tree.flatten(jax.tree.map(np.asarray, x))
-    rng = np.random.default_rng(0)
-    dirs = [[rng.normal(size=a.shape) for a in leaves] for _ in range(n_dirs)]
-    points = [leaves] + [[a + eps * d for a, d in zip(leaves, ds)] for ds in dirs]
-    points += [[a - eps * d for a, d in zip(leaves, ds)] for ds in dirs] + [jax.tree.leaves(far)]
-    batch = jax.tree.unflatten(
-        tree, [np.stack([np.asarray(p[i]) for p in points]) for i in range(len(leaves))]
-    )
-
-    def loss(p):
-        y = f(p)
-        return reduce(y), y
-
-    out = jax.jit(jax.vmap(jax.value_and_grad(loss, has_aux=True)))(batch)
-    (values, outs), grads = jax.tree.map(np.asarray, out)
-    close = {"atol": 1e-13} if close is None else close
-    for k, point in ((0, x), (-1, far)):
-        direct = f(jax.tree.map(jnp.asarray, point))
-        jax.tree.map(lambda o, e: np.testing.assert_allclose(o[k], e, **close), outs, direct)
-    g = [a[0] for a in jax.tree.leaves(grads)]
-    assert all(np.isfinite(a).all() for a in g), "gradient has non-finite entries"
-    for i, ds in enumerate(dirs):
-        fd = (values[1 + i] - values[1 + n_dirs + i]) / (2 * eps)
-        an = sum(float(np.vdot(a, d)) for a, d in zip(g, ds))
-        assert abs(float(fd - an)) <= atol + rtol * abs(float(fd)), (float(fd), float(an))
-    return outs, values, jax.tree.unflatten(tree, g)
-
-
 # --- compatible ----------------------------------------------------------------------------------
 def test_compatible_leaves_each_curve_unchanged():
     rng, d = np.random.default_rng(2), 2
@@ -121,7 +81,7 @@ def test_compatible_under_jit_and_grad():
 
     # under jit (and vmap), with the gradient: one program; its first element is a's own net
     far = a.ctrl + 0.1 * jnp.asarray(rng.normal(size=(5, 3)))
-    (jitted, _), _, _ = _jit_vmap_grad(f, a.ctrl, far, reduce=lambda y: y[1])
+    (jitted, _), _, _ = jit_vmap_grad(f, a.ctrl, far, reduce=lambda y: y[1])
     np.testing.assert_allclose(jitted[0], ref[0].ctrl, atol=1e-13)
     # curves as jit arguments (traced knots): fine when already compatible, refused otherwise
     second = jax.jit(lambda c0, c1: construct.compatible([c0, c1])[1].ctrl)  # one program for both pairs
@@ -264,7 +224,7 @@ def test_revolve_jit_vmap_grad():
 
     # jit, vmap and the gradient in the control points and the axis direction: one program
     far = (profile.ctrl + 0.1 * jnp.asarray(rng.normal(size=(5, 3))), jnp.array([0.3, 1.0, 0.8]))
-    _jit_vmap_grad(
+    jit_vmap_grad(
         lambda x: construct.revolve(profile.with_ctrl(x[0]), [0.0, 0.0, 0.0], x[1]).evaluate(u, v),
         (profile.ctrl, jnp.array([0.0, 1.0, 1.0])),
         far,
@@ -374,7 +334,7 @@ def test_coons_jit_vmap_grad():
 
     x = jnp.asarray(top.ctrl)[1:-1]
     far = x + jnp.asarray(rng.normal(size=(2, 3)))
-    _jit_vmap_grad(f, x, far, reduce=lambda y: jnp.sum(jnp.cos(y)))  # jit, vmap and grad: one program
+    jit_vmap_grad(f, x, far, reduce=lambda y: jnp.sum(jnp.cos(y)))  # jit, vmap and grad: one program
 
 
 def test_coons_bad_input():
@@ -463,7 +423,7 @@ def test_ruled_jit_vmap_grad_and_bad_input():
         return construct.ruled(c0.with_ctrl(ctrl), c1).evaluate(u, v)
 
     far = c0.ctrl + 0.1 * jnp.asarray(rng.normal(size=(5, 3)))
-    _jit_vmap_grad(f, c0.ctrl, far)  # jit, vmap and grad: one program
+    jit_vmap_grad(f, c0.ctrl, far)  # jit, vmap and grad: one program
     with pytest.raises(TypeError, match="c1: expected a BSplineCurve"):
         construct.ruled(c0, np.zeros((3, 3)))  # pyright: ignore[reportArgumentType]
     closed = BSplineCurve(rng.normal(size=(5, 3)), None, 2, periodic=True)
@@ -526,7 +486,7 @@ def test_interpolate_grid_jit_vmap_grad():
         return surface.ctrl, jnp.sum(surface.evaluate(u, v) ** 2)
 
     # jit, vmap and grad in one program; the batch ends with the grid doubled
-    (nets, _), _, _ = _jit_vmap_grad(f, points, 2.0 * points, reduce=lambda y: y[1], close={"rtol": 1e-9})
+    (nets, _), _, _ = jit_vmap_grad(f, points, 2.0 * points, reduce=lambda y: y[1], close={"rtol": 1e-9})
     np.testing.assert_allclose(nets[-1], 2.0 * nets[0], atol=1e-10)  # chord parameters scale-free
 
 
@@ -644,7 +604,7 @@ def test_sweep_jit_vmap_grad():
 
     # jit, vmap and grad (in both curves' control points) in one program; the batch ends with the
     # profile doubled
-    _, values, _ = _jit_vmap_grad(
+    _, values, _ = jit_vmap_grad(
         f, (profile.ctrl, path.ctrl), (2.0 * profile.ctrl, path.ctrl), lambda y: y, {"rtol": 1e-12}
     )
     assert values.shape == (2 * 2 + 2,)
@@ -725,7 +685,7 @@ def test_boundary_rotation_jit_vmap_grad_and_bad_input():
     normal = jnp.asarray([0.1, 0.0, 1.0])
     # jit, vmap and grad (control points, normal) in one program; outlines apart: |D| > 0 inside
     ctrl = left.ctrl + 0.1
-    _, values, _ = _jit_vmap_grad(
+    _, values, _ = jit_vmap_grad(
         lambda x: f(*x), (ctrl, normal), (ctrl, 2.0 * normal), lambda y: y, {"rtol": 1e-12}
     )
     assert float(values[-1]) == pytest.approx(float(values[0]), rel=1e-12)  # any normal length
@@ -793,9 +753,7 @@ def test_rail_rotation_grad_and_bad_input():
         return jnp.sum(fit.surface.evaluate(u, v) ** 2) + fit.max_error
 
     far = rail_a.ctrl + 0.05 * jnp.asarray(np.random.default_rng(13).normal(size=(3, 3)))
-    _jit_vmap_grad(
-        f, rail_a.ctrl, far, lambda y: y, {"rtol": 1e-12}, n_dirs=1
-    )  # jit, vmap, grad: one program
+    jit_vmap_grad(f, rail_a.ctrl, far, lambda y: y, {"rtol": 1e-12}, n_dirs=1)  # jit, vmap, grad: one program
     raises_both(lambda p: construct.rail_rotation(rail_a, rail_b.with_ctrl(p), profile, 5).max_error,
                 np.asarray(rail_a.ctrl), match="rail_b: expected rails apart")  # fmt: skip
     closed = profile.with_ctrl(np.asarray(profile.ctrl) * [1, 1, 0])
