@@ -459,10 +459,9 @@ def test_gradients_match_finite_differences():
 
     @jax.jit
     def pose_and_size(x):  # sphere centre, radius; ellipsoid centre, semi-axes; force
-        sphere = contacts(b, ctrl, Sphere(x[:3], x[3])).depth.sum()
+        sphere = contacts(b, ctrl, Sphere(x[:3], x[3]))  # one query for its depth and its force
         ellipsoid = contacts(b, ctrl, Ellipsoid(x[4:7], x[7:10])).depth.sum()
-        force = contact_force(contacts(b, ctrl, Sphere(x[:3], x[3])), 50.0)[2]
-        return sphere + ellipsoid + 1e-2 * force
+        return sphere.depth.sum() + ellipsoid + 1e-2 * contact_force(sphere, 50.0)[2]
 
     x = jnp.array([0.47, 0.52, 0.06, 0.23, 0.5, 0.45, 0.05, 0.3, 0.2, 0.12])
     check_grad(pose_and_size, x, rtol=1e-4)

@@ -203,17 +203,19 @@ def test_batched_candidate_test_agrees_with_the_single_pair_test():
 
 def test_surfaces_touching_at_one_vertex_are_in_contact():
     """Two plates whose sample grids share only the corner (1, 1, 0), the second tilted up and
-    away: `surface_contacts` reports the contact (the single-pair test alone would find it)."""
+    away: `surface_contacts` reports the contact (the single-pair test alone would find it).
+    Bicubic 6 × 6 nets at 10 × 10 samples and capacity 512, as test_collide's direct/jit/vmap
+    test: the run's compilation cache serves both programs (the exact pass and the dense one)."""
     from bsjax import collide, shapes
 
-    a = shapes.plate(4, 4)
+    a = shapes.plate(6, 6)
     tilt = jnp.asarray(a.ctrl) * jnp.array([[[1.0, 1.0, 0.0]]])
     b = a.with_ctrl(tilt + jnp.array([[[1.0, 1.0, 0.0]]]) + tilt[..., :1] * jnp.array([[[0.0, 0.0, 1.0]]]))
-    ba, bb = a.blending(9, 9), b.blending(9, 9)
+    ba, bb = a.blending(10, 10), b.blending(10, 10)
     assert np.allclose(bb.points(b.ctrl)[0, 0], [1.0, 1.0, 0.0]) and np.allclose(
         ba.points(a.ctrl)[-1, -1], [1, 1, 0]
     )
-    out = collide.surface_contacts(ba, a.ctrl, bb, b.ctrl, flat_angle=None)
+    out = collide.surface_contacts(ba, a.ctrl, bb, b.ctrl, capacity=512, flat_angle=None)
     dense = collide.surface_contacts(ba, a.ctrl, bb, b.ctrl, method="dense")
     assert bool(dense.hit) and bool(out.hit)
     assert bool(out.mask_a[-1, -1]) and bool(out.mask_b[0, 0])

@@ -207,10 +207,10 @@ def test_value_outside_the_box_is_one_half():
 
 def test_jit_vmap_and_a_moved_mesh():
     tool = collide.TriangleMesh.from_trimesh(MESHES["icosphere"]())
-    x = points(60, seed=6)
+    x = points(200, seed=6)  # the shape of the every-face test's: its direct program serves this call
     depth, _ = tool.push(x)
     # one program for both transformations: vmap over point batches inside jit, the tool a jit argument
-    vd, _ = jax.jit(jax.vmap(lambda t, p: t.push(p), in_axes=(None, 0)))(tool, x.reshape(6, 10, 3))
+    vd, _ = jax.jit(jax.vmap(lambda t, p: t.push(p), in_axes=(None, 0)))(tool, x.reshape(10, 20, 3))
     np.testing.assert_allclose(vd.reshape(-1), depth, atol=1e-15)
     # a translated mesh (the tree keeps only topology): same depths for translated points
     shift = jnp.array([0.3, -0.2, 0.1])
