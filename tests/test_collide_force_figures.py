@@ -1,5 +1,5 @@
 """The distributed springs of a rigid probe against its closed forms and the figures of
-Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools*
+Gao & Gibson, *Haptic B-spline surface sculpting with a shaped tool of implicit surface*
 (CAD & Applications, 2005): Fig. 4 (force magnitude against intrusion depth for a spherical
 probe through a plane) and Fig. 5 (force direction by surface normals or probe normals, at a
 sharp edge and through a surface).

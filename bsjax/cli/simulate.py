@@ -1,7 +1,7 @@
 """`bsjax simulate`: mass-spring simulation of a surface file.
 
 The surface lattice and its dual B-spline representation follow the thesis (ch. 5) and Gao &
-Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools* (§4).
+Gibson, *Haptic B-spline surface sculpting with a shaped tool of implicit surface* (§4).
 
     bsjax simulate plate.json -o sagged.json --material jelly --clamp 0,0,0,1,0,0 --steps 2000
     bsjax simulate drop.3dm -o out.glb --table 0,0,-1.05 --sphere 0,0,1.2,0.3 --method implicit --dt 1e-3

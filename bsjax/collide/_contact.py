@@ -191,8 +191,8 @@ def contacts(
 
     **Returns:** a `Contact`. A sample is in contact when it lies inside the solid tool
     (`value < 0`); its depth is the tool's penetration depth along the sample's normal
-    (quadrics; Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with
-    shaped tools*, §3.2.2), the signed distance (plane, mesh) or the closest-point distance
+    (quadrics; Gao & Gibson, *Haptic B-spline surface sculpting with a shaped
+    tool of implicit surface*, §3.2.2), the signed distance (plane, mesh) or the closest-point distance
     (implicit). For a `Point`, the three vertices of the nearest triangle carry the point's
     penetration split by barycentric weights, so `Σ depth` is the point's depth behind the
     surface. Every sum over the samples counts a surface point once: the second copy of a seam

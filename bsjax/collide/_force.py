@@ -1,6 +1,6 @@
 """Contact forces: Gao & Gibson's distributed springs.
 
-Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools*
+Gao & Gibson, *Haptic B-spline surface sculpting with a shaped tool of implicit surface*
 (§3.2.2–3.2.3): each contact sample i is a spring of stiffness k compressed by its depth d_i.
 The force on the tool has magnitude `k Σ d_i` (plus damping `−c ṡ` per spring) and the
 direction of the depth-weighted sum of normals: the surface normals (**surface-normal method**,
@@ -187,8 +187,8 @@ def nodal_forces(
 
 
 class DistributedSprings(eqx.Module):
-    """The distributed-spring contact model (Gao & Gibson, *Haptic sculpting of multi-resolution
-    B-spline surfaces with shaped tools*, eq. 3.3 and §3.2.3), as one strategy object.
+    """The distributed-spring contact model (Gao & Gibson, *Haptic B-spline surface sculpting
+    with a shaped tool of implicit surface*, eq. 3.3 and §3.2.3), as one strategy object.
 
     Every sample in contact is a spring of stiffness `stiffness` k (N/m per sample) compressed by
     its depth `d_i`, with a damper `damping` c (N·s/m per sample) on the rate `ṡ_i` at which it

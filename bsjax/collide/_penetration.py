@@ -1,8 +1,8 @@
 """Per-sample penetration depth and contact normal between two deformable B-spline surfaces.
 
 Penetration is measured by **closest point** (surface–surface contact, thesis ch. 3; the
-distributed-spring depth of Gao & Gibson, *Haptic sculpting of multi-resolution B-spline
-surfaces with shaped tools*, §3.2, with the other surface in place of the tool). For surfaces
+distributed-spring depth of Gao & Gibson, *Haptic B-spline surface sculpting with
+a shaped tool of implicit surface*, §3.2, with the other surface in place of the tool). For surfaces
 X and Y (first A against B, then B against A):
 
 - `x_i` is sample i of X (its blending's `(m, n)` grid); `c_i` the closest point of Y's sampled
@@ -108,7 +108,7 @@ def surface_penetration(
     **Returns:** `(a against b, b against a)`: the `Penetration` of A's samples `(m_a, n_a)`
     into B and of B's samples `(m_b, n_b)` into A (the second copy of a seam sample never in
     contact: `Blending.counted`). The depth is the distributed-spring depth of
-    Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools*,
+    Gao & Gibson, *Haptic B-spline surface sculpting with a shaped tool of implicit surface*,
     §3.2, measured to the other surface's tessellation; jittable, vmappable and differentiable
     in both nets (the foot triangle is a decision, the depth and normal along it are not).
     """

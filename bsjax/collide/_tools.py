@@ -4,8 +4,8 @@ These are the only rigid tools of bsjax: collision (`collide.contacts`), the mas
 penalty contact (`mss.simulate(..., tools=...)`), the haptic sculpting model and the examples
 all take them. Every tool is an `eqx.Module` whose arrays (pose, size) are differentiable
 leaves. Each solid tool knows its implicit function (`value(x) < 0` inside), the penetration
-depth of a surface sample along the sample's normal (Gao & Gibson, *Haptic sculpting of
-multi-resolution B-spline surfaces with shaped tools*, §3.2.2), the push-out of points inside
+depth of a surface sample along the sample's normal (Gao & Gibson, *Haptic B-spline surface
+sculpting with a shaped tool of implicit surface*, §3.2.2), the push-out of points inside
 it (`push`: closest-point depth and outward normal, the penalty contact of the mass-spring
 lattice), a bounding sphere for the control-hull broad phase, and a conservative overlap test
 against boxes of control points (thesis §3.3.3.2, the parametric window).

@@ -21,7 +21,7 @@ the dragger of §6.3–6.4; Fowler & Bartels, *Constraint-based curve manipulati
   `F = k_drag (S(u₀, v₀) − target) = −k_drag (c − c₀)`, clamped to `|F| ≤ max_force`; it is
   handed to the servo as a plane proxy along `F` placed so that the servo renders exactly `F`
   at the tool centre and extrapolates it with `k_drag` until the next tick (Gao & Gibson,
-  *Haptic sculpting of multi-resolution B-spline surfaces with shaped tools*, §3.2: a penalty
+  *Haptic B-spline surface sculpting with a shaped tool of implicit surface*, §3.2: a penalty
   spring with damping). Out of a drag the surface is felt as the plane of the nearest sample,
   its normal facing the side the tool came from (latched while in contact), as in `SculptModel`.
 

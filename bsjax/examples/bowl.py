@@ -17,8 +17,8 @@ a module-level function (so `bsjax.optimise.minimise` compiles it once per study
 `optimise_bowl` runs BFGS (`jax.grad` in reverse mode through the rollout), `nelder_mead` runs
 scipy's derivative-free baseline on the same number of objective evaluations, and
 `gradient_check` compares `jax.grad` with central differences. Sources: the spoon study of the
-thesis (§7.3); Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with
-shaped tools* (the dual control-net / sample representation); the merge of the thesis (§4.3);
+thesis (§7.3); Gao & Gibson, *Haptic B-spline surface sculpting with a shaped
+tool of implicit surface* (the dual control-net / sample representation); the merge of the thesis (§4.3);
 Nocedal & Wright, *Numerical Optimization* (BFGS); Nelder & Mead, *A simplex method for
 function minimization*.
 """

@@ -9,8 +9,8 @@ with `bsjax.batch.map` (issue #14).
   `spoon.spilled`) and `risk` (`spoon.spill_risk`).
 * `collide` — a sphere of `radius` centred at `(x, y, z)` over a surface → `area` (the surface
   area in contact, m² or the surface's units²), `max_depth` and `force` (the magnitude of the
-  contact force, Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with
-  shaped tools*, §3.2, at a stiffness of 1 per sample).
+  contact force, Gao & Gibson, *Haptic B-spline surface sculpting with a shaped
+  tool of implicit surface*, §3.2, at a stiffness of 1 per sample).
 * `merge` — the two patches of the thesis's merge case 2 merged at C^`continuity` from `samples`
   samples per patch (thesis ch. 4) → `mean` and `max` deviation of the originals from the merged
   surface (thesis App. A).

@@ -3,8 +3,8 @@
 1. `bend_handle`: a surface mass-spring lattice on the handle's blending grid (plasticine,
    plastic yield), one end clamped by a plane, the neck pushed up by a `collide.Sphere`; each
    step is the chain `mss.coupled_step` (surface → contacts by the tool's `push` → forces on the
-   lattice nodes → step → refit, the dual representation of Gao & Gibson, *Haptic sculpting of
-   multi-resolution B-spline surfaces with shaped tools*, §4.1).
+   lattice nodes → step → refit, the dual representation of Gao & Gibson, *Haptic B-spline surface
+   sculpting with a shaped tool of implicit surface*, §4.1).
 2. `attach_bowl` + `bsjax.merge.merge`: the bowl follows the bent neck and the two patches
    become one surface.
 3. `study`, `tilted`, `shake`, `run`, `spilled`, `spill_risk`: the jelly resting in the

@@ -1,5 +1,5 @@
-"""Mass-spring-damper physics (thesis ch. 5; Gao & Gibson, *Haptic sculpting of
-multi-resolution B-spline surfaces with shaped tools*, §4): lattices, materials, forces,
+"""Mass-spring-damper physics (thesis ch. 5; Gao & Gibson, *Haptic B-spline surface
+sculpting with a shaped tool of implicit surface*, §4): lattices, materials, forces,
 integrators, surface coupling.
 
 Pure functions over pytrees: `init(lattice) -> State`, `step(lattice, state, dt, …) -> State`,

@@ -1,5 +1,5 @@
-"""Surface coupling (Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces with
-shaped tools*, §4.1; thesis §5.3): lattice nodes are the blending-matrix samples
+"""Surface coupling (Gao & Gibson, *Haptic B-spline surface sculpting with a shaped
+tool of implicit surface*, §4.1; thesis §5.3): lattice nodes are the blending-matrix samples
 `M = A_u P A_vᵀ` of a B-spline surface, and the control points come back from the nodes by the
 stored least-squares refit `P = A_u⁺ M A_v⁺ᵀ` (thesis eq. 3.7) — every step or every N steps.
 

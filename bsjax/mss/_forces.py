@@ -204,8 +204,8 @@ def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
 
     Each tool's `push` gives the depth `δ_i` and outward normal `n_i` of every node inside it;
     `f_i = k δ_i n_i − c min(v_i·n_i, 0) n_i` (damping only while a node moves into the tool),
-    the penalty contact of Gao & Gibson, *Haptic sculpting of multi-resolution B-spline surfaces
-    with shaped tools*, §4.2. Accepts `Sphere`, `Ellipsoid`, `Plane`, `Implicit`,
+    the penalty contact of Gao & Gibson, *Haptic B-spline surface sculpting with a
+    shaped tool of implicit surface*, §4.2. Accepts `Sphere`, `Ellipsoid`, `Plane`, `Implicit`,
     `TriangleMesh`; a `Point` (no volume) raises `TypeError`.
     """
     f = jnp.zeros_like(x)

@@ -1,5 +1,5 @@
 """Deformable bodies that push on each other (thesis §3.3 and §5.3.3; Gao & Gibson, *Haptic
-sculpting of multi-resolution B-spline surfaces with shaped tools*, §3.2–4.2).
+B-spline surface sculpting with a shaped tool of implicit surface*, §3.2–4.2).
 
 A `Body` is a mass-spring lattice bounded by a B-spline surface: a shell whose outer layer is the
 surface's samples, or a VSOFM volume lattice in which the surface's samples are embedded by
