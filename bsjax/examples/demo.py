@@ -135,17 +135,6 @@ def bend_and_merge_step(out: Path, report: dict, handle, bowl, sizes: dict):
     return bent, placed, merged, dev
 
 
-class _Forward:
-    """One progress callback for every rollout (a callable is static in bsjax's programs: a new
-    one compiles a new program), passing each report to the current bar's `target`."""
-
-    target = None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.target is not None:
-            self.target(done, total)
-
-
 def no_bar(label: str):
     """The default progress bar of `run`: none (the library prints no bars; `bsjax demo` passes
     its terminal bars, `bsjax.cli._progress.bar`). A bar factory takes a label and returns a
@@ -182,60 +171,36 @@ def jelly_step(out: Path, report: dict, merged, sizes: dict, tilts=(0.0, 10.0, 2
         " "
         f"{int(round(seconds / dt))} steps of {1e6 * dt:.0f} µs ({seconds} s)"
     )
-    # Every rollout — each tilt, the derivative, the central difference — is one program: the
-    # forward-mode rollout of `outcome` (the primal comes with the tangent; a tangent of 0 where
-    # only the value is wanted), so the study's largest program compiles once, not twice (a
-    # plain rollout and its jvp; the plain one was ~20 % of the quick demo's compilation), and
-    # the five rollouts take less time than five plain ones and a jvp did (a forward-mode
-    # rollout runs ~1.05 times as long as a plain one). The bars reach it through one callback
-    # object (`_Forward`), since a new callable is a new program.
-    forward = _Forward()
-    t_end: list[float] = []
-
-    def outcome(tilt, progress):
-        states, t = spoon.run(s, tilt, seconds=seconds, dt=dt, progress=progress)
-        t_end[:] = [t]
-        return states[1].position, spoon.spill_risk(s, states[1].position, t)
-
-    def rollout(tilt, tangent, label):
-        """(final jelly positions, spill risk, d risk / d tilt along `tangent`) at `tilt` degrees."""
-        with bar(label) as progress:
-            forward.target = progress
-            (position, risk), (_, d_risk) = jax.jvp(
-                lambda a: outcome(a, None if progress is None else forward),
-                (jnp.asarray(tilt, s.rows.dtype),),
-                (jnp.asarray(tangent, s.rows.dtype),),
-            )
-        return position, risk, d_risk
-
-    # One design variable: forward mode (one tangent pass through the rollout) is the cheap
-    # exact derivative, taken with the last tilt's rollout; a central difference of two more
-    # rollouts checks it.
-    at = float(tilts[-1])
     rows, finals = [], {}
-    tangent, jvp_s = 0.0, 0.0
     for deg in tilts:
         t0 = time.perf_counter()
-        position, risk, d_risk = rollout(deg, 1.0 if deg == at else 0.0, f"tilt {deg:g}°")
-        if deg == at:
-            tangent, jvp_s = float(d_risk), time.perf_counter() - t0
-        where = {k: float(v) for k, v in spoon.spilled(s, position, t_end[0]).items()}
-        risk = float(risk)
+        with bar(f"tilt {deg:g}°") as progress:
+            states, t = spoon.run(s, deg, seconds=seconds, progress=progress)
+        where = {k: float(v) for k, v in spoon.spilled(s, states[1].position, t).items()}
+        risk = float(spoon.spill_risk(s, states[1].position, t))
         rows.append({"tilt_deg": deg, **where, "spill_risk": risk, "seconds": time.perf_counter() - t0})
-        finals[deg] = np.asarray(position)
+        finals[deg] = np.asarray(states[1].position)
         exits = ", ".join(f"{k} {100 * where[k]:.0f} %" for k in spoon.EXITS if where[k] > 0) or "none"
         print(
             f"  tilt {deg:4.1f}° backwards: spilled {100 * where['spilled']:5.1f} % ({exits}),"
             f" risk {risk:.4f}"
         )
+    # One design variable: forward mode (one tangent pass through the rollout) is the cheap
+    # exact derivative; a central difference of two more rollouts checks it.
+    at = float(tilts[-1])
+
+    def risk_of(tilt):
+        states, t = spoon.run(s, tilt, seconds=seconds, dt=dt)
+        return spoon.spill_risk(s, states[1].position, t)
+
+    t0 = time.perf_counter()
+    tangent = float(jax.jvp(risk_of, (jnp.asarray(at),), (jnp.ones(()),))[1])
+    jvp_s = time.perf_counter() - t0
     eps = 0.05  # degrees
-    central = (
-        float(rollout(at + eps, 0.0, f"tilt {at + eps:g}°")[1])
-        - float(rollout(at - eps, 0.0, f"tilt {at - eps:g}°")[1])
-    ) / (2 * eps)
+    central = (float(risk_of(at + eps)) - float(risk_of(at - eps))) / (2 * eps)
     print(
         f"  d risk / d tilt at {at:g}°: jax.jvp {tangent:.3e}, central difference {central:.3e} per degree"
-        f" (the {at:g}° rollout with its tangent: {jvp_s:.1f} s)"
+        f" ({jvp_s:.1f} s for the derivative)"
     )
     report["jelly"] = {
         "lattice": [sizes["lattice"]] * 3,

@@ -147,11 +147,10 @@ def _grid_sum(shape, pair, node_arrays, edge_arrays):
     """`edge_sum` on a C-ordered grid with edges in `hex_edges` order, without a scatter.
 
     Every direction's springs start at every padded node (`_Stencil`): the coefficients of all
-    springs come from one gathered `(D, N + pad)` evaluation of `pair` (each spring once), and
-    their forces `f_d[s] = Σ_a coef_a,d[s] d_a,d[s]` once; the force at node i is then
-    `Σ_d f_d[i] − f_d[i − o_d]` (one reduction and one static slice per direction — a small
-    program, also after differentiation). XLA on CPU runs this ~3× faster than per-direction
-    slices with scattered updates (whose pair forces it fused into both updates).
+    springs come from one gathered `(D, N + pad)` evaluation of `pair` (each spring once); the
+    force at node i is then `Σ_d coef_d[i] d_d[i] − coef_d[i − o_d] d_d[i − o_d]` from static
+    slices — one elementwise loop. XLA on CPU runs this ~3× faster than per-direction slices
+    with scattered updates (whose pair forces it fused into both updates).
     """
     plan = _stencil(shape)
     n, pad = int(np.prod(shape)), plan.pad
@@ -159,13 +158,15 @@ def _grid_sum(shape, pair, node_arrays, edge_arrays):
     diffs = [p[:, None, : n + pad] - p[:, plan.partner] for p in padded]  # (3, D, N + pad)
     params = [jnp.append(e, jnp.zeros((1,), e.dtype))[plan.edge] for e in edge_arrays]
     coefs = pair(*diffs, *params)
-    terms = [c[None] * d for c, d in zip(coefs, diffs) if c is not None]
-    if not terms:
-        return jnp.zeros((n, 3), padded[0].dtype)
-    spring = sum(terms[1:], terms[0])  # (3, D, N + pad): each spring's force on its first node
-    out = jnp.sum(spring[:, :, pad : pad + n], axis=1)  # the springs starting at each node
-    for d, o in enumerate(plan.offsets):  # minus those ending there: one static slice each
-        out = out - spring[:, d, pad - o : pad - o + n]
+    out = jnp.zeros((3, n), padded[0].dtype)
+    for p, coef in zip(padded, coefs):
+        if coef is None:
+            continue
+        here = p[:, pad : pad + n]
+        for d, o in enumerate(plan.offsets):
+            first = coef[None, d, pad : pad + n] * (here - p[:, pad + o : pad + o + n])
+            second = coef[None, d, pad - o : pad - o + n] * (p[:, pad - o : pad - o + n] - here)
+            out = out + first - second
     return out.T
 
 

@@ -167,19 +167,18 @@ def _bounds(lattice: Lattice, contact_stiffness, contact_damping=0.0, springs=Tr
         return jnp.where(coef > 0, coef * weight, 0.0)
 
     def bound(per_edge, per_node):
-        b = term(per_node, inv_m)
-        if per_edge is not None:  # None: no springs (their terms would be zeros)
-            b = (
-                jax.ops.segment_sum(term(per_edge, inv_m[i] + cross), i, n)
-                + jax.ops.segment_sum(term(per_edge, inv_m[j] + cross), j, n)
-                + b
-            )
+        b = (
+            jax.ops.segment_sum(term(per_edge, inv_m[i] + cross), i, n)
+            + jax.ops.segment_sum(term(per_edge, inv_m[j] + cross), j, n)
+            + term(per_node, inv_m)
+        )
         return jnp.max(jnp.where(lattice.fixed, 0.0, b), initial=0.0)
 
     k_c = jnp.broadcast_to(jnp.asarray(contact_stiffness, dtype=m.dtype), m.shape)
     c_c = jnp.broadcast_to(jnp.asarray(contact_damping, dtype=m.dtype), m.shape)
     if not springs:
-        return bound(None, k_c), bound(None, c_c)
+        none = jnp.zeros_like(lattice.stiffness)
+        return bound(none, k_c), bound(none, c_c)
     return bound(lattice.stiffness, k_c), bound(lattice.damping, lattice.node_damping + c_c)
 
 
