@@ -17,7 +17,7 @@ devices, the collectives and the process group are JAX's.
 - `report_progress(progress, done, total)` — call a `progress(done, total)` callback from inside
   compiled code (the progress of long rollouts, trainings and refits).
 
-Source: issue #14 (scale-out through JAX's own runtime); the sharding model is JAX's
+Source: scale-out through JAX's own runtime; the sharding model is JAX's
 (*Distributed arrays and automatic parallelization*, *Multi-process environments* in the JAX
 documentation).
 """

@@ -1,4 +1,4 @@
-"""The servo protocol that every device model shares (issue #16's safety rules): pose gating,
+"""The servo protocol that every device model shares (its safety rules): pose gating,
 rollback of a bad tick, counters, and the degenerate-plane guard of the proxies.
 
 A model derives from `AbstractHapticModel`, calls `_init_protocol` in its constructor and

@@ -33,7 +33,7 @@ tool came from, latched while in contact (so passing through the wall keeps push
 button is held, the plane is moved back by the nodes' summed reaction on the tool (times
 `reaction_gain`, over the proxy stiffness), so the user feels the material give way but push back.
 
-Safety (issue #16): a pose is validated where it enters `update` — a non-finite position or
+Safety: a pose is validated where it enters `update` — a non-finite position or
 orientation, or a tool centre farther than `reach` from the body, is dropped and counted
 (`dropped_poses`) and never fed to the physics. After every tick the new lattice state, rest
 lengths, control net and proxy data are checked inside the same jitted call; if anything went

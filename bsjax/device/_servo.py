@@ -8,7 +8,7 @@ when the proxy arrived more than `proxy_timeout` ago or the newest device sample
 `device_timeout` ago, and back to 1 when both are fresh again (it also ramps up at start). Zero
 force is written when the loop stops, when either thread raises, and at interpreter exit.
 
-Safety chain (Gao & Gibson §4.2's servo contract; issue #16):
+Safety chain (Gao & Gibson §4.2's servo contract):
 
 * **The watchdog uses only the servo's own monotonic clock** (`perf_counter_ns`). The servo stamps
   the *arrival* of each new proxy (a new version swapped in by the physics thread) and of each new
@@ -29,7 +29,7 @@ Safety chain (Gao & Gibson §4.2's servo contract; issue #16):
   thread does runs inside its `try`; if it dies, zero force is written, `running` is False,
   `error` holds the exception and `stop()` raises `DeviceError` naming it.
 
-Process mode (`mode="process"`, the default since issue #15): the servo runs in its own interpreter (a
+Process mode (`mode="process"`, the default): the servo runs in its own interpreter (a
 `multiprocessing` "spawn" child, `_process`), pinned to the last allowed CPU (or `cpu`) and
 `SCHED_FIFO` where permitted, while this process's threads — XLA's included — are kept off that
 CPU. Proxy, device sample and telemetry cross through seqlocked shared memory (`_shm`): the

@@ -1,5 +1,5 @@
 """The experiments of `bsjax sweep`: one function per design, evaluated over a grid of designs
-with `bsjax.batch.map` (issue #14).
+with `bsjax.batch.map`.
 
 * `spoon` — the jelly resting in the steel spoon, two deformable bodies in contact
   (`bsjax.examples.spoon.study`, thesis §7.3): parameters `tilt` and `roll` (degrees: the spoon
