@@ -1,6 +1,6 @@
 """Every public entry point timed as a user calls it, beside the same call under `jax.jit`.
 
-    .venv/bin/python benchmarks/api.py                  # the sizes of issue #10, float64
+    .venv/bin/python benchmarks/api.py                  # the documented sizes, float64
     .venv/bin/python benchmarks/api.py --quick          # small sizes, few calls (the test runs this)
     .venv/bin/python benchmarks/api.py --only collide   # entries whose name contains "collide"
     .venv/bin/python benchmarks/api.py --only mss.step,stable_dt   # several substrings
@@ -21,15 +21,15 @@ One row per entry:
 
 * **first s**: the first call on a fresh entry point (`bsjax._boundary.clear_caches()` and
   `jax.clear_caches()` just before it): trace + compile + run, what a new script or notebook pays.
-* **median / p99 ms**: the entry called directly, exactly as the README shows it, from its second
+* **median / p99 ms**: the entry called directly, exactly as the documentation shows it, from its second
   call on (same shapes and options), `block_until_ready` after each call.
 * **jitted ms**: the median of the same call wrapped by this benchmark in its own `jax.jit`, with
   the same arguments passed as arguments (static options closed over).
 * **ratio** = as-called median / jitted median, and the verdict: `ok` when the ratio is ≤ 2 or
-  the two medians differ by ≤ 0.3 ms (issue #10), `SLOW` otherwise; `n/a` for host-side entries
+  the two medians differ by ≤ 0.3 ms, `SLOW` otherwise; `n/a` for host-side entries
   that have no jitted equivalent (`merge.plan`, a cached host-side plan; `vsofm.report`, a
   summary of Python numbers). `merge.merge`/`merge_grid` cannot run inside a caller's jit (they
-  plan on the host from concrete knots); their jitted twin is what the README shows a user:
+  plan on the host from concrete knots); their jitted twin is what the merging guide shows a user:
   `layout = plan(...)` once, then `layout.surface(layout.apply(nets))` under `jax.jit`.
 
 An entry that raises prints `ERROR: <type>: <first line of the message>` and the run goes on, so
@@ -88,7 +88,7 @@ class Sizes:
     cycles: int = 300
     coupled_grid: int = 24  # surface lattice of simulate_coupled
     contact_grid: int = 24  # samples per direction of surface_penetration and the scene's shells
-    shell: int = 8  # nodes across each shell of the scene (README: two 8×8×2 jelly shells)
+    shell: int = 8  # nodes across each shell of the scene (the physics guide: two 8×8×2 jelly shells)
     scene_steps: int = 40
 
 
@@ -367,7 +367,7 @@ def _pair_size(q):
 
 
 def _applied(layout, nets):
-    """The hand-jitted merge a user writes (README): the layout planned once on the host, then
+    """The hand-jitted merge a user writes (the merging guide): the layout planned once on the host, then
     `layout.apply` on the traced nets inside jit (`nets(*surfaces)` arranges them as `apply` wants)."""
     return lambda *surfaces: layout.surface(layout.apply(nets(*surfaces)))
 
@@ -490,7 +490,7 @@ def _(q):
 
 @entry("mss.simulate_scene")
 def _(q):
-    plate = shapes.plate(5, 5, size=0.1)  # the README's two jelly shells, one falling on the other
+    plate = shapes.plate(5, 5, size=0.1)  # the physics guide's two jelly shells, one falling on the other
     shape = (q.shell, q.shell, 2)
     below = mss.Body.from_surface(plate, shape, mss.JELLY, thickness=0.01)
     moved = plate.with_ctrl(plate.ctrl[:, ::-1] + jnp.array([0, 0, 0.002]))

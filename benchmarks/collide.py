@@ -1,4 +1,4 @@
-"""Collision benchmark: the thesis's experiments (SPEC §3, Tables 1–2) against python-fcl.
+"""Collision benchmark: the thesis's experiments (thesis ch. 3 and ch. 6; CAD&A 2013 Tables 1–2) against python-fcl.
 
 Same process, same surfaces: bsjax (jitted, steady state, `block_until_ready`) and python-fcl on
 the tessellated 82×82 (…) sample grid, once rebuilding the BVH every query (the surface deforms
@@ -8,11 +8,11 @@ query: bsjax returns the per-sample mask, depth and normals; fcl all contacts.
     .venv/bin/python benchmarks/collide.py            # float32, the full tables (a few minutes)
     .venv/bin/python benchmarks/collide.py --quick    # fewer sizes
     .venv/bin/python benchmarks/collide.py --x64      # float64
-    .venv/bin/python benchmarks/collide.py --x64 --tables issue   # only issue #11's two rows
+    .venv/bin/python benchmarks/collide.py --x64 --tables issue   # only the two speed-goal rows
     .venv/bin/python benchmarks/collide.py --x64 --tables issue --prev HEAD~1   # and a commit's
                                       # bsjax.collide timed interleaved with today's, same results
 
-The last lines print issue #11's rows (sphere/ellipsoid/plane/point vs a bumped 20×20 plate at
+The last lines print the speed-goal rows (sphere/ellipsoid/plane/point vs a bumped 20×20 plate at
 82×82 with `contacts`; two 20×20 surfaces at 82×82 with `surface_contacts`) against their goals.
 """
 
@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--tables",
         default="1,2,s,f",
-        help="which experiments: 1, 2, s (surface vs surface), f (flat contact), issue (issue #11's rows)",
+        help="which experiments: 1, 2, s (surface vs surface), f (flat contact), issue (the speed-goal rows)",
     )
     parser.add_argument("--capacity", type=int, default=2048, help="surface_contacts capacity")
     parser.add_argument(

@@ -1,4 +1,4 @@
-"""Triangle-mesh tool benchmark (issue #11, item 4): a 3 476-face part against an 8×8 surface.
+"""Triangle-mesh tool benchmark (the face hierarchy): a 3 476-face part against an 8×8 surface.
 
 `collide.contacts(blending, ctrl, TriangleMesh(...))` as a user calls it (compiled at bsjax's
 boundary, float64), second call on, `block_until_ready`, median and p99 with the compile time

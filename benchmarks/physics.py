@@ -7,8 +7,8 @@ beside them. float32 (no x64), like a haptic loop.
     .venv/bin/python benchmarks/physics.py                 # everything (a few minutes)
     .venv/bin/python benchmarks/physics.py --quick         # small sizes only
     .venv/bin/python benchmarks/physics.py --only vsofm    # one section (lattice, contact, scene, haptic, vsofm)
-    .venv/bin/python benchmarks/physics.py --only vsofm --sizes 40   # issue #11's 40³ VSOFM row
-    .venv/bin/python benchmarks/physics.py --only haptic --x64   # issue #11's haptic row, float64
+    .venv/bin/python benchmarks/physics.py --only vsofm --sizes 40   # the 40³ VSOFM speed-goal row
+    .venv/bin/python benchmarks/physics.py --only haptic --x64   # the haptic speed-goal row, float64
 """
 
 from __future__ import annotations
@@ -433,7 +433,7 @@ def main():
     parser.add_argument(
         "--only", choices=("lattice", "contact", "scene", "haptic", "vsofm"), help="run one section"
     )
-    parser.add_argument("--x64", action="store_true", help="float64 (the haptic row's dtype in issue #11)")
+    parser.add_argument("--x64", action="store_true", help="float64 (the haptic speed-goal row's dtype)")
     parser.add_argument("--sizes", type=int, nargs="+", help="VSOFM lattice sizes (e.g. --sizes 12 40)")
     args = parser.parse_args()
     if args.x64:
