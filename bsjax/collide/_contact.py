@@ -585,9 +585,9 @@ def _refine_pairs(pa, lev_a, pb, lev_b, spheres, capacity, flat_angle, use_flat=
 
 
 def _when(flag, fn):
-    """`fn()` when the traced `flag` holds, else zeros of its shapes (`lax.cond`)."""
-    zeros = lambda: jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(fn))
-    return jax.lax.cond(flag, fn, zeros)
+    """`fn()` when the traced `flag` holds, else zeros of its shapes: the broad phase's
+    `unless_apart` (one trace of `fn`, `lax.cond` at run time)."""
+    return unless_apart(jnp.logical_not(flag), fn)
 
 
 def _cells(leaf, levels, shape):
