@@ -46,6 +46,8 @@ from bsjax.collide._hierarchy import (
 from bsjax.collide._tools import AbstractTool, Point
 from bsjax.collide._triangles import (
     _closest_point_on_triangle,
+    _d2,
+    _face_table,
     _triangles_intersect,
     candidate_pairs_intersect,
 )
@@ -318,10 +320,13 @@ _BLOCK = 6  # samples per side of the neighbourhood searched first by the point 
 
 
 def _nearest_triangle(x, tris):
-    """Index, closest point and barycentrics of the triangle of `(T, 3, 3)` nearest to `x`."""
-    closest, bary = _closest_point_on_triangle(jnp.broadcast_to(x, tris.shape[:-1]), tris)
-    k = jnp.argmin(jnp.sum((closest - x[None]) ** 2, -1))
-    return k, closest[k], bary[k]
+    """Index, closest point and barycentrics of the triangle of `(T, 3, 3)` nearest to `x`: the
+    index by `_triangles._d2` over every triangle (a decision, no gradient), the point and its
+    weights on that triangle (`_closest_point_on_triangle`: differentiable)."""
+    rows = tuple(_face_table(jax.lax.stop_gradient(tris)).T)
+    k = jnp.argmin(_d2(_soa.split(jax.lax.stop_gradient(x)), rows))
+    closest, bary = _closest_point_on_triangle(x, tris[k])
+    return k, closest, bary
 
 
 def _nearest_on_grid(x, points):

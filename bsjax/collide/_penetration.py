@@ -69,7 +69,7 @@ from bsjax.collide import _soa
 from bsjax.collide._broad import _hulls_apart, unless_apart
 from bsjax.collide._contact import _BLOCK, _CORNERS, _checked_net, points_normals
 from bsjax.collide._hierarchy import _cell_triangles
-from bsjax.collide._triangles import _closest_point_on_triangle
+from bsjax.collide._triangles import _closest_point_on_triangle, _d2, _face_table
 
 
 class Penetration(eqx.Module):
@@ -331,7 +331,8 @@ def _foot_triangles(x, verts, grids, lay: _Layout, reach) -> Int[Array, "N 3"]:
         t, f = _cell_triangles(grid)
         tris.append(t.reshape(-1, 3, 3))
         faces.append(f.reshape(-1, 3).astype(jnp.int32) + int(lay.vert_offset[side]))
-    tris, faces = jnp.concatenate(tris), jnp.concatenate(faces)
+    # the triangles as the per-face quantities of `_triangles._d2`, one row each: `(ROWS, T)`
+    table, faces = _face_table(jnp.concatenate(tris)).T, jnp.concatenate(faces)
 
     def balls(corners, members):
         """Centres (mean of 4 corners) and radii (farthest member vertex) of vertex groups."""
@@ -356,7 +357,7 @@ def _foot_triangles(x, verts, grids, lay: _Layout, reach) -> Int[Array, "N 3"]:
         coarse_valid=jnp.asarray(valid["coarse"]),
         coarse_row=jnp.asarray(lay.rows["coarse"]),
         coarse_col=jnp.asarray(lay.cols["coarse"]),
-        tris=tris[st["tri"]],
+        table=jnp.moveaxis(table[:, st["tri"]], 1, 0),
         faces=faces[st["tri"]],
         tri_valid=jnp.asarray(valid["tri"]),
         x=x[st["sample"]],
@@ -404,7 +405,7 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
         index = (2 * (rows * (q - 1) + cols) + np.arange(2, dtype=np.int32).reshape(1, 1, 2)).reshape(
             -1
         )  # `_cell_triangles` order
-        k, d2 = _nearest(y, g["tris"][index])
+        k, d2 = _nearest(y, g["table"], index)
         dist = _safe.sqrt(d2)
         # the cells of the 4 × 4 tiles around the block one by one, every other tile as a whole
         ti, tj = jnp.maximum(i0 - _TILE, 0) // _TILE, jnp.maximum(j0 - _TILE, 0) // _TILE
@@ -426,16 +427,17 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
 
     def every(i, face):
         j = order[i]
-        return face.at[j].set(g["faces"][_nearest(g["x"][j], g["tris"], g["tri_valid"])[0]])
+        return face.at[j].set(g["faces"][_nearest(g["x"][j], g["table"], valid=g["tri_valid"])[0]])
 
     return jax.lax.fori_loop(0, jnp.sum(needed, dtype=jnp.int32), every, face)
 
 
-def _nearest(y, tris, valid=None):
-    """Index of the triangle of `tris (T, 3, 3)` nearest to `y` (among `valid`), squared distance."""
-    closest, _ = _closest_point_on_triangle(jnp.broadcast_to(y, tris.shape[:-1]), tris)
-    d = _soa.split(closest - y[None])
-    d2 = _soa.dot(d, d)
+def _nearest(y, table, index=None, valid=None):
+    """Index of the triangle nearest to `y (3,)` among the columns `index` (default: all, those
+    marked `valid`) of `table (ROWS, T)` (`_face_table`, transposed), and its squared distance
+    (`_triangles._d2`: per component, one fused loop; a decision only)."""
+    rows = tuple(table) if index is None else tuple(row[index] for row in table)
+    d2 = _d2(_soa.split(y), rows)
     if valid is not None:
         d2 = jnp.where(valid, d2, jnp.inf)
     k = jnp.argmin(d2)

@@ -84,6 +84,54 @@ def _sdot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+ROWS = 32  # per-face quantities of `_prep`
+
+
+def _prep(a, b, c):
+    """Per-face quantities of `_d2` (each a 3-tuple of component arrays, or a scalar array):
+    `a, b, c`; the edges `ab, bc, ca`; `m = ac × n`, `k = n × ab` with `n = ab × ac`; `n`;
+    `1 / |n|²` (0 for a degenerate face); `|n|²`; `1 / |edge|²` (0 for a point edge) — 32
+    arrays, computed once per face so a point-face test does no division."""
+    ab, bc, ca = _sub(b, a), _sub(c, b), _sub(a, c)
+    ac = _sub(c, a)
+    n = _cross(ab, ac)
+    nn = _sdot(n, n)
+    inv = lambda v: jnp.where(v > 0, 1 / jnp.where(v > 0, v, 1), 0)
+    return (*a, *b, *c, *ab, *bc, *ca, *_cross(ac, n), *_cross(n, ab), *n, inv(nn), nn) + tuple(
+        inv(_sdot(e, e)) for e in (ab, bc, ca)
+    )
+
+
+def _d2(x, q):
+    """Squared distance of points `x` (3-tuple of arrays) to faces `q` (the 32 arrays of
+    `_prep`, broadcasting with `x`): the distance to the plane, `(ap · n)² / |n|²`, where the
+    projection falls inside the face (barycentrics `v = ap · (ac × n) / |n|²`,
+    `w = ap · (n × ab) / |n|²` in [0, 1] with `v + w ≤ 1`, tested without dividing), else the
+    least distance to the three edges (Ericson, *Real-Time Collision Detection*, §5.1.5). Only
+    the searches use it (the face hierarchy of `TriangleMesh`, the grid searches of
+    `_contact` and `_penetration`): `_closest_point_on_triangle` gives the exact point of the
+    chosen face, and the two agree to a few ulps."""
+    a, b, c, ab, bc, ca, m, k, n = (q[3 * i : 3 * i + 3] for i in range(9))
+    inv_nn, nn, inv_e = q[27], q[28], q[29:]
+    ap = _sub(x, a)
+    v, w = _sdot(ap, m), _sdot(ap, k)
+    inside = (nn > 0) & (v >= 0) & (w >= 0) & (v + w <= nn)
+    h = _sdot(ap, n)
+    edge = None
+    for p, d, inv in ((a, ab, inv_e[0]), (b, bc, inv_e[1]), (c, ca, inv_e[2])):
+        xp = ap if p is a else _sub(x, p)
+        t = jnp.clip(_sdot(xp, d) * inv, 0, 1)
+        r = _sub(xp, tuple(t * di for di in d))
+        e2 = _sdot(r, r)
+        edge = e2 if edge is None else jnp.minimum(edge, e2)
+    return jnp.where(inside, h * h * inv_nn, edge)
+
+
+def _face_table(tris):
+    """`_prep` of every face `tris (F, 3, 3)` as rows `(F, ROWS)`."""
+    return jnp.stack(_prep(*(tuple(tris[:, v, k] for k in range(3)) for v in range(3))), -1)
+
+
 def _pick(cond, a, b):
     return tuple(jnp.where(cond, x, y) for x, y in zip(a, b))
 
