@@ -195,14 +195,14 @@ def test_bad_input_raises_clear_errors():
 
 
 @pytest.mark.slow
-def test_bowl_optimisation_lowers_spill_risk_and_matches_nelder_mead():
+def test_bowl_optimisation_lowers_spill_risk():
     """The spoon bowl on two deformable bodies (quick sizes): BFGS (with `jax.grad` through
     merge, the steel shell's rest shape, surface–surface contact and both lattices' rollout)
     lowers the spill risk itself, not only the objective, monotonically, with the rim fixed
-    and within the bounds, and does at least as well as scipy's Nelder–Mead given the same
-    number of objective evaluations. (The derivative's parts are checked against central
-    differences where they are built: `Body.with_ctrl` in test_mss_scene, the contact rollout
-    there and in the demo's check, merge in test_merge.)"""
+    and within the bounds. (The derivative's parts are checked against central differences
+    where they are built: `Body.with_ctrl` in test_mss_scene, the contact rollout there and in
+    the demo's check, merge in test_merge; the comparison with scipy's Nelder–Mead on the same
+    budget is `benchmarks/bowl.py`.)"""
     from bsjax.examples import bowl
 
     s = bowl.study(quick=True)
@@ -211,15 +211,9 @@ def test_bowl_optimisation_lowers_spill_risk_and_matches_nelder_mead():
     assert found.steps >= 1 and monotone(history) and history[-1] < history[0]
     assert float(jnp.max(jnp.abs(jnp.where(s.free, 0.0, found.design)))) == 0.0  # rim and others fixed
     assert float(found.design.min()) >= bowl.LOWER and float(found.design.max()) <= bowl.UPPER
-    objective = jax.jit(bowl.objective)  # the program Nelder–Mead evaluates: one compilation
-
-    def risk(offsets):  # the objective without its smoothness term
-        return float(objective(offsets, s)) / 100.0 - float(s.smoothing * bowl.smoothness(offsets))
-
-    assert risk(found.design) < risk(jnp.zeros((8, 8)))
-    _, nm_value, nm_evals = bowl.nelder_mead(s, int(found.evaluations))
-    assert nm_evals <= int(found.evaluations)
-    assert float(found.value) <= nm_value + 1e-9
+    # the risk is the objective without its smoothness term (which is 0 at the start)
+    risk = float(found.value) / 100.0 - float(s.smoothing * bowl.smoothness(found.design))
+    assert risk < history[0] / 100.0
 
 
 def test_lower_bound_only_and_change_of_variables_round_trip():
