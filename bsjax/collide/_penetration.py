@@ -377,8 +377,10 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
     unsearched cell comes closer than the triangle found — bounded by the corner balls of the
     cells of the 4 × 4 tiles around the block (which hold every cell within `_TILE` cells of
     it) and by the balls of the other tiles.
-    A sample that is not certified and has some ball within `reach` is searched again over
-    every triangle, one such sample after the other (a `fori_loop` over just those).
+    A sample is searched again over every triangle (one such sample after the other, a
+    `fori_loop` over just those) when some ball comes within `min(found distance, reach)`: only
+    then can a nearer triangle lie within `reach` (a sample whose nearer triangles all lie
+    beyond `reach` is out of contact whichever of them it reports).
     """
     p, q = g["dims"][0], g["dims"][1]
     coarse, verts = _soa.split(g["coarse"]), g["verts"]
@@ -388,7 +390,7 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
     def within(centre, radius, y, dist, other):
         """Whether some ball of `other` comes within `dist` of `y` (squares: no root per ball)."""
         d = _soa.sub(_soa.split(centre), y)
-        return jnp.any(other & (_soa.dot(d, d) < (dist + radius) ** 2))
+        return jnp.any(other & (_soa.dot(d, d) <= (dist + radius) ** 2))
 
     def local(y):
         d = _soa.sub(coarse, y)
@@ -418,9 +420,10 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
         tiles = (g["tile_centre"], g["tile_radius"])
         near_cells = (g["cell_centre"][cells], g["cell_radius"][cells])
         unsearched = unsearched.reshape(-1)
-        closer = within(*tiles, y, dist, other_tiles) | within(*near_cells, y, dist, unsearched)
-        in_reach = within(*tiles, y, reach, other_tiles) | within(*near_cells, y, reach, unsearched)
-        return g["faces"][index[k]], closer & in_reach
+        bound = jnp.minimum(dist, reach)
+        return g["faces"][index[k]], within(*tiles, y, bound, other_tiles) | within(
+            *near_cells, y, bound, unsearched
+        )
 
     face, needed = jax.vmap(local)(g["x"])
     order = jnp.nonzero(needed, size=needed.shape[0], fill_value=0)[0]
