@@ -12,7 +12,13 @@ The rule for what is static and what is traced (the same for every public functi
 * static: everything else — ints (counts, degrees, derivative orders), bools, strings, `None`,
   callables, and the static fields of equinox modules (degrees, grid sizes, method choices).
   A new static value compiles once more. Arguments named in `static=` stay static even when
-  they are floats (tolerances used in Python control flow).
+  they are floats (tolerances used in Python control flow);
+* a direct call's `progress` callback (a host-side report, not part of the computation) is
+  keyed as "a callback" whatever the callable: the program calls a stand-in (`_RELAY`) that
+  forwards to the callback of the call now running, so a new progress bar per call (the CLI's,
+  a user's tqdm) reuses the compilation. Direct calls with a callback run one at a time and
+  return once their results are ready. Inside a caller's `jit` the callback is the caller's
+  (static in their program, as any callable).
 
 A direct call runs through an `_executables.Program`: its programs compiled ahead of time, one
 per shape signature (and kept whole on disk when the compilation cache is on), called through
@@ -37,10 +43,12 @@ of `eqx.Module`s alike. `clear_caches()` drops every compiled entry point (not t
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 import logging
 import re
+import threading
 import weakref
 from collections.abc import Callable
 from typing import Any
@@ -160,6 +168,39 @@ def check_failure(err: Exception) -> ValueError | None:
     return None if found is None else ValueError(found.group(1).strip())
 
 
+class _Relay:
+    """The stand-in for a direct call's `progress` callback in its program (module docstring):
+    calls the callback of the direct call now running."""
+
+    def __init__(self):
+        self.lock = threading.Lock()  # one direct call with a callback at a time
+        self.target: Callable | None = None
+
+    def __call__(self, *args):
+        if self.target is not None:
+            return self.target(*args)
+        return None
+
+    @contextlib.contextmanager
+    def forwarding(self, target: Callable | None):
+        """While a direct call runs: its callback receives the program's reports."""
+        if target is None:
+            yield
+            return
+        with self.lock:
+            self.target = target
+            try:
+                yield
+            finally:
+                self.target = None
+
+    def __repr__(self) -> str:
+        return "<the running direct call's progress callback>"
+
+
+_RELAY = _Relay()
+
+
 class _Compiled:
     """A function compiled at the public boundary (see the module docstring)."""
 
@@ -169,6 +210,8 @@ class _Compiled:
         self._fn = fn
         self._cache: dict = {}
         self._static = self._static_positions(fn, static)
+        names = list(inspect.signature(fn).parameters)
+        self._progress_at = names.index("progress") if "progress" in names else None
         _registry.add(self)
 
     @staticmethod
@@ -244,16 +287,31 @@ class _Compiled:
         dynamic = [leaf for m, leaf in zip(mask, leaves) if m]
         traced = _checks.tracing() or not _checks.is_concrete(dynamic)  # in the caller's jit/vmap/grad
         functional = not traced and _FUNCTIONAL
+        progress = None if traced else self._progress(args, kwargs)
+        if progress is not None:  # keyed as "a callback": the program calls the relay
+            leaves = [_RELAY if leaf is progress else leaf for leaf in leaves]
+            static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
         try:
             jitted = self._jitted(treedef, mask, static, functional, not traced)
         except TypeError as err:  # an unhashable static argument
             raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
         if traced:
             return jitted(dynamic)
-        out, failure = self._run(jitted, dynamic, functional)
+        with _RELAY.forwarding(progress):
+            out, failure = self._run(jitted, dynamic, functional)
+            if progress is not None:
+                jax.block_until_ready(out)
         if failure:
             raise ValueError(failure)
         return out
+
+    def _progress(self, args, kwargs):
+        """The `progress` callback of a call (None when the function has none or it is None)."""
+        if self._progress_at is None:
+            return None
+        at = self._progress_at
+        progress = args[at] if at < len(args) else kwargs.get("progress")
+        return progress if callable(progress) else None
 
     def _refuse_non_numeric(self, args, kwargs) -> None:
         """`_checks.check_real` on each argument holding a numpy array of strings, objects or

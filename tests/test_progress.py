@@ -49,6 +49,41 @@ def test_simulate_reports_chunks_and_the_result_is_identical():
     assert seen.calls == [(40, 250), (80, 250), (120, 250), (160, 250), (200, 250), (240, 250), (250, 250)]
 
 
+def test_a_new_callback_per_call_reuses_the_program_and_reports_to_its_own_caller():
+    """A direct call keys its program by "a callback", not by the callable: a fresh bar per call
+    (the CLI's, a user's tqdm) compiles nothing new, and each call's reports reach its own
+    callback (not an earlier one's), from two threads too (those calls take turns)."""
+    import threading
+
+    lattice, state, dt, g = _jelly()
+    compiled = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: (
+            compiled.append(event) if event.endswith("backend_compile_duration") else None
+        )
+    )
+    first, second = Recorder(), Recorder()
+    mss.simulate(lattice, state, dt, 40, gravity=g, progress=first)
+    before = len(compiled)
+    mss.simulate(lattice, state, dt, 40, gravity=g, progress=second)
+    mss.simulate(
+        lattice, state, dt, 40, gravity=g, progress=lambda done, total: second.calls.append((-done, total))
+    )
+    assert len(compiled) == before  # no new program for a new callable
+    assert first.calls == [(d, 40) for d in range(1, 41)]
+    assert second.calls == [(d, 40) for d in range(1, 41)] + [(-d, 40) for d in range(1, 41)]
+    mine = [Recorder(), Recorder()]
+    threads = [
+        threading.Thread(target=lambda r=r: mss.simulate(lattice, state, dt, 40, gravity=g, progress=r))
+        for r in mine
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert mine[0].calls == mine[1].calls == [(d, 40) for d in range(1, 41)]
+
+
 def test_trajectory_reports_each_saved_state():
     lattice, state, dt, g = _jelly()
     seen = Recorder()
