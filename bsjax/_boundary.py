@@ -16,9 +16,10 @@ The rule for what is static and what is traced (the same for every public functi
 * a direct call's `progress` callback (a host-side report, not part of the computation) is
   keyed as "a callback" whatever the callable: the program calls a stand-in (`_RELAY`) that
   forwards to the callback of the call now running, so a new progress bar per call (the CLI's,
-  a user's tqdm) reuses the compilation. Direct calls with a callback run one at a time and
-  return once their results are ready. Inside a caller's `jit` the callback is the caller's
-  (static in their program, as any callable).
+  a user's tqdm) reuses the compilation; such a call returns once its results are ready. While
+  one call forwards through it, another (a second thread's, or one made from inside a callback)
+  keeps its callable as a static argument (a compilation of its own) rather than wait. Inside a
+  caller's `jit` the callback is the caller's (static in their program, as any callable).
 
 A direct call runs through an `_executables.Program`: its programs compiled ahead of time, one
 per shape signature (and kept whole on disk when the compilation cache is on), called through
@@ -43,7 +44,6 @@ of `eqx.Module`s alike. `clear_caches()` drops every compiled entry point (not t
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import inspect
 import logging
@@ -173,26 +173,26 @@ class _Relay:
     calls the callback of the direct call now running."""
 
     def __init__(self):
-        self.lock = threading.Lock()  # one direct call with a callback at a time
-        self.target: Callable | None = None
+        self._lock = threading.Lock()  # one direct call forwards through it at a time
+        self._target: Callable | None = None
 
     def __call__(self, *args):
-        if self.target is not None:
-            return self.target(*args)
+        if self._target is not None:
+            return self._target(*args)
         return None
 
-    @contextlib.contextmanager
-    def forwarding(self, target: Callable | None):
-        """While a direct call runs: its callback receives the program's reports."""
-        if target is None:
-            yield
-            return
-        with self.lock:
-            self.target = target
-            try:
-                yield
-            finally:
-                self.target = None
+    def take(self, target: Callable) -> bool:
+        """Forward to `target` until `release`; False (nothing taken) while another call
+        forwards — that call's callback then stays its own static argument (a compilation
+        of its own), so neither waits for the other."""
+        if not self._lock.acquire(blocking=False):
+            return False
+        self._target = target
+        return True
+
+    def release(self) -> None:
+        self._target = None
+        self._lock.release()
 
     def __repr__(self) -> str:
         return "<the running direct call's progress callback>"
@@ -288,19 +288,23 @@ class _Compiled:
         traced = _checks.tracing() or not _checks.is_concrete(dynamic)  # in the caller's jit/vmap/grad
         functional = not traced and _FUNCTIONAL
         progress = None if traced else self._progress(args, kwargs)
-        if progress is not None:  # keyed as "a callback": the program calls the relay
-            leaves = [_RELAY if leaf is progress else leaf for leaf in leaves]
-            static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
+        relayed = progress is not None and _RELAY.take(progress)
         try:
-            jitted = self._jitted(treedef, mask, static, functional, not traced)
-        except TypeError as err:  # an unhashable static argument
-            raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
-        if traced:
-            return jitted(dynamic)
-        with _RELAY.forwarding(progress):
+            if relayed:  # keyed as "a callback": the program calls the relay
+                leaves = [_RELAY if leaf is progress else leaf for leaf in leaves]
+                static = tuple(None if m else leaf for m, leaf in zip(mask, leaves))
+            try:
+                jitted = self._jitted(treedef, mask, static, functional, not traced)
+            except TypeError as err:  # an unhashable static argument
+                raise TypeError(f"{self.__qualname__}: static arguments must be hashable ({err})") from None
+            if traced:
+                return jitted(dynamic)
             out, failure = self._run(jitted, dynamic, functional)
-            if progress is not None:
-                jax.block_until_ready(out)
+            if relayed:
+                jax.block_until_ready(out)  # every report made before the relay moves on
+        finally:
+            if relayed:
+                _RELAY.release()
         if failure:
             raise ValueError(failure)
         return out

@@ -52,7 +52,8 @@ def test_simulate_reports_chunks_and_the_result_is_identical():
 def test_a_new_callback_per_call_reuses_the_program_and_reports_to_its_own_caller():
     """A direct call keys its program by "a callback", not by the callable: a fresh bar per call
     (the CLI's, a user's tqdm) compiles nothing new, and each call's reports reach its own
-    callback (not an earlier one's), from two threads too (those calls take turns)."""
+    callback (not an earlier one's) — from two threads at once too, and from a call made inside
+    a callback (neither waits for the other)."""
     import threading
 
     lattice, state, dt, g = _jelly()
@@ -82,6 +83,14 @@ def test_a_new_callback_per_call_reuses_the_program_and_reports_to_its_own_calle
     for t in threads:
         t.join()
     assert mine[0].calls == mine[1].calls == [(d, 40) for d in range(1, 41)]
+    inner = Recorder()
+
+    def outer(done, total):
+        if done == 1:
+            mss.simulate(lattice, state, dt, 40, gravity=g, progress=inner)
+
+    mss.simulate(lattice, state, dt, 40, gravity=g, progress=outer)
+    assert inner.calls == [(d, 40) for d in range(1, 41)]
 
 
 def test_trajectory_reports_each_saved_state():
