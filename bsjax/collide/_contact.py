@@ -46,8 +46,8 @@ from bsjax.collide._hierarchy import (
 from bsjax.collide._tools import AbstractTool, Point
 from bsjax.collide._triangles import (
     _closest_point_on_triangle,
-    _d2,
     _face_table,
+    _nearest_face,
     _triangles_intersect,
     candidate_pairs_intersect,
 )
@@ -321,10 +321,9 @@ _BLOCK = 6  # samples per side of the neighbourhood searched first by the point 
 
 def _nearest_triangle(x, tris):
     """Index, closest point and barycentrics of the triangle of `(T, 3, 3)` nearest to `x`: the
-    index by `_triangles._d2` over every triangle (a decision, no gradient), the point and its
+    index by `_triangles._nearest_face` over every triangle (a decision, no gradient), the point and its
     weights on that triangle (`_closest_point_on_triangle`: differentiable)."""
-    rows = tuple(_face_table(jax.lax.stop_gradient(tris)).T)
-    k = jnp.argmin(_d2(_soa.split(jax.lax.stop_gradient(x)), rows))
+    k, _ = _nearest_face(jax.lax.stop_gradient(x), _face_table(jax.lax.stop_gradient(tris)).T)
     closest, bary = _closest_point_on_triangle(x, tris[k])
     return k, closest, bary
 

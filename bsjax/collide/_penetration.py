@@ -69,7 +69,7 @@ from bsjax.collide import _soa
 from bsjax.collide._broad import _hulls_apart, unless_apart
 from bsjax.collide._contact import _BLOCK, _CORNERS, _checked_net, points_normals
 from bsjax.collide._hierarchy import _cell_triangles
-from bsjax.collide._triangles import _closest_point_on_triangle, _d2, _face_table
+from bsjax.collide._triangles import _closest_point_on_triangle, _face_table, _nearest_face
 
 
 class Penetration(eqx.Module):
@@ -407,7 +407,7 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
         index = (2 * (rows * (q - 1) + cols) + np.arange(2, dtype=np.int32).reshape(1, 1, 2)).reshape(
             -1
         )  # `_cell_triangles` order
-        k, d2 = _nearest(y, g["table"], index)
+        k, d2 = _nearest_face(y, g["table"], index)
         dist = _safe.sqrt(d2)
         # the cells of the 4 × 4 tiles around the block one by one, every other tile as a whole
         ti, tj = jnp.maximum(i0 - _TILE, 0) // _TILE, jnp.maximum(j0 - _TILE, 0) // _TILE
@@ -430,21 +430,9 @@ def _search_side(g: dict, reach) -> Int[Array, "N 3"]:
 
     def every(i, face):
         j = order[i]
-        return face.at[j].set(g["faces"][_nearest(g["x"][j], g["table"], valid=g["tri_valid"])[0]])
+        return face.at[j].set(g["faces"][_nearest_face(g["x"][j], g["table"], valid=g["tri_valid"])[0]])
 
     return jax.lax.fori_loop(0, jnp.sum(needed, dtype=jnp.int32), every, face)
-
-
-def _nearest(y, table, index=None, valid=None):
-    """Index of the triangle nearest to `y (3,)` among the columns `index` (default: all, those
-    marked `valid`) of `table (ROWS, T)` (`_face_table`, transposed), and its squared distance
-    (`_triangles._d2`: per component, one fused loop; a decision only)."""
-    rows = tuple(table) if index is None else tuple(row[index] for row in table)
-    d2 = _d2(_soa.split(y), rows)
-    if valid is not None:
-        d2 = jnp.where(valid, d2, jnp.inf)
-    k = jnp.argmin(d2)
-    return k, d2[k]
 
 
 def _open_sides(verts, grids, lay: _Layout) -> Bool[Array, "V 4"]:

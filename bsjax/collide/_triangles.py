@@ -132,6 +132,19 @@ def _face_table(tris):
     return jnp.stack(_prep(*(tuple(tris[:, v, k] for k in range(3)) for v in range(3))), -1)
 
 
+def _nearest_face(y, table, index=None, valid=None):
+    """Index of the face nearest to the point `y (3,)` among the columns `index` (default: all;
+    those marked `valid`) of `table (ROWS, T)` (`_face_table`, transposed), and its squared
+    distance (`_d2`: a decision only — the chosen face's point comes from
+    `_closest_point_on_triangle`)."""
+    rows = tuple(table) if index is None else tuple(row[index] for row in table)
+    d2 = _d2((y[0], y[1], y[2]), rows)
+    if valid is not None:
+        d2 = jnp.where(valid, d2, jnp.inf)
+    k = jnp.argmin(d2)
+    return k, d2[k]
+
+
 def _pick(cond, a, b):
     return tuple(jnp.where(cond, x, y) for x, y in zip(a, b))
 
