@@ -319,44 +319,48 @@ def _solid_contact(blending, ctrl, tool, use_window: bool) -> Contact:
 _BLOCK = 6  # samples per side of the neighbourhood searched first by the point tool
 
 
-def _nearest_triangle(x, tris):
-    """Index, closest point and barycentrics of the triangle of `(T, 3, 3)` nearest to `x`: the
-    index by `_triangles._nearest_face` over every triangle (a decision, no gradient), the point and its
-    weights on that triangle (`_closest_point_on_triangle`: differentiable)."""
-    k, _ = _nearest_face(jax.lax.stop_gradient(x), _face_table(jax.lax.stop_gradient(tris)).T)
-    closest, bary = _closest_point_on_triangle(x, tris[k])
-    return k, closest, bary
-
-
 def _nearest_on_grid(x, points):
     """Nearest triangle of the grid's tessellation: `(vertex indices (3,), closest, bary)`.
 
     The 5 × 5 cells around the nearest sample are searched first; the result is certified when
     no other cell's corner ball (centre: corner mean, radius: farthest corner) comes closer, and
-    otherwise every triangle is searched (`lax.cond`, rarely taken). The nearest sample and the
-    corner balls over the whole grid are decisions (no gradient), computed one component at a
-    time (`collide._soa`) so that XLA fuses them into one loop over the cells.
+    otherwise every triangle is searched (`lax.cond`, rarely taken). Which triangle is a decision
+    (no gradient: `_triangles._nearest_face` by squared distance; the nearest sample and the
+    corner balls over the whole grid one component at a time, `collide._soa`, so that XLA fuses
+    them into one loop over the cells); the closest point and its barycentric weights on the
+    chosen triangle are differentiable (`_closest_point_on_triangle`, computed once).
     """
     m, n = points.shape[:2]
+    p, y = jax.lax.stop_gradient(points), jax.lax.stop_gradient(x)
 
     def search(block):
+        """The vertex indices `(3,)` (in `block`'s grid) of its nearest triangle and its squared distance."""
         tris, faces = _cell_triangles(block)
-        k, closest, bary = _nearest_triangle(x, tris.reshape(-1, 3, 3))
-        return faces.reshape(-1, 3)[k], closest, bary
+        k, d2 = _nearest_face(y, _face_table(tris.reshape(-1, 3, 3)))
+        return faces.reshape(-1, 3)[k].astype(jnp.int32), d2
 
     if m <= _BLOCK and n <= _BLOCK:
-        return _cast_face(search(points))
-    p, y = _soa.split(jax.lax.stop_gradient(points)), jax.lax.stop_gradient(x)
+        face, _ = search(p)
+    else:
+        face = _certified_block_search(y, p, search)
+    closest, bary = _closest_point_on_triangle(x, points.reshape(-1, 3)[face])
+    return face, closest, bary
+
+
+def _certified_block_search(y, p, search):
+    """`search` over the `_BLOCK × _BLOCK` samples around the sample nearest to `y`, certified by
+    the corner balls of the other cells, else over the whole grid `p (m, n, 3)` (`_nearest_on_grid`)."""
+    m, n = p.shape[:2]
     bu, bv = min(_BLOCK, m), min(_BLOCK, n)
-    near = jnp.argmin(_soa.dot(_soa.sub(p, y), _soa.sub(p, y)).reshape(-1))
+    q = _soa.split(p)
+    near = jnp.argmin(_soa.dot(_soa.sub(q, y), _soa.sub(q, y)).reshape(-1))
     i0 = jnp.clip(near // n - bu // 2, 0, m - bu).astype(jnp.int32)
     j0 = jnp.clip(near % n - bv // 2, 0, n - bv).astype(jnp.int32)
-    block = jax.lax.dynamic_slice(points, (i0, j0, jnp.zeros((), jnp.int32)), (bu, bv, 3))
-    face, closest, bary = search(block)
-    face = face.astype(jnp.int32)
+    block = jax.lax.dynamic_slice(p, (i0, j0, jnp.zeros((), jnp.int32)), (bu, bv, 3))
+    face, d2 = search(block)
     rows, cols = face // bv + i0, face % bv + j0
     face = rows * n + cols
-    corners = [tuple(c[a, b] for c in p) for a, b in _CORNERS]
+    corners = [tuple(c[a, b] for c in q) for a, b in _CORNERS]
     centre = tuple(0.25 * (c0 + c1 + c2 + c3) for c0, c1, c2, c3 in zip(*corners))
     spread = [_soa.sub(c, centre) for c in corners]
     radius2 = functools.reduce(jnp.maximum, [_soa.dot(d, d) for d in spread])
@@ -364,18 +368,12 @@ def _nearest_on_grid(x, points):
     bound = jnp.sqrt(_soa.dot(to_centre, to_centre)) - jnp.sqrt(radius2)
     r, c = jnp.arange(m - 1, dtype=jnp.int32)[:, None], jnp.arange(n - 1, dtype=jnp.int32)[None, :]
     inside = (r >= i0) & (r < i0 + bu - 1) & (c >= j0) & (c < j0 + bv - 1)
-    outside_bound = jnp.min(jnp.where(inside, jnp.inf, bound))
-    certain = _safe.norm(x - closest) <= outside_bound
-    return jax.lax.cond(certain, lambda: (face, closest, bary), lambda: _cast_face(search(points)))
+    certain = jnp.sqrt(d2) <= jnp.min(jnp.where(inside, jnp.inf, bound))
+    return jax.lax.cond(certain, lambda: face, lambda: search(p)[0])
 
 
 _HEAD, _TAIL = slice(None, -1), slice(1, None)
 _CORNERS = ((_HEAD, _HEAD), (_TAIL, _HEAD), (_HEAD, _TAIL), (_TAIL, _TAIL))  # p00, p10, p01, p11
-
-
-def _cast_face(result):
-    face, closest, bary = result
-    return face.astype(jnp.int32), closest, bary
 
 
 def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:

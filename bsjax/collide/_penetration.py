@@ -331,8 +331,8 @@ def _foot_triangles(x, verts, grids, lay: _Layout, reach) -> Int[Array, "N 3"]:
         t, f = _cell_triangles(grid)
         tris.append(t.reshape(-1, 3, 3))
         faces.append(f.reshape(-1, 3).astype(jnp.int32) + int(lay.vert_offset[side]))
-    # the triangles as the per-face quantities of `_triangles._d2`, one row each: `(ROWS, T)`
-    table, faces = _face_table(jnp.concatenate(tris)).T, jnp.concatenate(faces)
+    # the triangles as the per-face quantities of `_triangles._d2`, one row per face: `(T, ROWS)`
+    table, faces = _face_table(jnp.concatenate(tris)), jnp.concatenate(faces)
 
     def balls(corners, members):
         """Centres (mean of 4 corners) and radii (farthest member vertex) of vertex groups."""
@@ -357,7 +357,7 @@ def _foot_triangles(x, verts, grids, lay: _Layout, reach) -> Int[Array, "N 3"]:
         coarse_valid=jnp.asarray(valid["coarse"]),
         coarse_row=jnp.asarray(lay.rows["coarse"]),
         coarse_col=jnp.asarray(lay.cols["coarse"]),
-        table=jnp.moveaxis(table[:, st["tri"]], 1, 0),
+        table=table[st["tri"]],
         faces=faces[st["tri"]],
         tri_valid=jnp.asarray(valid["tri"]),
         x=x[st["sample"]],

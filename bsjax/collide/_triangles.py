@@ -133,12 +133,12 @@ def _face_table(tris):
 
 
 def _nearest_face(y, table, index=None, valid=None):
-    """Index of the face nearest to the point `y (3,)` among the columns `index` (default: all;
-    those marked `valid`) of `table (ROWS, T)` (`_face_table`, transposed), and its squared
-    distance (`_d2`: a decision only — the chosen face's point comes from
-    `_closest_point_on_triangle`)."""
-    rows = tuple(table) if index is None else tuple(row[index] for row in table)
-    d2 = _d2((y[0], y[1], y[2]), rows)
+    """Index of the face nearest to the point `y (3,)` among the rows `index` (default: all;
+    those marked `valid`) of `table (T, ROWS)` (`_face_table`), and its squared distance (`_d2`:
+    a decision only — the chosen face's point comes from `_closest_point_on_triangle`). The
+    rows are gathered as one block (one gather, not one per quantity)."""
+    faces = table if index is None else table[index]
+    d2 = _d2((y[0], y[1], y[2]), tuple(faces[:, r] for r in range(faces.shape[1])))
     if valid is not None:
         d2 = jnp.where(valid, d2, jnp.inf)
     k = jnp.argmin(d2)
