@@ -209,15 +209,16 @@ def _problem(design, lower, upper, free) -> _Problem:
     return _Problem(treedef, start, lo, hi, _free_mask(free, tree))
 
 
-def _scalar_output(fn, name, design, args):
-    out = jax.eval_shape(fn, design, args)
-    if (
-        not isinstance(out, jax.ShapeDtypeStruct)
-        or out.shape != ()
-        or not jnp.issubdtype(out.dtype, jnp.floating)
-    ):
-        got = getattr(out, "shape", type(out).__name__), getattr(out, "dtype", "")
+def _scalar_output(out, name: str):
+    """`out` when it is a scalar float (checked on its shape and dtype while the objective is
+    traced: no trace of its own), else a `ValueError` naming `name`."""
+    if isinstance(out, float):
+        out = jnp.asarray(out)
+    shape, dtype = getattr(out, "shape", None), getattr(out, "dtype", None)
+    if shape != () or dtype is None or not jnp.issubdtype(dtype, jnp.floating):
+        got = type(out).__name__ if shape is None else f"shape {tuple(shape)} {jnp.dtype(dtype).name}"
         raise ValueError(f"{name}: expected a scalar float output (shape ()), got {got}")
+    return out
 
 
 def _sum_squares(tree):
@@ -341,12 +342,11 @@ def minimise(
     if autodiff_mode not in ("bwd", "fwd"):
         raise ValueError(f"autodiff_mode: expected 'bwd' or 'fwd', got {autodiff_mode!r}")
     problem = _problem(design, lower, upper, free)
-    _scalar_output(objective, "objective", problem.design(problem.internal()), args)
     penalty = _checks.positive(jnp.asarray(penalty), "penalty")
 
     def fn(z, _):
         x = problem.design(z)
-        value = objective(x, args)
+        value = _scalar_output(objective(x, args), "objective")
         if constraint is not None:
             value = value + 0.5 * penalty * _sum_squares(constraint(x, args))
         return value, None

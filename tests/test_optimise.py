@@ -192,6 +192,15 @@ def test_bad_input_raises_clear_errors():
         optimise.minimise(rosenbrock, x, free=jnp.array([1.0, 0.0]))
     with pytest.raises(TypeError, match="design: expected floating-point"):
         optimise.minimise(rosenbrock, jnp.array([1, 2]))
+    with pytest.raises(
+        ValueError,
+        match=r"objective: expected a scalar float output \(shape \(\)\), got shape \(2,\) float64",
+    ):
+        optimise.minimise(lambda d, a: d**2, x)
+    with pytest.raises(
+        ValueError, match=r"objective: expected a scalar float output \(shape \(\)\), got shape \(\) int"
+    ):
+        jax.jit(lambda d: optimise.minimise(lambda e, a: jnp.sum(e > 0), d).design)(x)
 
 
 @pytest.mark.slow
