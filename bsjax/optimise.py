@@ -221,6 +221,16 @@ def _scalar_output(out, name: str):
     return out
 
 
+def _float_arrays(out, name: str):
+    """`out` when it is a non-empty pytree of float arrays (checked while it is traced), else a
+    `ValueError` naming `name`."""
+    leaves = jax.tree_util.tree_leaves(out)
+    if not leaves or not all(jnp.issubdtype(jnp.result_type(leaf), jnp.floating) for leaf in leaves):
+        got = jax.tree_util.tree_map(lambda a: f"{jnp.result_type(a).name}{list(jnp.shape(a))}", out)
+        raise ValueError(f"{name}: expected a pytree of float arrays, got {got}")
+    return out
+
+
 def _sum_squares(tree):
     return sum(jnp.sum(jnp.square(leaf)) for leaf in jax.tree_util.tree_leaves(tree))
 
@@ -404,16 +414,11 @@ def least_squares(
     """
     _check_common(max_steps, method, ("levenberg_marquardt", "gauss_newton"))
     problem = _problem(design, lower, upper, free)
-    out = jax.eval_shape(residuals, problem.design(problem.internal()), args)
-    if not all(jnp.issubdtype(leaf.dtype, jnp.floating) for leaf in jax.tree_util.tree_leaves(out)) or not (
-        jax.tree_util.tree_leaves(out)
-    ):
-        raise ValueError(f"residuals: expected a pytree of float arrays, got {out}")
     penalty = _checks.positive(jnp.asarray(penalty), "penalty")
 
     def fn(z, _):
         x = problem.design(z)
-        r = residuals(x, args)
+        r = _float_arrays(residuals(x, args), "residuals")
         if constraint is not None:
             r = (r, jax.tree_util.tree_map(lambda c: jnp.sqrt(penalty) * c, constraint(x, args)))
         return r, None
@@ -425,6 +430,6 @@ def least_squares(
         solver = _GaussNewtonArmijo(rtol=rtol, atol=atol)
     else:
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)  # pyright: ignore[reportArgumentType]
-    f_struct = jax.eval_shape(lambda z: fn(z, None)[0], z0)
+    f_struct = jax.eval_shape(lambda z: fn(z, None)[0], z0)  # the one trace that checks the residuals
     z, *rest = _solve(solver, fn, z0, max_steps, throw, progress, f_struct, dtype)
     return OptimiseResult(problem.design(z), *rest)

@@ -201,6 +201,12 @@ def test_bad_input_raises_clear_errors():
         ValueError, match=r"objective: expected a scalar float output \(shape \(\)\), got shape \(\) int"
     ):
         jax.jit(lambda d: optimise.minimise(lambda e, a: jnp.sum(e > 0), d).design)(x)
+    with pytest.raises(
+        ValueError, match=r"residuals: expected a pytree of float arrays, got \{'r': 'int64\[2\]'\}"
+    ):
+        optimise.least_squares(lambda d, a: {"r": (d > 0).astype(int)}, x)
+    with pytest.raises(ValueError, match=r"residuals: expected a pytree of float arrays, got \(\)"):
+        optimise.least_squares(lambda d, a: (), x)
 
 
 @pytest.mark.slow
