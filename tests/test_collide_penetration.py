@@ -213,7 +213,11 @@ def test_far_apart_is_empty():
     a, b = surface_penetration(PLATE_B, PLATE.ctrl, PLATE_B, far, reach=0.1)  # hulls apart: early exit
     for side in (a, b):
         assert not bool(side.mask.any()) and float(side.depth.max()) == 0
-        np.testing.assert_allclose(_np(side.bary).sum(-1), 1)
+        assert not _np(side.faces).any() and not _np(side.normals).any()  # empty, as documented
+        np.testing.assert_array_equal(_np(side.bary), np.broadcast_to([1.0, 0.0, 0.0], side.bary.shape))
+    # apart, the foot points are on a placeholder triangle: the gradient is zero, not NaN
+    loss = lambda c: sum(jnp.sum(p.depth) for p in surface_penetration(PLATE_B, c, PLATE_B, far, reach=0.1))
+    np.testing.assert_array_equal(_np(jax.grad(loss)(PLATE.ctrl)), 0)
     # behind within reach counts (an open surface's inside is the side its normal points away from)
     a, b = surface_penetration(PLATE_B, PLATE.ctrl, PLATE_B, far, reach=0.6)
     assert bool(a.mask[3:-3, 3:-3].all()) and not bool(b.mask.any())

@@ -496,8 +496,9 @@ def _surface_contacts(
     ctrl_b = _checked_net(blending_b, ctrl_b, "ctrl_b", "blending_b")
     if method == "dense":
         return _dense_surfaces(blending_a, ctrl_a, blending_b, ctrl_b)
-    a = jax.lax.stop_gradient(ctrl_a).reshape(-1, 3)
-    b = jax.lax.stop_gradient(ctrl_b).reshape(-1, 3).astype(a.dtype)
+    # masks only: no tangent enters the `lax.cond` (JAX would linearise its branches under `grad`)
+    ctrl_a, ctrl_b = jax.lax.stop_gradient((ctrl_a, ctrl_b))
+    a, b = ctrl_a.reshape(-1, 3), ctrl_b.reshape(-1, 3).astype(ctrl_a.dtype)
     apart = _hulls_apart(a, b, jnp.zeros((), a.dtype))
     query = functools.partial(
         _hierarchy_surfaces,

@@ -121,15 +121,9 @@ def surface_penetration(
     ctrl_a, ctrl_b = ctrl_a.astype(dtype), ctrl_b.astype(dtype)
     reach = _checked_reach(reach, dtype)
     apart = _hulls_apart(ctrl_a.reshape(-1, 3), ctrl_b.reshape(-1, 3), reach)  # a decision
-
-    def narrow():
-        pa, na = points_normals(blending_a, ctrl_a)
-        pb, nb = points_normals(blending_b, ctrl_b)
-        return _both_sides(pa, na, pb, nb, reach)
-
-    ab, ba = unless_apart(
-        apart, narrow, empty=lambda shapes: tuple(_empty(s.depth.shape, s.bary.dtype) for s in shapes)
-    )
+    pa, na = points_normals(blending_a, ctrl_a)
+    pb, nb = points_normals(blending_b, ctrl_b)
+    ab, ba = _both_sides(pa, na, pb, nb, reach, apart)
     return _counted(ab, blending_a.counted), _counted(ba, blending_b.counted)
 
 
@@ -149,17 +143,6 @@ def _checked_reach(reach, dtype):
     if np.shape(reach) != ():
         _checks.fail("reach", "a scalar", f"shape {np.shape(reach)}")
     return _checks.positive(jnp.asarray(reach).astype(dtype), "reach")
-
-
-def _empty(shape, dtype) -> Penetration:
-    m, n = shape
-    return Penetration(
-        depth=jnp.zeros((m, n), dtype),
-        normals=jnp.zeros((m, n, 3), dtype),
-        mask=jnp.zeros((m, n), bool),
-        faces=jnp.zeros((m, n, 3), jnp.int32),
-        bary=jnp.broadcast_to(jnp.asarray([1, 0, 0], dtype), (m, n, 3)),
-    )
 
 
 _TILE = _BLOCK - 1  # cells per side of a tile (the searched block's size)
@@ -280,28 +263,41 @@ def _layout(shape_b: tuple[int, int], shape_a: tuple[int, int]) -> _Layout:
     )
 
 
-def _both_sides(pa, na, pb, nb, reach) -> tuple[Penetration, Penetration]:
+def _both_sides(pa, na, pb, nb, reach, apart) -> tuple[Penetration, Penetration]:
     """A's samples against B's tessellation and B's against A's (module docstring): one search
-    program for both sides (`_foot_triangles`), then the differentiable foot points, normals
-    and depths of all samples at once."""
+    program for both sides (`_foot_triangles`, skipped by `lax.cond` when the broad phase
+    certified the surfaces `apart`), then the differentiable foot points, normals and depths
+    of all samples at once.
+
+    The `lax.cond` holds the search only, on values without gradient: differentiating the
+    result linearises no branch of it (JAX linearises each branch of a `cond` with a tangent
+    twice). Apart, every sample's foot is on its side's first triangle, out of contact, and
+    reported empty (`faces` 0, `bary` `(1, 0, 0)`)."""
     lay = _layout(tuple(pb.shape[:2]), tuple(pa.shape[:2]))
     x = jnp.concatenate([pa.reshape(-1, 3), pb.reshape(-1, 3)])  # the searching samples
     verts = jnp.concatenate([pb.reshape(-1, 3), pa.reshape(-1, 3)])  # the searched grids
     vert_normals = jnp.concatenate([nb.reshape(-1, 3), na.reshape(-1, 3)])
     grids = (jax.lax.stop_gradient(pb), jax.lax.stop_gradient(pa))
     fixed = jax.lax.stop_gradient(verts)
-    face = _foot_triangles(jax.lax.stop_gradient(x), fixed, grids, lay, reach)
+    first = np.stack([lay.vert_offset, lay.vert_offset + 1, lay.vert_offset + lay.dims[:, 1]], 1)
+    y, near = jax.lax.stop_gradient(x), jax.lax.stop_gradient(reach)
+    face = unless_apart(
+        apart,
+        lambda: _foot_triangles(y, fixed, grids, lay, near),
+        empty=lambda out: jnp.asarray(np.repeat(first, lay.sample_count, 0), out.dtype),
+    )
     closest, bary = _closest_point_on_triangle(x, verts[face])  # (N, 3), (N, 3): differentiable
     normal = _safe.unit(jnp.sum(bary[..., None] * vert_normals[face], axis=1))
     offset = x - closest
     s = _safe.dot(offset, normal)
     open_sides = _open_sides(fixed, grids, lay)[face]  # (N, 3, 4)
     on_boundary = jnp.any(jnp.all(open_sides | ~(bary > 0)[..., None], axis=1), axis=-1)
-    mask = (s < 0) & (_safe.norm(offset) <= reach) & ~on_boundary
+    mask = (s < 0) & (_safe.norm(offset) <= reach) & ~on_boundary & ~apart
     depth = jnp.where(mask, -s, 0)
     normal = jnp.where(mask[:, None], normal, 0)
     split = int(lay.sample_count[0])
-    face = face - jnp.asarray(np.repeat(lay.vert_offset, lay.sample_count))[:, None]
+    face = jnp.where(apart, 0, face - jnp.asarray(np.repeat(lay.vert_offset, lay.sample_count))[:, None])
+    bary = jnp.where(apart, jnp.asarray([1, 0, 0], bary.dtype), bary)
 
     def side(rows: slice, shape) -> Penetration:
         m, n = shape
