@@ -279,12 +279,14 @@ def _both_sides(pa, na, pb, nb, reach, apart) -> tuple[Penetration, Penetration]
     vert_normals = jnp.concatenate([nb.reshape(-1, 3), na.reshape(-1, 3)])
     grids = (jax.lax.stop_gradient(pb), jax.lax.stop_gradient(pa))
     fixed = jax.lax.stop_gradient(verts)
-    first = np.stack([lay.vert_offset, lay.vert_offset + 1, lay.vert_offset + lay.dims[:, 1]], 1)
+    own = np.repeat(lay.vert_offset, lay.sample_count)[:, None]  # where each sample's searched grid starts
+    row = np.repeat(lay.dims[:, 1], lay.sample_count)[:, None]  # its searched grid's row length
+    first = own + np.array([0, 1, 0]) + np.array([0, 0, 1]) * row  # that grid's first triangle
     y, near = jax.lax.stop_gradient(x), jax.lax.stop_gradient(reach)
     face = unless_apart(
         apart,
         lambda: _foot_triangles(y, fixed, grids, lay, near),
-        empty=lambda out: jnp.asarray(np.repeat(first, lay.sample_count, 0), out.dtype),
+        empty=lambda out: jnp.asarray(first, out.dtype),
     )
     closest, bary = _closest_point_on_triangle(x, verts[face])  # (N, 3), (N, 3): differentiable
     normal = _safe.unit(jnp.sum(bary[..., None] * vert_normals[face], axis=1))
@@ -296,7 +298,7 @@ def _both_sides(pa, na, pb, nb, reach, apart) -> tuple[Penetration, Penetration]
     depth = jnp.where(mask, -s, 0)
     normal = jnp.where(mask[:, None], normal, 0)
     split = int(lay.sample_count[0])
-    face = jnp.where(apart, 0, face - jnp.asarray(np.repeat(lay.vert_offset, lay.sample_count))[:, None])
+    face = jnp.where(apart, 0, face - jnp.asarray(own))
     bary = jnp.where(apart, jnp.asarray([1, 0, 0], bary.dtype), bary)
 
     def side(rows: slice, shape) -> Penetration:
