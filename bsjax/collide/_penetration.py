@@ -271,8 +271,9 @@ def _both_sides(pa, na, pb, nb, reach, apart) -> tuple[Penetration, Penetration]
 
     The `lax.cond` holds the search only, on values without gradient: differentiating the
     result linearises no branch of it (JAX linearises each branch of a `cond` with a tangent
-    twice). Apart, every sample's foot is on its side's first triangle, out of contact, and
-    reported empty (`faces` 0, `bary` `(1, 0, 0)`)."""
+    twice). Apart, every sample's foot is taken on a placeholder triangle of its searched grid's
+    first cell (so the foot point and its derivative stay finite), out of contact, and reported
+    empty (`faces` 0, `bary` `(1, 0, 0)`)."""
     lay = _layout(tuple(pb.shape[:2]), tuple(pa.shape[:2]))
     x = jnp.concatenate([pa.reshape(-1, 3), pb.reshape(-1, 3)])  # the searching samples
     verts = jnp.concatenate([pb.reshape(-1, 3), pa.reshape(-1, 3)])  # the searched grids

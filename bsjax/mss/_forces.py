@@ -174,9 +174,9 @@ def _spring_sum(shape: tuple[int, int, int], coefs, padded) -> Float[Array, "3 N
     over the padded node arrays `padded[k] (3, N + 2 pad)` with coefficients `coefs[k] (D, N +
     pad)` of the grid `shape` (`_stencil`): static slices, one elementwise loop (XLA on CPU runs
     this ~3× faster than per-direction slices with scattered updates, and faster than
-    `_spring_sum_linear`). Its
-    derivative is `_spring_sum_linear` (bilinear in coefficients and nodes), whose transpose is
-    a few array operations where this loop's would be ~25 per direction."""
+    `_spring_sum_linear`). Its derivative is `_spring_sum_linear` (bilinear in coefficients and
+    nodes), whose transpose is a few array operations where this loop's would be ~25 per
+    direction."""
     plan = _stencil(shape)
     pad, n = plan.pad, int(np.prod(shape))
     out = jnp.zeros((3, n), padded[0].dtype)
