@@ -15,10 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
+import trimesh
 
 from bsjax import shapes
 from bsjax.basis import BSplineSurface, ProjectionSolver, closest_points
-from bsjax.collide import Penetration, grid_mesh, surface_penetration
+from bsjax.collide import Penetration, _penetration, grid_mesh, surface_penetration
 from tests.helpers import raises_both, random_surface
 
 GRID = 24
@@ -345,6 +346,36 @@ def test_depth_matches_exact_closest_points():
     err = np.abs(_np(a.depth).reshape(-1) - dist)[ok]
     assert err.max() <= bound, (err.max(), bound)
     assert not bool(b.mask.any())  # the curved surface lies in front of the plate
+
+
+def test_small_grids_searched_whole_match_trimesh_and_the_tiled_search(monkeypatch):
+    """Grids of at most 200 triangles are searched whole (every sample against every triangle):
+    the feet are trimesh's closest points on the same tessellation, and the tiled search with
+    its certificate, forced on the same grids, finds the same feet."""
+    surface, _, below = _bumpy()
+    small, plate = surface.blending(11, 11), PLATE.blending(9, 9)  # 200 and 128 triangles
+    assert _penetration._EXHAUSTIVE == 200
+
+    def penetrate():  # in a caller's jit: a fresh trace (`_EXHAUSTIVE` is read when tracing)
+        surface_penetration.clear_cache()
+        pair = jax.jit(lambda ca, cb: surface_penetration(plate, ca, small, cb, reach=1.0))(
+            below, surface.ctrl
+        )
+        surface_penetration.clear_cache()
+        return pair
+
+    whole = penetrate()
+    verts, faces = (_np(v) for v in grid_mesh(small.points(surface.ctrl)))
+    x = _np(plate.points(below)).reshape(-1, 3)
+    closest, dist, _ = trimesh.proximity.closest_point(trimesh.Trimesh(verts, faces, process=False), x)
+    foot = np.einsum("mnk,mnkc->mnc", _np(whole[0].bary), verts[_np(whole[0].faces)]).reshape(-1, 3)
+    np.testing.assert_allclose(foot, closest, rtol=0, atol=1e-12)
+    assert bool(whole[0].mask.all())  # the plate lies behind the curved surface, within reach
+    np.testing.assert_allclose(_np(whole[0].depth).reshape(-1), dist, rtol=0, atol=0.01)  # along n_Y
+    monkeypatch.setattr(_penetration, "_EXHAUSTIVE", 0)
+    tiled = penetrate()
+    for p, q, other in zip(whole, tiled, (small.points(surface.ctrl), plate.points(below))):
+        _assert_same(p, q, other)
 
 
 # --- transformations ------------------------------------------------------------------------
