@@ -4,8 +4,9 @@ registers it when xdist runs).
 A file's tests run on one worker, one after another: the programs a test compiles are still in
 that worker's memory for the next test of its file (its fixtures too), where per-test
 distribution compiled or loaded them in both (a sample of six files: 7 % less CPU, 6 % less
-wall). The notebooks share nothing in process (each runs in its own kernel), so they go one by
-one; the slowest files go first so that both workers finish together.
+wall). The notebooks and the documentation's pages share nothing in process (each runs in its
+own kernel or process), so they go one by one; the slowest files go first so that both workers
+finish together.
 
 xdist's file scheduling (3.8.0) hangs the run when a worker dies (pytest-xdist issues #1323,
 #1327, #1378: the dead worker's finished files go back on the queue as empty work, a replacement
@@ -18,12 +19,12 @@ test that kills its worker.
 from __future__ import annotations
 
 SLOWEST_FIRST = (
-    "tests/test_notebooks.py", "tests/test_optimise.py", "tests/test_collide.py",
+    "tests/test_notebooks.py", "tests/test_doc_blocks.py", "tests/test_optimise.py", "tests/test_collide.py",
     "tests/test_construct.py", "tests/test_mesh_tool.py", "tests/test_mss_scene.py",
     "tests/test_collide_speed.py", "tests/test_mss.py", "tests/test_tool_family.py",
     "tests/test_vsofm.py", "tests/test_sweep.py", "tests/test_basis_banded.py",
 )  # fmt: skip
-ONE_BY_ONE = ("tests/test_notebooks.py",)
+ONE_BY_ONE = ("tests/test_notebooks.py", "tests/test_doc_blocks.py")
 
 
 def pytest_collection_modifyitems(config, items):
