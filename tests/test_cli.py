@@ -55,6 +55,45 @@ def test_every_subcommand_help_exits_0(command, capsys):
     assert out.split("\n\n")[1].replace("\n", " ") == COMMANDS[command][1]
 
 
+SERVERS = ("view", "studio")  # their address is their output: no result to print
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_command_but_the_servers_prints_its_result_as_json_on_request(command, capsys):
+    help_of = [command, "symbols"] if command == "grammar" else [command]  # per subcommand there
+    assert bsjax([*help_of, "--help"]) == 0
+    assert ("--json " in capsys.readouterr().out) == (command not in SERVERS)
+
+
+def test_result_alone_on_stdout_as_a_table_or_json(files, capsys):
+    """`bsjax convert`: the summary is the result (stdout), the same as a table and as JSON."""
+    a, target = str(files / "a.json"), str(files / "a.3dm")
+    assert bsjax(["convert", a, target, "--json"]) == 0
+    out, err = capsys.readouterr()
+    result = _strict_json(out)
+    assert err == "" and result == {
+        "source": a,
+        "target": target,
+        "objects": 1,
+        "trimmed": 0,
+        "units": result["units"],
+        "dtype": "float64",
+    }
+    assert bsjax(["convert", a, target]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and out == _common.table(result) + "\n"
+    assert out.splitlines()[2] == "objects  1"
+
+
+def test_table_layouts():
+    assert _common.table({"a": 1.0 / 3, "long key": [1, 2.5e-9], "none": None}) == (
+        "a         0.333333\nlong key  [1, 2.5e-09]\nnone      -"
+    )
+    rows = [{"curve": 0, "symbols": "M+m+M+m+"}, {"curve": 1, "symbols": ""}]
+    assert _common.table(rows) == "curve  symbols\n0      M+m+M+m+\n1"
+    assert _common.table(["M+m+", "m-M+"]) == "M+m+\nm-M+" and _common.table([]) == "(none)"
+
+
 def test_top_level_help_and_unknown_command(capsys):
     assert bsjax(["--help"]) == 0
     out = capsys.readouterr().out
@@ -86,8 +125,6 @@ def _errors(d):
         (["collide", p, "--point", "0,0,nan"], "--point"),
         (["collide", p, "--point", "0,0,0", "--samples", "1,5"], "--samples"),
         (["collide", p, "--point", "0,0,0", "--stiffness", "-1"], "--stiffness"),
-        (["collide", p, "--point", "0,0,0", "--json", str(d / "r.txt")], "r.txt"),
-        (["collide", p, "--point", "0,0,0", "--json", nodir], "--json"),
         (["collide", bad, "--point", "0,0,0"], "bad.json"),  # read, not a surface
         (["collide", stl, "--point", "0,0,0"], "mesh.stl"),  # wrong extension
         # merge
@@ -181,13 +218,18 @@ def test_errors_in_a_real_process_and_debug_traceback(files):
     assert debug.returncode == 1 and "Traceback" in debug.stderr and "bad.json" in debug.stderr
 
 
-def test_library_value_error_is_one_line(files, capsys):
-    """A value check in the library (an unstable time step) is reported like a user error."""
-    argv = ["simulate", str(files / "a.json"), "-o", str(files / "s.json"), "--samples", "6,6"]
+def test_unstable_step_is_refused_in_the_options_words(files, capsys):
+    """An unstable time step: one line naming `--dt` and `--method implicit` (not the library's
+    `dt`/`method='implicit'`), with the largest stable step, which then runs."""
+    argv = ["simulate", str(files / "a.json"), "-o", str(files / "s.json"), "--samples", "6,6", "--json"]
     assert bsjax(argv + ["--steps", "2", "--dt", "1.0"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "stable" in err
-    with pytest.raises(ValueError, match="stable"):
+    assert err.count("\n") == 1 and err.startswith("bsjax simulate: --dt: expected at most ")
+    assert "--method implicit" in err and "method=" not in err
+    limit = float(err.split("expected at most ")[1].split()[0])
+    assert bsjax(argv + ["--steps", "2", "--dt", str(0.999 * limit)]) == 0
+    assert _strict_json(capsys.readouterr().out)["stable_dt"] == pytest.approx(limit, rel=1e-2)
+    with pytest.raises(_common.UserError, match="stable"):
         bsjax(argv + ["--steps", "2", "--dt", "1.0", "--debug"])
 
 
@@ -201,13 +243,12 @@ def test_float32_flag_sets_the_dtype_written(files, capsys):
         conv = files / f"c_{want}.json"
         assert bsjax(["convert", a, str(conv), *flag]) == 0
         assert json.loads(conv.read_text())["dtype"] == want
-        report = files / f"r_{want}.json"
-        argv = ["collide", str(files / "plate.json"), "--sphere", "0.5,0.5,0.05,0.3", "--samples", "9,9"]
-        assert bsjax([*argv, "--json", str(report), *flag]) == 0
-        assert _strict_json(report.read_text())["dtype"] == want
         capsys.readouterr()
+        argv = ["collide", str(files / "plate.json"), "--sphere", "0.5,0.5,0.05,0.3", "--samples", "9,9"]
+        assert bsjax([*argv, "--json", *flag]) == 0
+        assert _strict_json(capsys.readouterr().out)["dtype"] == want
         sim = files / f"s_{want}.json"
-        argv = ["simulate", a, "-o", str(sim), "--samples", "5,5", "--steps", "3", *flag]
+        argv = ["simulate", a, "-o", str(sim), "--samples", "5,5", "--steps", "3", "--json", *flag]
         assert bsjax(argv) == 0
         assert _strict_json(capsys.readouterr().out)["dtype"] == want
         assert json.loads(sim.read_text())["dtype"] == want
@@ -231,13 +272,10 @@ def test_float32_flag_sets_the_dtype_written(files, capsys):
         ("--point", "-0.5,0.5,0.0", lambda: collide.Point(jnp.array([-0.5, 0.5, 0.0]))),
     ],
 )
-def test_collide_comma_form_matches_the_library(files, flag, value, tool):
-    surface_path, report_path = files / "plate.json", files / "r.json"
-    assert (
-        bsjax(["collide", str(surface_path), flag, value, "--samples", "15,11", "--json", str(report_path)])
-        == 0
-    )
-    report = _strict_json(report_path.read_text())
+def test_collide_comma_form_matches_the_library(files, flag, value, tool, capsys):
+    surface_path = files / "plate.json"
+    assert bsjax(["collide", str(surface_path), flag, value, "--samples", "15,11", "--json"]) == 0
+    report = _strict_json(capsys.readouterr().out)
     surface = io.load(surface_path)
     c = collide.contacts(surface.blending(15, 11), surface.ctrl, tool())
     assert report["samples"] == [15, 11] and report["hit"] == bool(c.hit)
@@ -248,16 +286,10 @@ def test_collide_comma_form_matches_the_library(files, flag, value, tool):
     np.testing.assert_allclose(report["force_surface_normal"], force, rtol=1e-12, atol=1e-12)
 
 
-def test_json_is_valid_without_contact(files):
+def test_json_is_valid_without_contact(files, capsys):
     """Far from the surface: no contact, and the report is still strict JSON."""
-    out = files / "far.json"
-    assert (
-        bsjax(
-            ["collide", str(files / "plate.json"), "--point", "5,5,5", "--samples", "7", "--json", str(out)]
-        )
-        == 0
-    )
-    report = _strict_json(out.read_text())
+    assert bsjax(["collide", str(files / "plate.json"), "--point", "5,5,5", "--samples", "7", "--json"]) == 0
+    report = _strict_json(capsys.readouterr().out)
     assert report["hit"] is False and report["samples_in_contact"] == 0 and report["max_depth"] == 0.0
 
 
@@ -281,7 +313,7 @@ def test_import_bsjax_loads_no_file_or_picture_library():
 def test_simulate_free_fall_and_table(files, capsys):
     """Unclamped plate: semi-implicit Euler free fall, `g dt² n(n+1)/2` exactly; with
     `--table 0,0,-0.01` it stops on the table (the gap plus a small penalty penetration)."""
-    argv = ["simulate", str(files / "a.json"), "-o", str(files / "s.json"), "--samples", "5,5"]
+    argv = ["simulate", str(files / "a.json"), "-o", str(files / "s.json"), "--samples", "5,5", "--json"]
     assert bsjax([*argv, "--steps", "40"]) == 0
     free = _strict_json(capsys.readouterr().out)
     n, dt = free["steps"], free["dt"]

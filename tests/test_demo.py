@@ -40,7 +40,8 @@ def test_demo_runs_the_spoon_case_study(tmp_path, capsys):
     assert len(rhino3dm.File3dm.Read(str(tmp_path / "spoon.3dm")).Objects) == 3
     mesh = trimesh.load(tmp_path / "spoon.glb", force="mesh")
     assert np.ptp(mesh.vertices[:, 0]) > 0.15  # handle and bowl: a whole spoon
-    assert "wrote" in capsys.readouterr().out
+    out = capsys.readouterr().out  # the result: the folder and the files written
+    assert out.startswith(f"folder   {tmp_path}\n") and "report.json" in out and "spoon.3dm" in out
 
 
 def test_cli_lists_commands_and_rejects_unknown(capsys):

@@ -40,6 +40,7 @@ def test_merge_command_writes_merged_surface(tmp_path, capsys):
             "-o",
             str(out),
             "--report",
+            "--json",
             "--report-samples",
             "12",
         ]
@@ -86,6 +87,7 @@ def test_merge_command_reports_reduction_error(tmp_path, capsys):
             "--continuity",
             "0",
             "--report",
+            "--json",
             "--report-samples",
             "12",
         ]
@@ -107,6 +109,7 @@ def test_merge_command_reports_reduction_error(tmp_path, capsys):
             "--continuity",
             "0",
             "--report",
+            "--json",
             "--report-samples",
             "12",
         ]

@@ -23,6 +23,7 @@ def test_simulate_cli_clamped_plate_sags(tmp_path, capsys):
             "300",
             "--samples",
             "8,8",
+            "--json",
         ]
     )
     assert rc == 0

@@ -39,7 +39,8 @@ def test_revolve_writes_3dm_and_png(tmp_path, capsys):
     on_profile = np.asarray(curves[0].evaluate(np.linspace(0, 1, 7)))
     np.testing.assert_allclose(radius[:, 0], on_profile[:, 0], atol=1e-12)
     np.testing.assert_allclose(pts[:, 0, 2], on_profile[:, 1], atol=1e-12)
-    assert "revolve surface" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "mode                    revolve" in out and "surface control points  [" in out
 
 
 def test_loft_writes_json_read_back_through_the_sections(tmp_path):

@@ -228,6 +228,6 @@ def test_haptics_cli_serves_the_view_with_the_servo_in_its_own_process(capsys):
     from bsjax.cli import haptics
 
     assert haptics.main(["--proxy-only", "--servo-process", "--view", "--duration", "0.5"]) == 0
-    out = capsys.readouterr().out
-    assert "servo process" in out and "live view at http://127.0.0.1:" in out
-    assert "zero force written" in out and ("SCHED_FIFO" in out or "normal priority" in out)
+    out, err = capsys.readouterr()  # progress on stderr, the servo's statistics (the result) on stdout
+    assert "servo process" in err and "live view at http://127.0.0.1:" in err and "zero force written" in err
+    assert out.startswith("servo ") and ("SCHED_FIFO" in out or "normal priority" in out)

@@ -9,6 +9,10 @@
 * Geometry is float64 unless `--float32`: the command (an application, never the library) sets
   `jax_enable_x64` for its run and restores the previous setting when it returns.
 * JSON written by a command is always valid JSON: a non-finite number becomes `null`.
+* Output: a command's result goes to stdout (`report`): a table to read, or with `--json` the
+  same result as one JSON document for a program; diagnostics and progress go to stderr
+  (`note`, the progress bars of `bsjax.cli._progress`), so `bsjax CMD … --json > out.json` holds
+  the result alone. The servers (`view`, `studio`) print their address, their only result.
 """
 
 from __future__ import annotations
@@ -45,7 +49,9 @@ class Parser(argparse.ArgumentParser):
     the description of `bsjax NAME` is, unless given, the command's line of `bsjax --help`
     (`cli.COMMANDS`)."""
 
-    def __init__(self, prog: str, description: str | None = None, *, precision: bool = True):
+    def __init__(
+        self, prog: str, description: str | None = None, *, precision: bool = True, result: bool = True
+    ):
         from bsjax.cli import COMMANDS
 
         if description is None:
@@ -53,6 +59,10 @@ class Parser(argparse.ArgumentParser):
         super().__init__(prog=prog, description=description)
         if precision:
             self.add_argument("--float32", action="store_true", help="work in float32 (default float64)")
+        if result:
+            self.add_argument(
+                "--json", action="store_true", help="print the result as JSON (default: a table)"
+            )
         self.add_argument("--debug", action="store_true", help="show the traceback of an error")
         # A vector may start with a minus sign (`--center -1,0,0`): a value, not an option.
         self._negative_number_matcher = _NEGATIVE_VALUE
@@ -317,9 +327,46 @@ def dumps(report, indent: int | None = 2) -> str:
     return json.dumps(finite_or_none(report), indent=indent, allow_nan=False)
 
 
-def write_json(report, path: str) -> None:
-    """Write `report` as valid JSON to `path` (see `dumps`)."""
-    Path(path).write_text(dumps(report) + "\n")
+def report(args: argparse.Namespace, result, text: str | None = None) -> None:
+    """The command's result on stdout (module docstring): with `--json` valid JSON (`dumps`),
+    otherwise `text` when given (a command's own layout of the same result), else a table — a
+    dict as aligned `key  value` lines, a list of dicts as columns under a header, a list of
+    strings one per line (`(none)` for an empty list)."""
+    if getattr(args, "json", False):
+        print(dumps(result))
+    else:
+        print(table(finite_or_none(result)) if text is None else text)
+
+
+def table(result) -> str:
+    """`result` (a dict, a list of dicts or a list of values) as text (`report`)."""
+    if isinstance(result, dict):
+        width = max((len(str(k)) for k in result), default=0)
+        return "\n".join(f"{k!s:<{width}}  {_cell(v)}" for k, v in result.items())
+    if not result:
+        return "(none)"
+    if all(isinstance(row, dict) for row in result):
+        keys = list(dict.fromkeys(k for row in result for k in row))
+        rows = [keys, *([_cell(row.get(k, "")) for k in keys] for row in result)]
+        widths = [max(len(r[i]) for r in rows) for i in range(len(keys))]
+        return "\n".join("  ".join(f"{c:<{w}}" for c, w in zip(r, widths)).rstrip() for r in rows)
+    return "\n".join(_cell(row) for row in result)
+
+
+def _cell(value) -> str:
+    """A table cell: floats to 6 significant digits, lists in brackets, None as `-`."""
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_cell(v) for v in value) + "]"
+    return str(value)
+
+
+def note(prog: str, message: str) -> None:
+    """A diagnostic line on stderr: `PROG: message` (module docstring)."""
+    print(f"{prog}: {message}", file=sys.stderr, flush=True)
 
 
 def serve(server, name: str, duration: float | None) -> int:

@@ -1,6 +1,6 @@
 """`bsjax collide`: collision query of a surface file against a tool or a second surface.
 
-    bsjax collide SURFACE.json --sphere CX,CY,CZ,R [--samples 82,82] [--stiffness 100] [--json out.json]
+    bsjax collide SURFACE.json --sphere CX,CY,CZ,R [--samples 82,82] [--stiffness 100] [--json]
     bsjax collide SURFACE.json --plane PX,PY,PZ,NX,NY,NZ
     bsjax collide SURFACE.json --ellipsoid CX,CY,CZ,A,B,C
     bsjax collide SURFACE.json --point X,Y,Z
@@ -8,7 +8,7 @@
     bsjax collide SURFACE.json --surface OTHER.json [--capacity N]
 
 Prints a report (contact, samples in contact, parametric window, maximum and total depth, the
-force on the tool by both force methods) and optionally writes it as JSON. float64 unless
+force on the tool by both force methods) as a table, or as JSON with `--json`. float64 unless
 `--float32` (the report's `dtype`).
 """
 
@@ -53,7 +53,6 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="candidate cell pairs (surface vs surface; default 64 per sample of the longest grid side)",
     )
-    p.add_argument("--json", type=c.output_file(".json"), metavar="OUT", help="also write the report as JSON")
     return p
 
 
@@ -119,12 +118,7 @@ def run(args) -> dict:
 
 
 def _body(args) -> int:
-    report = c.finite_or_none(run(args))
-    width = max(len(k) for k in report)
-    for key, value in report.items():
-        print(f"{key:<{width}}  {value}")
-    if args.json:
-        c.write_json(report, args.json)
+    c.report(args, run(args))
     return 0
 
 

@@ -66,11 +66,16 @@ def _body(args) -> int:
         if not str(err).startswith("m, n:"):
             raise
         raise c.UserError("--samples", str(err).removeprefix("m, n: ")) from None
-    trimmed = sum(o.trim is not None for o in items)
-    print(
-        f"{args.source} → {args.target}: {len(items)} object(s), {trimmed} trimmed, "
-        f"units {loaded.units or 'none'}",
-        file=sys.stderr,
+    c.report(
+        args,
+        {
+            "source": args.source,
+            "target": args.target,
+            "objects": len(items),
+            "trimmed": sum(o.trim is not None for o in items),
+            "units": loaded.units,
+            "dtype": str(np.dtype(dt)),
+        },
     )
     return 0
 

@@ -29,7 +29,7 @@ class _Sub(c.Parser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax grammar")
+    p = c.Parser("bsjax grammar", result=False)  # each subcommand has its own --json (`_Sub`)
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Sub, metavar="{symbols,enumerate}")
     s = sub.add_parser("symbols", description="symbol string of every curve in a file")
     s.add_argument("curve", type=c.input_file(".json", ".3dm"), help="curve file (.json, .3dm)")
@@ -37,12 +37,10 @@ def _parser() -> argparse.ArgumentParser:
     side.add_argument("--closed", dest="closed", action="store_const", const=True, help="read as closed")
     side.add_argument("--open", dest="closed", action="store_const", const=False, help="read as open")
     s.add_argument("--rel", type=_fraction, default=0.01, help="merging threshold of spurious extrema (0.01)")
-    s.add_argument("--json", action="store_true", help="print JSON (points and measures too)")
     e = sub.add_parser("enumerate", description="closed shapes of the grammar up to N extrema")
     e.add_argument(
         "--max-extrema", type=_extrema, required=True, metavar="N", help=f"1..{MAX_EXTREMA} extrema"
     )
-    e.add_argument("--json", action="store_true", help="print a JSON list")
     return p
 
 
@@ -112,11 +110,8 @@ def _symbols(args) -> int:
             args.curve, f"expected at least one curve, got none (the file holds {curves.holding()})"
         )
     reports = [_describe(_planar(curve, args.curve, i), args) for i, curve in enumerate(curves)]
-    if args.json:
-        print(c.dumps(reports))
-    else:
-        for r in reports:
-            print(r["symbols"] or "(no characteristic points: the curvature has no extremum and no zero)")
+    none = "(no characteristic points: the curvature has no extremum and no zero)"
+    c.report(args, reports if args.json else [r["symbols"] or none for r in reports])
     return 0
 
 
@@ -124,15 +119,10 @@ def _enumerate(args) -> int:
     from bsjax import grammar
 
     shapes = grammar.enumerate_shapes(args.max_extrema)
-    if args.json:
-        print(c.dumps(shapes))
-    elif shapes:
-        print("\n".join(shapes))
+    if shapes or args.json:
+        c.report(args, shapes)
     else:  # a valid query with no answer: nothing on stdout, and why on stderr
-        print(
-            f"bsjax grammar: no closed shape has at most {args.max_extrema} extrema (the fewest is 4)",
-            file=sys.stderr,
-        )
+        c.note("bsjax grammar", f"no closed shape has at most {args.max_extrema} extrema (the fewest is 4)")
     return 0
 
 

@@ -203,7 +203,7 @@ def _body(args) -> int:
         raise c.UserError(
             "--ellipsoid", "the drag model's tool is a sphere (--tool-radius); not with --sculpt drag"
         )
-    print("bsjax haptics: building the model and compiling the physics…", flush=True)
+    c.note("bsjax haptics", "building the model and compiling the physics…")
     model = _model(args)
     interrupted = False
     # the servo in its own process by default (not for HID, whose handle the servo process cannot
@@ -235,34 +235,40 @@ def _body(args) -> int:
         try:
             loop.start()
             name = getattr(device, "__name__", None) or type(device).__name__
-            print(f"bsjax haptics: running ({name}, servo {loop.mode}); Ctrl-C to stop", flush=True)
+            c.note("bsjax haptics", f"running ({name}, servo {loop.mode}); Ctrl-C to stop")
             with _view(args, loop, model) as server:
                 if server is not None:
-                    print(f"bsjax haptics: live view at {server.url}", flush=True)
+                    c.note("bsjax haptics", f"live view at {server.url}")
                 _wait_for(loop.finished, args.duration)
         except KeyboardInterrupt:
             interrupted = True
         finally:
             stats = loop.stop()  # writes zero force before anything else
-    print("bsjax haptics: zero force written" + (" (interrupted)" if interrupted else ""))
-    print(stats.report())
+    c.note("bsjax haptics", "zero force written" + (" (interrupted)" if interrupted else ""))
+    result: dict = {"servo": stats.as_dict()}
+    lines = [stats.report()]
     if args.record or args.plot:
         rec = loop.recording()
         if args.record:
             rec.save(args.record)
-            print(f"recorded {len(rec)} ticks to {args.record}")
+            result["recording"] = {"ticks": len(rec), "path": args.record}
+            lines.append(f"recorded {len(rec)} ticks to {args.record}")
         if args.plot:
             plot_recording(rec, args.plot)
-            print(f"plot written to {args.plot}")
+            result["plot"] = args.plot
+            lines.append(f"plot written to {args.plot}")
     if hasattr(model, "ctrl"):
         import numpy as np
 
-        moved = np.abs(np.asarray(model.ctrl) - np.asarray(model.surface0.ctrl)).max()
-        print(
+        moved = float(np.abs(np.asarray(model.ctrl) - np.asarray(model.surface0.ctrl)).max())
+        result["sculpted"] = {"physics ticks": model.ticks, "largest displacement": moved}
+        lines.append(
             f"sculpted surface: {model.ticks} physics ticks, largest control-point displacement {moved:.4f}"
         )
         if hasattr(model, "grabs"):  # --sculpt drag
-            print(f"drag interactions: {model.grabs}, rolled-back ticks: {model.rollbacks}")
+            result["sculpted"].update(grabs=model.grabs, rollbacks=model.rollbacks)
+            lines.append(f"drag interactions: {model.grabs}, rolled-back ticks: {model.rollbacks}")
+    c.report(args, result, "\n".join(lines))
     return 130 if interrupted else 0
 
 

@@ -5,9 +5,10 @@
 
 Every input file may hold several surfaces (`.json` or `.3dm`, read with `bsjax.io.load_all`);
 they are taken in order. The output format follows the extension of `-o` (`bsjax.io.save`).
-`--report` prints the point-set deviation of the merged surface from the inputs (Table A.1), and
-with `--degrees reduce` the largest degree-reduction error of a patch (`MergeLayout.reduction_error`).
-float64 unless `--float32`.
+Prints what was merged (patches, control points, degrees, the output file) as a table, or as JSON
+with `--json`; `--report` adds the point-set deviation of the merged surface from the inputs
+(Table A.1), and with `--degrees reduce` the largest degree-reduction error of a patch
+(`MergeLayout.reduction_error`). float64 unless `--float32`.
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def _parser() -> argparse.ArgumentParser:
         help="drop the sample rows where patches intersect",
     )
     p.add_argument("--refine", action="store_true", help="nonlinear refit with parameter correction")
-    p.add_argument("--report", action="store_true", help="print the deviation from the inputs (JSON)")
+    p.add_argument("--report", action="store_true", help="add the deviation from the inputs")
     p.add_argument(
         "--tolerance",
         type=c.positive,
@@ -126,19 +127,19 @@ def _body(args) -> int:
     layout, ctrls = _layout(args, patches)
     merged = layout.surface(mg.refine(layout, ctrls) if args.refine else layout.apply(ctrls))
     io.save(merged, args.output)
-    r, s = merged.shape
-    print(
-        f"bsjax merge: {len(patches)} patches → {r}×{s} control points, degree "
-        f"{merged.degree_u}×{merged.degree_v}, written to {args.output}",
-        file=sys.stderr,
-    )
+    result = {
+        "patches": len(patches),
+        "control points": list(merged.shape),
+        "degrees": [merged.degree_u, merged.degree_v],
+        "output": args.output,
+    }
     if args.report:
         tolerance = _relative_tolerance(patches) if args.tolerance is None else args.tolerance
-        report = mg.deviation(patches, merged, samples=args.report_samples, tolerance=tolerance)
-        extra = {"tolerance": report.tolerance}
+        deviation = mg.deviation(patches, merged, samples=args.report_samples, tolerance=tolerance)
+        result.update(deviation.row(), tolerance=deviation.tolerance)
         if args.degrees == "reduce":  # what lowering the degrees alone costs (max over patches)
-            extra["reduction error"] = float(layout.reduction_error.max())
-        print(c.dumps({**report.row(), **extra}, indent=None))
+            result["reduction error"] = float(layout.reduction_error.max())
+    c.report(args, result)
     return 0
 
 

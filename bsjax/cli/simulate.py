@@ -9,8 +9,8 @@ Gibson, *Haptic B-spline surface sculpting with a shaped tool of implicit surfac
 The surface's blending samples (`--samples M,N`) become the nodes of a surface lattice
 (structural, shear and bending springs, `bsjax.mss.surface_lattice`); after the run the control
 points come back by the stored least-squares refit and the surface is written with
-`bsjax.io.save` (format from the extension of `-o`). A JSON report goes to stdout. float64
-unless `--float32`.
+`bsjax.io.save` (format from the extension of `-o`). A report goes to stdout (a table, JSON
+with `--json`). float64 unless `--float32`.
 """
 
 from __future__ import annotations
@@ -113,6 +113,13 @@ def _body(args) -> int:
     )
     limit = float(mss.stable_dt(lattice, args.contact_stiffness if tools else 0.0))
     dt = args.dt if args.dt is not None else (0.5 * limit if args.method == "semi_implicit" else 1e-3)
+    if args.method == "semi_implicit" and dt > limit:  # said in the options' words, before the run
+        raise c.UserError(
+            "--dt",
+            f"expected at most {limit:.3g} s, the largest stable step of --method semi_implicit for "
+            f"this lattice (stiffest spring, lightest node); use a smaller --dt or --method implicit, "
+            f"got {dt:g}",
+        )
     final = mss.simulate(
         lattice,
         mss.init(lattice),
@@ -146,7 +153,7 @@ def _body(args) -> int:
         "spring_energy": float(potential),
         "finite": bool(np.all(np.isfinite(np.asarray(ctrl)))),
     }
-    print(c.dumps(report))
+    c.report(args, report)
     return 0
 
 

@@ -189,9 +189,17 @@ def _body(args) -> int:
     io.save([surface, *curves] if exact else surface, args.output, *args.samples)
     if args.png:
         picture(surface, curves, args.png, args.samples)
-    counts = ", ".join(str(cv.n_ctrl) for cv in curves)
-    print(f"{len(curves)} curves ({counts} control points) -> {args.mode} surface {surface.ctrl.shape[:2]}")
-    print(f"wrote {args.output}" + (f" and {args.png}" if args.png else ""))
+    c.report(
+        args,
+        {
+            "curves": len(curves),
+            "curve control points": [cv.n_ctrl for cv in curves],
+            "mode": args.mode,
+            "surface control points": list(surface.ctrl.shape[:2]),
+            "output": args.output,
+            "png": args.png,
+        },
+    )
     return 0
 
 

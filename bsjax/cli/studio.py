@@ -24,7 +24,7 @@ from bsjax.cli import _common as c
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax studio")
+    p = c.Parser("bsjax studio", result=False)  # a server: its address is its output
     p.add_argument("--dir", default=".", help="folder that save/load read and write (default: here)")
     p.add_argument("--open", metavar="NAME", help="a .json/.3dm/.step file of --dir to start from")
     p.add_argument("--port", type=c.count(0), default=0, help="TCP port on 127.0.0.1 (0: any free port)")

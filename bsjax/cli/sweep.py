@@ -153,11 +153,18 @@ def _body(args) -> int:
         write_csv(out / "results.csv", designs, results)
         plot(out / "sweep.png", experiment, specs, designs, results)
     if not args.quiet and leader:
-        size = len(next(iter(designs.values())))
-        print(
-            f"{experiment.name}: {size} designs on {jax.device_count()} device(s) of "
-            f"{jax.process_count()} process(es): setup {t1 - t0:.1f} s, designs {t2 - t1:.1f} s "
-            f"(compilation included); wrote {Path(args.out) / 'results.csv'} and sweep.png"
+        c.report(
+            args,
+            {
+                "experiment": experiment.name,
+                "designs": len(next(iter(designs.values()))),
+                "devices": jax.device_count(),
+                "processes": jax.process_count(),
+                "setup s": t1 - t0,
+                "designs s": t2 - t1,  # compilation included
+                "results": str(Path(args.out) / "results.csv"),
+                "plot": str(Path(args.out) / "sweep.png"),
+            },
         )
     return 0
 

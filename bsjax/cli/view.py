@@ -21,7 +21,7 @@ INPUTS = (".json", ".3dm", ".step", ".stp", ".iges", ".igs", ".npz")
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = c.Parser("bsjax view")
+    p = c.Parser("bsjax view", result=False)  # a server: its address is its output
     p.add_argument("file", type=c.input_file(*INPUTS), help="surface, curve set or recording (.npz)")
     p.add_argument("--port", type=c.count(0), default=0, help="TCP port on 127.0.0.1 (0: any free port)")
     p.add_argument("--duration", type=c.positive, help="seconds to serve (default: until Ctrl-C)")

@@ -43,7 +43,7 @@ def _vector(x, name: str, size: int = 3, dtype=None):
     """A finite `(size,)` vector within the coordinate limit, checked after the cast to `dtype`
     (so a float32 tool refuses 1e39, which the cast makes inf)."""
     arr = _float(x, name)
-    arr = arr if dtype is None else arr.astype(dtype)
+    arr = arr if dtype is None or arr.dtype == dtype else arr.astype(dtype)
     if arr.shape != (size,):
         _checks.fail(name, f"shape ({size},)", arr.shape)
     return _checks.coordinates(arr, name)
@@ -51,7 +51,7 @@ def _vector(x, name: str, size: int = 3, dtype=None):
 
 def _scalar(x, name: str, dtype=None):
     arr = _float(x, name)
-    arr = arr if dtype is None else arr.astype(dtype)
+    arr = arr if dtype is None or arr.dtype == dtype else arr.astype(dtype)
     if arr.shape != ():
         _checks.fail(name, "a scalar", arr.shape)
     return _checks.coordinates(_checks.positive(arr, name), name)
@@ -254,26 +254,28 @@ class Ellipsoid(AbstractTool):
     def __init__(self, center, radii, rotation=None):
         self.center = _vector(center, "center")
         radii = _checks.positive(_vector(radii, "radii", dtype=self.center.dtype), "radii")
+        r = np.asarray(radii) if _checks.is_concrete(radii) else radii  # numpy: no program per check
         self.radii = _checks.check(
             radii,
-            jnp.max(radii) > _MAX_ASPECT * jnp.min(radii),
+            r.max() > _MAX_ASPECT * r.min(),
             "radii",
             f"semi-axes within a ratio of {_MAX_ASPECT:.0e} of each other",
             "a larger ratio",
             lambda r: f"{r.max() / r.min():.3g}",
         )
-        if rotation is None:
-            rotation = jnp.eye(3, dtype=self.center.dtype)
-        rotation = _float(rotation, "rotation").astype(self.center.dtype)
+        rotation = _float(np.eye(3) if rotation is None else rotation, "rotation")
+        rotation = rotation if rotation.dtype == self.center.dtype else rotation.astype(self.center.dtype)
         if rotation.shape != (3, 3):
             _checks.fail("rotation", "shape (3, 3)", rotation.shape)
         rotation = _checks.finite(rotation, "rotation")
         # float32 rotations from quaternions are orthonormal to ~1e-7 only
         tol = max(1e-6, 100 * float(jnp.finfo(rotation.dtype).eps))
-        err = jnp.max(jnp.abs(rotation.T @ rotation - jnp.eye(3, dtype=rotation.dtype)))
+        xp = _checks.xp(rotation)
+        q = np.asarray(rotation) if xp is np else rotation
+        err = xp.max(xp.abs(q.T @ q - xp.eye(3, dtype=q.dtype)))
         self.rotation = _checks.check(
             rotation,
-            (err > tol) | (jnp.linalg.det(rotation) < 0),
+            (err > tol) | (xp.linalg.det(q) < 0),
             "rotation",
             "a proper rotation matrix (R^T R = I, det 1)",
             "a matrix that is not",
