@@ -85,6 +85,45 @@ def test_result_alone_on_stdout_as_a_table_or_json(files, capsys):
     assert out.splitlines()[2] == "objects  1"
 
 
+def test_progress_bar_on_a_terminal_stderr_and_the_result_alone_on_stdout(files):
+    """`bsjax simulate` with stderr on a terminal (a pty) draws a bar of the steps there; stdout
+    (a pipe) holds the JSON result alone. With `--quiet`, or stderr not a terminal, no bar."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+
+    argv = [sys.executable, "-m", "bsjax.cli", "simulate", str(files / "a.json"), "-o", str(files / "p.json")]
+    argv += ["--samples", "5,5", "--steps", "200", "--json"]
+    for quiet in (False, True):
+        leader, follower = pty.openpty()
+        fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # 80 columns
+        proc = subprocess.Popen(
+            argv + (["--quiet"] if quiet else []),
+            stdout=subprocess.PIPE,
+            stderr=follower,
+            cwd=ROOT,
+            text=True,
+        )
+        os.close(follower)
+        drawn = b""
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # the child closed the terminal
+                break
+            if not chunk:
+                break
+            drawn += chunk
+        out, _ = proc.communicate(timeout=300)
+        os.close(leader)
+        assert proc.returncode == 0, drawn.decode(errors="replace")
+        assert _strict_json(out)["steps"] == 200
+        bar = drawn.decode(errors="replace")
+        assert ("steps" in bar and "200/200" in bar) != quiet, bar
+
+
 def test_table_layouts():
     assert _common.table({"a": 1.0 / 3, "long key": [1, 2.5e-9], "none": None}) == (
         "a         0.333333\nlong key  [1, 2.5e-09]\nnone      -"

@@ -37,6 +37,7 @@ def _parser() -> argparse.ArgumentParser:
         "--samples", type=c.grid, default=(12, 12), metavar="M,N", help="sample grid = lattice nodes (12,12)"
     )
     p.add_argument("--steps", type=c.count(), default=1000, help="time steps (default 1000)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument(
         "--dt",
         type=c.positive,
@@ -95,6 +96,7 @@ def _body(args) -> int:
     import numpy as np
 
     from bsjax import io, mss
+    from bsjax.cli import _progress
 
     dtype = c.dtype(args)
     surface = c.load_surface(args.input, args)
@@ -120,16 +122,18 @@ def _body(args) -> int:
             f"this lattice (stiffest spring, lightest node); use a smaller --dt or --method implicit, "
             f"got {dt:g}",
         )
-    final = mss.simulate(
-        lattice,
-        mss.init(lattice),
-        dt,
-        args.steps,
-        gravity=jnp.asarray(args.gravity, dtype),
-        tools=tools,
-        contact=contact,
-        method=args.method,
-    )
+    with _progress.bar("steps", quiet=args.quiet) as progress:  # on a terminal: stderr
+        final = mss.simulate(
+            lattice,
+            mss.init(lattice),
+            dt,
+            args.steps,
+            gravity=jnp.asarray(args.gravity, dtype),
+            tools=tools,
+            contact=contact,
+            method=args.method,
+            progress=progress,
+        )
     ctrl = coupling.ctrl(final.position)
     io.save(surface.with_ctrl(ctrl), args.output)
     kinetic, potential = mss.energy(lattice, final)
