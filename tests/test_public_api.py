@@ -74,9 +74,9 @@ def test_every_exported_name_exists_and_one_name_is_one_object():
 
 
 def test_packages_and_library_modules_declare_all():
-    """Every library package and module has `__all__`; the CLI (`bsjax.cli`: commands, not a
-    library) and the examples are listed by what they define."""
-    listed_by_definition = ("bsjax.cli", "bsjax.examples")
+    """Every library package and module, and every command of the CLI (`main` alone), has
+    `__all__`; the examples (case studies, not a library) are listed by what they define."""
+    listed_by_definition = ("bsjax.examples",)
     without = [
         name
         for name in public_modules()

@@ -15,6 +15,8 @@ import sys
 
 from bsjax._optional import MissingExtraError, extra_of
 
+__all__ = ["COMMANDS", "main"]
+
 # name → (module with a `main(argv)`, one-line help)
 COMMANDS = {
     "demo": ("bsjax.cli.demo", "the spoon case study: shapes, collision, merging, physics, optimisation"),

@@ -19,6 +19,8 @@ import sys
 
 from bsjax.cli import _common as c
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 
 def _parser() -> argparse.ArgumentParser:
     p = c.Parser("bsjax collide")

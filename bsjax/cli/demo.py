@@ -17,6 +17,8 @@ from pathlib import Path
 from bsjax._optional import require
 from bsjax.cli import _common as c
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 
 def _parser():
     p = c.Parser("bsjax demo", precision=False)

@@ -38,6 +38,8 @@ from bsjax.device import (
     plot_recording,
 )
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 
 def _hid_ids(text: str) -> tuple[int, int]:
     vid, _, pid = text.partition(":")

@@ -18,6 +18,8 @@ import sys
 
 from bsjax.cli import _common as c
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 
 def _grid(text: str) -> tuple[int, int]:
     try:

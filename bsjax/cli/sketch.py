@@ -32,6 +32,8 @@ from pathlib import Path
 
 from bsjax.cli import _common as c
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 MODES = {
     "revolve": (1, 2),
     "extrude": (1, 1),

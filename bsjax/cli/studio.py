@@ -22,6 +22,8 @@ from pathlib import Path
 from bsjax._optional import require
 from bsjax.cli import _common as c
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 
 def _parser() -> argparse.ArgumentParser:
     p = c.Parser("bsjax studio", result=False)  # a server: its address is its output

@@ -33,6 +33,8 @@ from bsjax._optional import require
 from bsjax.cli import _common as c
 from bsjax.cli import _progress
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 NAMES = ("spoon", "collide", "merge")
 _PLOT = "drawing sweep.png"
 

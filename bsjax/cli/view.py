@@ -17,6 +17,8 @@ import sys
 from bsjax._optional import require
 from bsjax.cli import _common as c
 
+__all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
+
 INPUTS = (".json", ".3dm", ".step", ".stp", ".iges", ".igs", ".npz")
 
 
