@@ -82,7 +82,11 @@ def test_spoon_table_is_a_loop_over_the_designs():
     experiment = experiments.EXPERIMENTS["spoon"]
     specs = {"tilt": (0.0, 25.0, 2), "shake_amplitude": (0.0, 0.01, 2)}
     designs = experiments.grid(experiment.parameters, specs)
-    setup = experiment.setup(designs, True, np.float64)
+    reports = []  # the set-up's VSOFM training cycles (the CLI's set-up bar)
+    setup = experiment.setup(designs, True, np.float64, progress=lambda *a: reports.append(a))
+    cycles = experiments.SPOON_SIZES["quick"]["cycles"]
+    assert experiment.setup_progress == "VSOFM cycles" and reports[-1] == (cycles, cycles)
+    assert [d for d, _ in reports] == sorted({d for d, _ in reports}) and len(reports) > 1
     calls = []
     found = experiments.evaluate(experiment, setup, designs, chunk=2, progress=lambda *a: calls.append(a))
     one = jax.jit(functools.partial(experiments.spoon_design, setup))

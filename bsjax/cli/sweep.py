@@ -144,7 +144,13 @@ def _body(args) -> int:
     designs = experiments.grid(experiment.parameters, specs)
     surface = c.load_surface(args.surface, args) if args.surface else None
     t0 = time.perf_counter()
-    setup = experiment.setup(designs, args.quick, c.dtype(args), surface)
+    setup_args = (designs, args.quick, c.dtype(args), surface)
+    if experiment.setup_progress is None:
+        setup = experiment.setup(*setup_args)
+    else:  # a long set-up (the spoon's VSOFM jelly): a bar of what it reports
+        label = f"{experiment.name} set-up, {experiment.setup_progress}"
+        with _progress.bar(label, quiet=args.quiet or not leader) as progress:
+            setup = experiment.setup(*setup_args, progress=progress)
     t1 = time.perf_counter()
     with _progress.bar(f"{experiment.name} designs", quiet=args.quiet or not leader) as progress:
         results = experiments.evaluate(experiment, setup, designs, chunk=args.chunk, progress=progress)

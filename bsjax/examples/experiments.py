@@ -119,10 +119,13 @@ class SpoonSetup(eqx.Module):
     seconds: float = eqx.field(static=True)
 
 
-def spoon_setup(designs: dict, quick: bool, dtype, surface: BSplineSurface | None = None) -> SpoonSetup:
+def spoon_setup(
+    designs: dict, quick: bool, dtype, surface: BSplineSurface | None = None, progress=None
+) -> SpoonSetup:
     """The spoon (`shapes.spoon_handle` merged C¹ with `shapes.spoon_bowl`, or with `surface`:
     a bowl in the same frame, its u = 0 edge at the handle's end) as a steel shell and a
-    B-spline sphere jelly on a VSOFM lattice (`spoon.study`, sizes `SPOON_SIZES`)."""
+    B-spline sphere jelly on a VSOFM lattice (`spoon.study`, sizes `SPOON_SIZES`; the fit's
+    training cycles reported to `progress(done, total)`)."""
     from bsjax import merge, shapes
 
     sizes = SPOON_SIZES["quick" if quick else "full"]
@@ -134,6 +137,7 @@ def spoon_setup(designs: dict, quick: bool, dtype, surface: BSplineSurface | Non
         jelly_samples=sizes["jelly_samples"],
         spoon_shape=sizes["spoon_shape"],
         cycles=sizes["cycles"],
+        progress=progress,
     )
     return SpoonSetup(study, spoon.step_size(study), sizes["seconds"])
 
@@ -237,7 +241,8 @@ class Experiment:
     """An experiment: its parameters (canonical order), outputs, the shared `setup(designs,
     quick, dtype, surface)` and the per-design function `design(setup, *arrays, **statics)`;
     `inputs(setup, arrays)` gives the design function's batched arguments (by default the
-    array parameters)."""
+    array parameters); `setup_progress` names what a long setup reports to its `progress(done,
+    total)` keyword (None: the setup is short and takes none)."""
 
     name: str
     parameters: dict[str, Parameter]
@@ -245,6 +250,7 @@ class Experiment:
     setup: Callable
     design: Callable
     inputs: Callable | None = None
+    setup_progress: str | None = None
 
     @property
     def static(self) -> tuple[str, ...]:
@@ -273,6 +279,7 @@ EXPERIMENTS = {
         ("spilled", "front", "back", "side", "risk"),
         spoon_setup,
         spoon_design,
+        setup_progress="VSOFM cycles",
     ),
     "collide": Experiment(
         "collide",
