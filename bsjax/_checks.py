@@ -74,6 +74,12 @@ def xp(*arrays):
     return np if is_concrete(arrays) else jnp
 
 
+def values(x):
+    """`x` as a numpy array when concrete (its checks then compute in numpy, as `xp` chooses),
+    else `x` itself (a tracer: the checks are traced)."""
+    return np.asarray(x) if is_concrete(x) else x
+
+
 def on_device(tree):
     """The numpy leaves of `tree` (host-side results of an `xp` computation) as JAX arrays, by
     `jax.device_put`, which compiles nothing (`jnp.asarray` compiles a small program per shape
@@ -245,7 +251,7 @@ def coordinates(x, name: str):
 def positive(x, name: str, strict: bool = True):
     """`x` with every entry finite and > 0 (≥ 0 when `strict=False`)."""
     sign = "> 0" if strict else ">= 0"
-    v = np.asarray(x) if is_concrete(x) else x
+    v = values(x)
     bad = (v <= 0) if strict else (v < 0)
     got = f"a value not {sign} (or NaN/inf)"
     return check(x, bad | ~xp(x).isfinite(v), name, f"finite values {sign}", got, _extreme)
@@ -253,7 +259,7 @@ def positive(x, name: str, strict: bool = True):
 
 def in_range(x, name: str, lo: float, hi: float):
     """`x` with every entry in `[lo, hi]` (NaN fails)."""
-    v = np.asarray(x) if is_concrete(x) else x
+    v = values(x)
     bad = ~((v >= lo) & (v <= hi))
     return check(x, bad, name, f"values in [{lo}, {hi}]", "a value outside (or NaN)", _span)
 
@@ -271,7 +277,7 @@ def clamped_knots(knots, degree: int, n_ctrl: int, name: str):
     if knots.shape[0] != n_ctrl + degree + 1:
         fail(name, f"length n_ctrl + degree + 1 = {n_ctrl + degree + 1}", knots.shape[0])
     knots = monotone(knots, name)
-    t = np.asarray(knots) if is_concrete(knots) else knots
+    t = values(knots)
     ends = (t[: degree + 1] != 0) | (t[-degree - 1 :] != 1)
     expected = f"a clamped knot vector on [0, 1] ({degree + 1} knots 0 and 1)"
     knots = check(knots, ends, name, expected, "other ends", lambda t: f"[{t[0]}, {t[-1]}]")

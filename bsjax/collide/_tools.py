@@ -39,11 +39,16 @@ def _float(x, name: str):
     return arr
 
 
+def _cast(arr, dtype):
+    """`arr` in `dtype` (None or its own dtype: unchanged, no conversion dispatched)."""
+    return arr if dtype is None or arr.dtype == dtype else arr.astype(dtype)
+
+
 def _vector(x, name: str, size: int = 3, dtype=None):
     """A finite `(size,)` vector within the coordinate limit, checked after the cast to `dtype`
     (so a float32 tool refuses 1e39, which the cast makes inf)."""
     arr = _float(x, name)
-    arr = arr if dtype is None or arr.dtype == dtype else arr.astype(dtype)
+    arr = _cast(arr, dtype)
     if arr.shape != (size,):
         _checks.fail(name, f"shape ({size},)", arr.shape)
     return _checks.coordinates(arr, name)
@@ -51,7 +56,7 @@ def _vector(x, name: str, size: int = 3, dtype=None):
 
 def _scalar(x, name: str, dtype=None):
     arr = _float(x, name)
-    arr = arr if dtype is None or arr.dtype == dtype else arr.astype(dtype)
+    arr = _cast(arr, dtype)
     if arr.shape != ():
         _checks.fail(name, "a scalar", arr.shape)
     return _checks.coordinates(_checks.positive(arr, name), name)
@@ -254,7 +259,7 @@ class Ellipsoid(AbstractTool):
     def __init__(self, center, radii, rotation=None):
         self.center = _vector(center, "center")
         radii = _checks.positive(_vector(radii, "radii", dtype=self.center.dtype), "radii")
-        r = np.asarray(radii) if _checks.is_concrete(radii) else radii  # numpy: no program per check
+        r = _checks.values(radii)  # numpy when concrete: no program compiled per check
         self.radii = _checks.check(
             radii,
             r.max() > _MAX_ASPECT * r.min(),
@@ -263,15 +268,13 @@ class Ellipsoid(AbstractTool):
             "a larger ratio",
             lambda r: f"{r.max() / r.min():.3g}",
         )
-        rotation = _float(np.eye(3) if rotation is None else rotation, "rotation")
-        rotation = rotation if rotation.dtype == self.center.dtype else rotation.astype(self.center.dtype)
+        rotation = _cast(_float(np.eye(3) if rotation is None else rotation, "rotation"), self.center.dtype)
         if rotation.shape != (3, 3):
             _checks.fail("rotation", "shape (3, 3)", rotation.shape)
         rotation = _checks.finite(rotation, "rotation")
         # float32 rotations from quaternions are orthonormal to ~1e-7 only
         tol = max(1e-6, 100 * float(jnp.finfo(rotation.dtype).eps))
-        xp = _checks.xp(rotation)
-        q = np.asarray(rotation) if xp is np else rotation
+        xp, q = _checks.xp(rotation), _checks.values(rotation)
         err = xp.max(xp.abs(q.T @ q - xp.eye(3, dtype=q.dtype)))
         self.rotation = _checks.check(
             rotation,
