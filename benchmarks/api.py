@@ -351,16 +351,6 @@ def _(q):
     return Case(lambda c, k: collide.sample_forces(c, k), (sphere_contact(q), 200.0), grid_size(q))
 
 
-@entry("collide.nodal_forces")
-def _(q):
-    c = sphere_contact(q)
-    f = collide.sample_forces(c, 200.0)
-    axis = jnp.linspace(0.0, 1.0, q.net)
-    nodes = jnp.stack(jnp.meshgrid(axis, axis, indexing="ij") + [jnp.zeros((q.net, q.net))], -1)
-    nodes = nodes.reshape(-1, 3)
-    return Case(collide.nodal_forces, (c.points, f, nodes), grid_size(q) + f" -> {q.net * q.net} nodes")
-
-
 # --- merge ---------------------------------------------------------------------------------------
 def _pair_size(q):
     return f"2 x {q.patch}x{q.patch}, {q.merge_samples} samples"

@@ -48,7 +48,7 @@ from bsjax import _checks, _linalg, _safe
 from bsjax._boundary import compiled, host_cache
 from bsjax.batch import report_progress
 
-__all__ = ["Report", "Settings", "boundary_mask", "corner_jacobians", "fit", "report"]
+__all__ = ["Report", "Settings", "corner_jacobians", "fit", "report"]
 
 
 class Settings(eqx.Module):
@@ -75,14 +75,6 @@ class Settings(eqx.Module):
         _checks.check_count(self.batch, "batch")
         _checks.check_count(self.sweeps, "sweeps", minimum=0)
         _checks.check_count(self.boundary_smoothing, "boundary_smoothing", minimum=0)
-
-
-def boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
-    """`(a, b, c)` boolean mask of the lattice's outer layer (read-only; cached per shape)."""
-    shape = tuple(int(s) for s in shape)  # pyright: ignore[reportAssignmentType]  (length checked next)
-    if len(shape) != 3 or min(shape) < 1:
-        _checks.fail("shape", "three lattice sizes >= 1", shape)
-    return _boundary_mask(shape)
 
 
 @host_cache(maxsize=64)
@@ -200,7 +192,7 @@ def _fit(points, key, shape, cycles, settings, progress=None, near=None):
     weights = jnp.mean(gap, axis=1) ** 2 / copies.astype(dtype)
     weights = weights / jnp.sum(weights)
     n = int(np.prod(shape))
-    bmask = boundary_mask(shape)
+    bmask = _boundary_mask(shape)
     bidx = jnp.asarray(np.nonzero(bmask.ravel())[0].astype(np.int32))
     bgrid = jnp.asarray(bmask)[..., None]
     lo, hi = jnp.min(points, axis=0), jnp.max(points, axis=0)
@@ -485,7 +477,7 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
     pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0)
     _checks.finite(pts, "points")
     _checks.finite(nodes, "nodes")
-    b = nodes[boundary_mask(nodes.shape[:3])]
+    b = nodes[_boundary_mask(nodes.shape[:3])]
     near = cKDTree(pts).query(b)[0]
     p = jnp.asarray(pts)
     near_samples = _kd_neighbours(pts, min(_NEAR, len(pts)), distinct=True)[0]  # on the host, as above
@@ -509,6 +501,6 @@ def _quality(nodes, points, near):
     host's k-d tree, so the program holds no host callback and is stored on disk)."""
     jac = corner_jacobians(nodes)
     bad = jnp.any(jac <= 0, axis=-1)
-    b = nodes[boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
+    b = nodes[_boundary_mask(nodes.shape[:3])]  # a static mask: a fixed gather
     dist = _safe.norm(b - _project(b, points, *_patches(points, near)))
     return jnp.sum(bad), jnp.asarray(bad.size), jnp.min(jac), jnp.mean(jac), jnp.max(dist), jnp.mean(dist)

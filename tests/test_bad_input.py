@@ -16,6 +16,8 @@ import pytest
 from bsjax import collide, io, merge, mss, shapes, vsofm
 from bsjax.basis import blending_matrix, clamped_knots, greville
 from bsjax.collide import _hierarchy
+from bsjax.collide._broad import hulls_apart
+from bsjax.collide._triangles import closest_point_on_triangle
 from bsjax.mss import _lattice
 from tests.helpers import raises_both
 
@@ -58,7 +60,7 @@ ARRAY_CASES = [
     ("Ellipsoid radii < 0", _ellipsoid_radii, jnp.array([1.0, -1.0, 1.0]), "radii"),
     ("Plane point inf", lambda p: collide.Plane(p, jnp.array([0.0, 0.0, 1.0])), INF3, "point"),
     ("Point position NaN", _point, NAN3, "position"),
-    ("closest_point_on_triangle NaN", lambda x: collide.closest_point_on_triangle(x, jnp.eye(3)), NAN3, "x"),
+    ("closest_point_on_triangle NaN", lambda x: closest_point_on_triangle(x, jnp.eye(3)), NAN3, "x"),
     ("stable_dt contact < 0", None, jnp.asarray(-1e3), "contact_stiffness"),
     ("step dt NaN", None, jnp.asarray(np.nan), "dt"),
     ("step dt < 0", None, jnp.asarray(-1e-4), "dt"),
@@ -363,8 +365,8 @@ def test_lists_are_array_likes(plate):
     np.testing.assert_array_equal(as_array.depth, as_list.depth)
     assert int(jnp.sum(as_array.mask)) > 0
     pts = np.asarray(s.ctrl).reshape(-1, 3)
-    assert bool(collide.hulls_apart(pts.tolist(), (pts + 5.0).tolist()))
-    assert bool(collide.hulls_apart(pts, pts + 5.0))  # numpy arrays
+    assert bool(hulls_apart(pts.tolist(), (pts + 5.0).tolist()))
+    assert bool(hulls_apart(pts, pts + 5.0))  # numpy arrays
     knots = clamped_knots(6, 3)
     np.testing.assert_array_equal(
         blending_matrix(knots, 3, [0.25, 0.5]), blending_matrix(knots, 3, jnp.array([0.25, 0.5]))

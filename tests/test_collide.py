@@ -22,12 +22,10 @@ from bsjax.collide import (
     contact_force,
     contacts,
     grid_mesh,
-    hulls_apart,
-    nodal_forces,
     sample_forces,
     surface_contacts,
 )
-from bsjax.collide._broad import parametric_window
+from bsjax.collide._broad import hulls_apart, parametric_window
 from bsjax.collide._contact import sample_window
 from bsjax.collide._flat import block_planes, normal_cones, resolve_flat_pairs
 from bsjax.collide._hierarchy import (
@@ -514,21 +512,6 @@ def test_forces_spring_sum_direction_and_reaction():
         contact_force(c, -1.0)
 
 
-def test_nodal_forces_nearest_nodes_and_conservation():
-    rng = np.random.default_rng(7)
-    points = rng.uniform(size=(40, 3))
-    forces = rng.normal(size=(40, 3))
-    nodes = rng.uniform(size=(12, 3))
-    got = np.asarray(nodal_forces(jnp.asarray(points), jnp.asarray(forces), jnp.asarray(nodes)))
-    nearest = np.argmin(((points[:, None] - nodes[None]) ** 2).sum(-1), 1)
-    expect = np.zeros((12, 3))
-    np.add.at(expect, nearest, forces)
-    np.testing.assert_allclose(got, expect, atol=1e-12)
-    spread = np.asarray(nodal_forces(jnp.asarray(points), jnp.asarray(forces), jnp.asarray(nodes), k=3))
-    np.testing.assert_allclose(spread.sum(0), forces.sum(0), atol=1e-12)
-    assert np.count_nonzero(np.abs(spread).sum(1)) >= np.count_nonzero(np.abs(expect).sum(1))
-
-
 # --- bad input --------------------------------------------------------------------------------
 
 
@@ -622,12 +605,6 @@ BAD_INPUTS = {
         jnp.array(-2.0),
         "damping",
     ),
-    "nodal NaN nodes": (
-        lambda n: nodal_forces(jnp.zeros((4, 3)), jnp.ones((4, 3)), n),
-        _with_nan(jnp.zeros((2, 3))),
-        "nodes: expected finite",
-    ),
-    "nodal k": (lambda n: nodal_forces(jnp.zeros((4, 3)), jnp.ones((4, 3)), n, k=3), jnp.zeros((2, 3)), "k:"),
     "hulls NaN": (
         lambda a: hulls_apart(a, jnp.ones((2, 3))),
         _with_nan(jnp.zeros((3, 3))),

@@ -20,16 +20,14 @@ from bsjax.collide import (
     Plane,
     Point,
     Sphere,
-    closest_point_on_triangle,
     contacts,
     grid_mesh,
-    hulls_apart,
     surface_contacts,
-    triangles_intersect,
 )
+from bsjax.collide._broad import hulls_apart
 from bsjax.collide._contact import points_normals, sample_window
 from bsjax.collide._hierarchy import block_order, levels_for, sphere_hierarchy
-from bsjax.collide._triangles import candidate_pairs_intersect
+from bsjax.collide._triangles import candidate_pairs_intersect, closest_point_on_triangle, triangles_intersect
 from tests.helpers import check_grad, raises_both, random_surface
 
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 from scipy.optimize import linprog
 
-from bsjax.collide import closest_point_on_triangle, triangles_intersect
+from bsjax.collide._triangles import closest_point_on_triangle, triangles_intersect
 from tests.helpers import raises_both
 
 _intersect = jax.jit(triangles_intersect)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from bsjax import mss, shapes, vsofm
+from bsjax.mss._lattice import hex_volume
 from tests.helpers import raises_both
 
 
@@ -22,7 +23,7 @@ def test_sphere_boundary_on_surface_interior_inside_no_inverted():
     pts = fibonacci_sphere(3000, 0.5)
     nodes = np.asarray(vsofm.fit(pts, (8, 8, 8), key=jax.random.PRNGKey(1)))
     assert nodes.shape == (8, 8, 8, 3)
-    bmask = vsofm.boundary_mask((8, 8, 8))
+    bmask = vsofm._boundary_mask((8, 8, 8))
     radius = np.linalg.norm(nodes, axis=-1)
     assert np.abs(radius[bmask] - 0.5).max() < 0.005  # on the sphere (1 % of the radius)
     assert radius[~bmask].max() < 0.5 - 0.02  # interior strictly inside
@@ -67,7 +68,7 @@ def test_teardrop_no_inverted_and_lattice_ready_for_mss():
     assert rep.sample_max < 0.08  # and within the cloud's sample spacing (~0.1 at the equator)
     lat = mss.hex_lattice(nodes, material=mss.JELLY)
     assert lat.n_nodes == 512 and lat.grid_shape == (8, 8, 8)
-    assert float(mss.hex_volume(jnp.asarray(nodes))) > 0
+    assert float(hex_volume(jnp.asarray(nodes))) > 0
 
 
 def blending_points(name, n=82):
@@ -112,7 +113,7 @@ def test_quadric_patches_follow_the_curvature_and_report_measures_distance():
     assert np.abs(np.linalg.norm(on, axis=1) - 1).max() < 2e-4
     g = np.stack(np.meshgrid(*[np.linspace(-0.5, 0.5, 4)] * 3, indexing="ij"), -1)
     nodes = g / np.abs(g).max(axis=-1, keepdims=True).clip(1e-9) * 0.5  # a cube's shell ...
-    shell = vsofm.boundary_mask((4, 4, 4))
+    shell = vsofm._boundary_mask((4, 4, 4))
     nodes[shell] = nodes[shell] / np.linalg.norm(nodes[shell], axis=-1, keepdims=True) * 1.01  # ... 0.01 out
     rep = vsofm.report(pts, nodes)
     assert abs(rep.boundary_mean - 0.01) < 5e-4 and abs(rep.boundary_max - 0.01) < 5e-4, rep
@@ -220,7 +221,7 @@ def _reference_fit(points, key, shape, cycles, settings=vsofm.Settings()):
     gap = jnp.linalg.norm(points[nbr[:, 1:7]] - points[:, None], axis=-1)
     weights = jnp.mean(gap, axis=1) ** 2 / copies.astype(dtype)
     weights = weights / jnp.sum(weights)
-    n, bmask = int(np.prod(shape)), vsofm.boundary_mask(shape)
+    n, bmask = int(np.prod(shape)), vsofm._boundary_mask(shape)
     bidx = jnp.asarray(np.nonzero(bmask.ravel())[0].astype(np.int32))
     bgrid = jnp.asarray(bmask)[..., None]
     lo, hi = jnp.min(points, axis=0), jnp.max(points, axis=0)

@@ -11,7 +11,6 @@ from bsjax.basis._curve import CurveBlending as CurveBlending
 from bsjax.basis._direction import SplineDirection as SplineDirection
 from bsjax.basis._functions import basis_functions as basis_functions
 from bsjax.basis._functions import blending_matrix as blending_matrix
-from bsjax.basis._functions import fold_periodic as fold_periodic
 from bsjax.basis._functions import periodic_blending_matrix as periodic_blending_matrix
 from bsjax.basis._knots import clamped_knots as clamped_knots
 from bsjax.basis._knots import greville as greville
@@ -41,7 +40,6 @@ __all__ = [
     "clamped_knots",
     "closest_points",
     "elevate_degree",
-    "fold_periodic",
     "greville",
     "insert_knots",
     "periodic_blending_matrix",

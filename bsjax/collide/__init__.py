@@ -5,14 +5,14 @@
   `surface_contacts(blending_a, ctrl_a, blending_b, ctrl_b)` → `SurfaceContact`;
   `surface_penetration(blending_a, ctrl_a, blending_b, ctrl_b, reach=…)` → a `Penetration` per
   side (per-sample closest-point depth and contact normal).
-- Kernels: `triangles_intersect`, `closest_point_on_triangle`, `hulls_apart`, `grid_mesh`.
+- Meshing: `grid_mesh` (the sample grid as triangles).
 - Forces: the contact model `DistributedSprings` (Gao & Gibson eq. 3.3: per-sample springs, equal
-  and opposite pairs); `contact_force`, `sample_forces`, `nodal_forces`.
+  and opposite pairs); `contact_force` (the force on a tool) and
+  `sample_forces` (its reaction on the surface samples).
 """
 
-from bsjax.collide._broad import hulls_apart
 from bsjax.collide._contact import Contact, SurfaceContact, contacts, surface_contacts
-from bsjax.collide._force import DistributedSprings, contact_force, nodal_forces, sample_forces
+from bsjax.collide._force import DistributedSprings, contact_force, sample_forces
 from bsjax.collide._hierarchy import grid_mesh
 from bsjax.collide._mesh_bvh import FaceTree
 from bsjax.collide._penetration import Penetration, surface_penetration
@@ -25,7 +25,6 @@ from bsjax.collide._tools import (
     Sphere,
     TriangleMesh,
 )
-from bsjax.collide._triangles import closest_point_on_triangle, triangles_intersect
 
 __all__ = [
     "AbstractTool",
@@ -40,14 +39,10 @@ __all__ = [
     "Sphere",
     "SurfaceContact",
     "TriangleMesh",
-    "closest_point_on_triangle",
     "contact_force",
     "contacts",
     "grid_mesh",
-    "hulls_apart",
-    "nodal_forces",
     "sample_forces",
     "surface_contacts",
     "surface_penetration",
-    "triangles_intersect",
 ]

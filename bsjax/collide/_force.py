@@ -6,10 +6,10 @@ The force on the tool has magnitude `k Σ d_i` (plus damping `−c ṡ` per spri
 direction of the depth-weighted sum of normals: the surface normals (**surface-normal method**,
 smooth on smooth surfaces and consistent when the probe passes through a wall) or the reversed
 outward normals of the probe at the contacts (**probe-normal method**, no jumps at sharp
-edges). The surface receives equal and opposite forces, per sample and then per lattice node.
+edges). The surface receives equal and opposite forces per sample (`sample_forces`).
 
-`contact_force`, `sample_forces` and `nodal_forces` are compiled at the public boundary
-(`bsjax._boundary.compiled`): `method` and `k` are static, stiffness, damping and velocity are
+`contact_force` and `sample_forces` are compiled at the public boundary
+(`bsjax._boundary.compiled`): `method` is static, stiffness, damping and velocity are
 traced (a new stiffness never recompiles). Values are checked under `jit` too (stiffness and
 damping ≥ 0, finite velocity); a force that overflows the dtype raises instead of giving inf/NaN.
 """
@@ -132,58 +132,6 @@ def _positions(x, name: str):
     if x.ndim < 1 or x.shape[-1] != 3:
         _checks.fail(name, "shape (..., 3)", f"shape {x.shape}")
     return _checks.finite(x, name)
-
-
-def _nearest(score, k: int):
-    """`lax.top_k(score, k)` for a small static k: k passes of argmax (XLA's CPU top_k sorts
-    every row, ~100× slower for a few nearest nodes out of hundreds)."""
-    columns = jnp.arange(score.shape[1])[None, :]
-    values, indices = [], []
-    for _ in range(k):
-        i = jnp.argmax(score, 1)
-        values.append(jnp.max(score, 1))
-        indices.append(i)
-        score = jnp.where(columns == i[:, None], -jnp.inf, score)
-    return jnp.stack(values, 1), jnp.stack(indices, 1).astype(jnp.int32)
-
-
-@compiled
-def nodal_forces(
-    points: Float[Array, "... 3"], forces: Float[Array, "... 3"], nodes: Float[Array, "N 3"], k: int = 1
-) -> Float[Array, "N 3"]:
-    """Spread point forces onto the nearest lattice nodes (for the mass-spring system).
-
-    **Arguments:** `points (..., 3)` where the forces act (e.g. `contact.points`), `forces
-    (..., 3)` (e.g. `sample_forces`), `nodes (N, 3)` node positions (all finite), `k` (static
-    int in [1, N]) nearest nodes per point, weighted by inverse distance (weights sum to 1, so
-    the total force is kept; a point on a node gives that node everything).
-
-    **Returns:** `(N, 3)` summed nodal forces, `F_j = Σ_i w_ij f_i`, `w_ij ∝ 1 / |p_i − x_j|`.
-    """
-    _checks.check_ndim(nodes, "nodes", 2, last=3)
-    if np.shape(points) != np.shape(forces):
-        _checks.fail("forces", f"the shape of points {np.shape(points)}", np.shape(forces))
-    count = np.shape(nodes)[0]
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= count:
-        _checks.fail("k", f"an int in [1, {count}]", k)
-    points, forces = _positions(points, "points"), _positions(forces, "forces")
-    nodes = _positions(nodes, "nodes")
-    p, f = points.reshape(-1, 3), forces.reshape(-1, 3)
-    nodes = nodes.astype(p.dtype)
-    # coordinate by coordinate: XLA fuses this into one loop (a trailing axis of 3 it does not)
-    d2 = sum((p[:, j, None] - nodes[None, :, j]) ** 2 for j in range(3))
-    neg, idx = _nearest(-jax.lax.stop_gradient(d2), int(k))
-    if k == 1:
-        w = jnp.ones(neg.shape, f.dtype)
-    else:
-        dist = _safe.sqrt(-neg)
-        exact = dist <= jnp.finfo(dist.dtype).eps
-        # inverse-distance weights; a point sitting on a node gives it everything
-        inv = jnp.where(exact, 0, 1 / jnp.where(exact, 1, dist))
-        inv = jnp.where(jnp.any(exact, 1, keepdims=True), exact.astype(dist.dtype), inv)
-        w = (inv / jnp.sum(inv, 1, keepdims=True)).astype(f.dtype)
-    contrib = (w[..., None] * f[:, None, :]).reshape(-1, 3)
-    return jax.ops.segment_sum(contrib, idx.reshape(-1), num_segments=nodes.shape[0])
 
 
 class DistributedSprings(eqx.Module):

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 from bsjax.device._frames import Decoded, Frame, decode_frames, encode_force, encode_frame, encode_pose
 from bsjax.device._hid import HidDevice, HidField, HidLayout
 from bsjax.device._protocol import (
-    BUTTON_PRESS,
     DeviceError,
     DeviceSample,
     DeviceTimeout,
@@ -28,7 +27,7 @@ from bsjax.device._proxy import Proxy
 from bsjax.device._record import Recorder, Recording
 from bsjax.device._serial import SerialDevice
 from bsjax.device._servo import ServoLoop
-from bsjax.device._simulated import SimulatedDevice, sculpt_script
+from bsjax.device._simulated import SimulatedDevice
 from bsjax.device._telemetry import ServoStats, plot_recording
 
 if TYPE_CHECKING:  # loaded on first use at run time (`__getattr__` below); named here for checkers
@@ -36,7 +35,6 @@ if TYPE_CHECKING:  # loaded on first use at run time (`__getattr__` below); name
     from bsjax.device._physics import PhysicsModel, SculptModel
 
 __all__ = [
-    "BUTTON_PRESS",
     "ConstraintSculptModel",
     "Decoded",
     "DeviceError",
@@ -63,7 +61,6 @@ __all__ = [
     "encode_frame",
     "encode_pose",
     "plot_recording",
-    "sculpt_script",
 ]
 
 

@@ -36,6 +36,18 @@ from jaxtyping import Array, Bool, Float
 from bsjax import merge, optimise, shapes
 from bsjax.examples import spoon
 
+__all__ = [
+    "FULL",
+    "QUICK",
+    "BowlStudy",
+    "gradient_check",
+    "objective",
+    "optimise_bowl",
+    "run",
+    "spill_risk",
+    "study",
+]
+
 FULL = {"lattice": 5, "cycles": 60, "jelly_samples": (12, 12), "seconds": 0.15, "budget": 12}
 QUICK = {"lattice": 3, "cycles": 30, "jelly_samples": (10, 10), "seconds": 0.08, "budget": 6}
 

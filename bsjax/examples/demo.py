@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = ["FULL", "QUICK", "run"]
+
 SAMPLES = 82
 
 # Sizes of the full case study and of the quick one the test suite runs (same code path).

@@ -24,6 +24,8 @@ import numpy as np
 
 from bsjax.basis import BSplineSurface, clamped_knots, greville
 
+__all__ = ["Case", "all_cases", "case", "run"]
+
 NAMES = {
     1: "Similar curvature and knot vectors",
     2: "Different curvatures but similar knot vectors",

@@ -31,6 +31,8 @@ from jaxtyping import Array, Float
 from bsjax import collide, mss, shapes
 from bsjax.basis import BSplineSurface
 
+__all__ = ["Hand", "Study", "run", "shake", "spill_risk", "spilled", "study", "tilted"]
+
 GRAVITY = 9.81
 
 

@@ -13,8 +13,8 @@ seam (§4.3.3); across, the patches' knots are averaged (§6.3.1.3) or made unif
 * `plan(...)` / `plan_grid(...)` → `MergeLayout`: all the fixed work once; `layout.apply(ctrls)`
   is then jittable and differentiable in the input control nets; `layout.reduction_error`
   reports what `degrees="reduce"` costs each patch.
-* `merge_knots`, `average_knots`, `cross_knots`, `common_degree`, `merged_knots`: the knot and
-  degree rules (the merged basis without building matrices).
+* `merge_knots`, `average_knots`, `cross_knots`, `merged_knots`: the knot and degree rules (the
+  merged basis without building matrices).
 * `deviation(originals, merged)` → `Deviation` (mean, median, std, max, close points) by
   closest-point projection (`basis.closest_points`: batched Gauss–Newton); `plot_deviation`
   draws the heat map.
@@ -39,7 +39,6 @@ from bsjax.merge._knots import merge_knots as merge_knots
 from bsjax.merge._layout import MergeLayout as MergeLayout
 from bsjax.merge._layout import cache_info as cache_info
 from bsjax.merge._layout import clear_cache as clear_cache
-from bsjax.merge._layout import common_degree as common_degree
 from bsjax.merge._layout import merge as merge
 from bsjax.merge._layout import merge_grid as merge_grid
 from bsjax.merge._layout import merged_knots as merged_knots
@@ -61,7 +60,6 @@ __all__ = [
     "average_knots",
     "cache_info",
     "clear_cache",
-    "common_degree",
     "cross_knots",
     "deviation",
     "merge",

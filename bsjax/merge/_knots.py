@@ -104,7 +104,7 @@ def merge_knots(knots_a, knots_b, degree: int, continuity: int) -> np.ndarray:
 
     **Arguments:**
     - `knots_a`, `knots_b`: clamped knot vectors on [0, 1] of the first and second patch, both
-      of degree `degree` (bring degrees together first, see `bsjax.merge.common_degree`).
+      of degree `degree` (bring degrees together first, see `common_degree`).
     - `degree`: k ≥ 1, the merged degree in this direction.
     - `continuity`: c in `0..k−1`, the continuity C^c asked for at the seam.
 

@@ -16,11 +16,8 @@ from bsjax.mss._coupling import (
 )
 from bsjax.mss._forces import (
     behind_plane,
-    contact_tangent,
     edge_lengths,
-    edge_sum,
     spring_forces,
-    tool_contacts,
     tool_forces,
 )
 from bsjax.mss._integrators import (
@@ -40,7 +37,6 @@ from bsjax.mss._lattice import (
     from_material,
     hex_edges,
     hex_lattice,
-    hex_volume,
     init,
 )
 from bsjax.mss._materials import (
@@ -82,17 +78,14 @@ __all__ = [
     "SurfaceCoupling",
     "behind_plane",
     "check_dt",
-    "contact_tangent",
     "coupled_step",
     "damping_ratio",
     "edge_lengths",
-    "edge_sum",
     "energy",
     "forces",
     "from_material",
     "hex_edges",
     "hex_lattice",
-    "hex_volume",
     "implicit_step",
     "init",
     "natural_frequency",
@@ -111,7 +104,6 @@ __all__ = [
     "stable_dt",
     "step",
     "surface_lattice",
-    "tool_contacts",
     "tool_forces",
     "tool_reactions",
     "trajectory",

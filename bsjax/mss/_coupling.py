@@ -245,7 +245,7 @@ def coupled_step(
     1. The surface is the lattice's sample nodes (`coupling`; `coupling.nodes(ctrl)` places them).
     2. Contacts: every `bsjax.collide` tool in `tools` (`Sphere`, `Ellipsoid`, `Plane`,
        `Implicit`, `TriangleMesh`) reports each node's penetration depth `δ` and outward normal
-       `n` by its `push` (`mss.tool_contacts`).
+       `n` by its `push` (`bsjax.mss._forces.tool_contacts`).
     3. Forces: penalty `k δ n − c min(v·n, 0) n` (`mss.tool_forces`, `contact = Penalty(k, c)`),
        plus springs, node damping, `external_force (N, 3)` and `gravity (3,)`.
     4. Step: semi-implicit Euler (`mss.step`, thesis eqs. 5.14–5.16; `dt` at most

@@ -347,7 +347,7 @@ def _penetrations(scene: Scene, states):
 
 def _tool_pushes(scene: Scene, states):
     """`(tool index, body index, depth (N,), normal (N, 3))` for every rigid tool and body
-    (`mss.tool_contacts`: the tool's `push`, depth 0 outside it)."""
+    (`tool_contacts`: the tool's `push`, depth 0 outside it)."""
     for k, state in enumerate(states):
         for t, (depth, normal) in enumerate(tool_contacts(scene.tools, state.position)):
             yield t, k, depth, normal
