@@ -198,6 +198,12 @@ def check_count(value: Any, name: str, minimum: int = 1) -> int:
     return int(value)
 
 
+def check_progress(progress: Any) -> None:
+    """A long function's optional `progress(done, total)` callback: a callable or None."""
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
+
+
 def check_real(x: Any, name: str) -> None:
     """Refuse complex input (it would be truncated to its real part), booleans (not numbers) and
     anything that is not numbers at all (strings, objects, `None`)."""

@@ -328,8 +328,7 @@ def map(  # the name users expect, as `jax.lax.map`
     if not callable(fn):
         raise TypeError(f"fn: expected a callable (a function of one design), got {type(fn).__name__}")
     grid = _checked_mesh(mesh)
-    if progress is not None and not callable(progress):
-        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
+    _checks.check_progress(progress)
     args = _boundary.as_arrays(args, {})[0]
     n = _batch_size(args)
     devices = grid.size

@@ -123,8 +123,7 @@ def fit(
     cycles = _checks.check_count(cycles, "cycles")
     if not isinstance(settings, Settings):
         raise TypeError(f"settings: expected a vsofm.Settings, got {type(settings).__name__}")
-    if progress is not None and not callable(progress):
-        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
+    _checks.check_progress(progress)
     key = jax.random.PRNGKey(0) if key is None else key
     scale = _power_of_two_scale(pts)  # the training is scale-free: 1e-300 or 1e300 samples work
     unit = pts / scale

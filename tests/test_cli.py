@@ -85,43 +85,57 @@ def test_result_alone_on_stdout_as_a_table_or_json(files, capsys):
     assert out.splitlines()[2] == "objects  1"
 
 
-def test_progress_bar_on_a_terminal_stderr_and_the_result_alone_on_stdout(files):
-    """`bsjax simulate` with stderr on a terminal (a pty) draws a bar of the steps there; stdout
-    (a pipe) holds the JSON result alone. With `--quiet`, or stderr not a terminal, no bar."""
+def _on_a_terminal(argv: list[str]) -> tuple[int, str, str]:
+    """Run a command with stderr on a terminal (an 80-column pty) and stdout on a pipe:
+    `(exit code, stdout, what the terminal showed)`."""
     import fcntl
     import os
     import pty
     import struct
     import termios
 
-    argv = [sys.executable, "-m", "bsjax.cli", "simulate", str(files / "a.json"), "-o", str(files / "p.json")]
-    argv += ["--samples", "5,5", "--steps", "200", "--json"]
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # 80 columns
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bsjax.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=follower,
+        cwd=ROOT,
+        text=True,
+    )
+    os.close(follower)
+    drawn = b""
+    while True:
+        try:
+            chunk = os.read(leader, 4096)
+        except OSError:  # the child closed the terminal
+            break
+        if not chunk:
+            break
+        drawn += chunk
+    out, _ = proc.communicate(timeout=300)
+    os.close(leader)
+    return proc.returncode, out, drawn.decode(errors="replace")
+
+
+@pytest.mark.parametrize("command", ["simulate", "convert"])
+def test_progress_bar_on_a_terminal_stderr_and_the_result_alone_on_stdout(files, command):
+    """`bsjax simulate` / `bsjax convert` with stderr on a terminal (a pty) draw a bar of the
+    steps / objects there; stdout (a pipe) holds the JSON result alone. With `--quiet`, no bar."""
+    if command == "simulate":
+        argv = ["simulate", str(files / "a.json"), "-o", str(files / "p.json"), "--samples", "5,5"]
+        argv += ["--steps", "200", "--json"]
+        key, value, counted = "steps", 200, ("steps", "200/200")
+    else:
+        both = files / "both.json"
+        io.save([shapes.plate(4, 4), shapes.teardrop()], both)
+        argv = ["convert", str(both), str(files / "both.obj"), "--samples", "5,5", "--json"]
+        key, value, counted = "objects", 2, ("objects", "2/2")
     for quiet in (False, True):
-        leader, follower = pty.openpty()
-        fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # 80 columns
-        proc = subprocess.Popen(
-            argv + (["--quiet"] if quiet else []),
-            stdout=subprocess.PIPE,
-            stderr=follower,
-            cwd=ROOT,
-            text=True,
-        )
-        os.close(follower)
-        drawn = b""
-        while True:
-            try:
-                chunk = os.read(leader, 4096)
-            except OSError:  # the child closed the terminal
-                break
-            if not chunk:
-                break
-            drawn += chunk
-        out, _ = proc.communicate(timeout=300)
-        os.close(leader)
-        assert proc.returncode == 0, drawn.decode(errors="replace")
-        assert _strict_json(out)["steps"] == 200
-        bar = drawn.decode(errors="replace")
-        assert ("steps" in bar and "200/200" in bar) != quiet, bar
+        code, out, bar = _on_a_terminal(argv + (["--quiet"] if quiet else []))
+        assert code == 0, bar
+        assert _strict_json(out)[key] == value
+        assert all(c in bar for c in counted) != quiet, bar
 
 
 def test_table_layouts():

@@ -113,3 +113,25 @@ def test_iges_names_and_layers(tmp_path):
         np.testing.assert_allclose(
             np.asarray(b.geometry.evaluate(*args)), np.asarray(a.geometry.evaluate(*args)), atol=1e-9
         )
+
+
+@pytest.mark.parametrize("ext", ["json", "3dm", "step", "obj"])
+def test_save_reports_each_object_and_writes_the_same_file(tmp_path, ext):
+    """`io.save(..., progress=)` calls `progress(k, 3)` once per object, in order, and writes
+    what a save without it writes (read back: the same nets)."""
+    from bsjax import shapes
+
+    items = [shapes.plate(4, 4), shapes.teardrop(), shapes.plate(5, 4)]
+    calls = []
+    io.save(items, tmp_path / f"shown.{ext}", 5, 5, progress=lambda done, total: calls.append((done, total)))
+    io.save(items, tmp_path / f"plain.{ext}", 5, 5)
+    assert calls == [(1, 3), (2, 3), (3, 3)]
+    if ext == "obj":
+        assert (tmp_path / "shown.obj").read_bytes() == (tmp_path / "plain.obj").read_bytes()
+        return
+    shown, plain = io.load_all(tmp_path / f"shown.{ext}"), io.load_all(tmp_path / f"plain.{ext}")
+    assert len(shown) == len(plain) == 3
+    for a, b in zip(shown, plain):
+        np.testing.assert_array_equal(np.asarray(a.ctrl), np.asarray(b.ctrl))
+    with pytest.raises(TypeError, match="progress: expected a callable"):
+        io.save(items, tmp_path / f"bad.{ext}", progress=3)

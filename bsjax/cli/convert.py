@@ -8,7 +8,8 @@ The B-spline formats (.json, .3dm, .step/.stp, .iges/.igs) keep every surface an
 with its trims, orientation, name, layer and the file's unit system (float64 unless `--float32`);
 the mesh formats (.obj, .stl, .ply, .glb) hold the tessellated `--samples` grid of the surfaces.
 A file holding objects bsjax cannot load (meshes, points, SubD, …) is refused with a list of
-them unless `--skip-unsupported`.
+them unless `--skip-unsupported`. On a terminal a progress bar counts the objects converted for
+the target (`--quiet`: none); the result goes to stdout (`--json` for machines).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import sys
 
 from bsjax.cli import _common as c
+from bsjax.cli import _progress
 
 __all__ = ["main"]  # a command: `main(argv) -> exit code`; the rest serves it
 
@@ -34,6 +36,7 @@ def _parser():
     p.add_argument(
         "--skip-unsupported", action="store_true", help="load what bsjax can and warn about the rest"
     )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
 
@@ -63,7 +66,8 @@ def _body(args) -> int:
             raise c.UserError(args.source, "no surface to tessellate (a mesh format holds surfaces only)")
         items = io.CadList(surfaces, loaded.units, surfaces, loaded.held)
     try:
-        io.save(items, args.target, *args.samples)
+        with _progress.bar("objects", quiet=args.quiet) as progress:
+            io.save(items, args.target, *args.samples, progress=progress)
     except ValueError as err:  # the library's sample counts are this command's --samples
         if not str(err).startswith("m, n:"):
             raise

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import itertools
 from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from typing import TypeVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -28,6 +30,18 @@ from jaxtyping import Array, Bool, Float
 from bsjax import _checks
 from bsjax._boundary import compiled
 from bsjax.basis import Blending, BSplineCurve, BSplineSurface
+
+Progress = Callable[[int, int], object]
+_Item = TypeVar("_Item")
+
+
+def counted(items: Sequence[_Item], progress: Progress | None) -> Iterator[_Item]:
+    """`items`, calling `progress(k, len(items))` once item k − 1 has been handled."""
+    for k, item in enumerate(items, 1):
+        yield item
+        if progress is not None:
+            progress(k, len(items))
+
 
 # unit name → metres; the names `load_all(units=...)` accepts and `CadList.units` holds
 UNITS = {

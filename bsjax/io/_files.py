@@ -11,7 +11,7 @@ import numpy as np
 from bsjax import _checks, collide
 from bsjax._optional import require
 from bsjax.basis import BSplineCurve, BSplineSurface
-from bsjax.io._cad import CadList, CadObject, Trim, check_units, unit_scale
+from bsjax.io._cad import CadList, CadObject, Progress, Trim, check_units, counted, unit_scale
 
 MESH_FORMATS = (".obj", ".stl", ".ply", ".glb")
 _FORMAT = "bsjax.surface"
@@ -239,7 +239,9 @@ def _objects(items) -> list[CadObject]:
     return [s if isinstance(s, CadObject) else CadObject(tuple(s) if _polycurve(s) else s) for s in listed]
 
 
-def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> Path:
+def save(
+    surfaces, path, m: int = 82, n: int = 82, units: str | None = None, *, progress: Progress | None = None
+) -> Path:
     """Write one surface or curve, or a list of them; the format follows the extension of `path`.
 
     **Arguments:**
@@ -252,30 +254,34 @@ def save(surfaces, path, m: int = 82, n: int = 82, units: str | None = None) -> 
       `.stl`, `.ply`, `.glb` hold the tessellated `m × n` sample grid (surfaces only).
     - `units`: the unit system recorded in the file (a key of `bsjax.io.UNITS`); default the
       `CadList`'s own, else metres. The numbers are written unchanged (no conversion).
+    - `progress`: an optional callback `progress(done, total)`, called after each of the `total`
+      objects is converted (tessellated, for a mesh format) — what a large file's save spends its
+      time on; the file is written after the last.
     """
     path = Path(path)
     objects = _objects(surfaces)
     check_units(units)
+    _checks.check_progress(progress)
     units = units or getattr(surfaces, "units", None) or "m"
     ext = path.suffix.lower()
     if ext == ".json":
-        path.write_text(json.dumps(_json_document(objects, units)))
+        path.write_text(json.dumps(_json_document(objects, units, progress)))
     elif ext == ".3dm":
         require("rhino3dm", "cad", f"writing {path.name!r}")
         from bsjax.io._rhino import save_3dm
 
-        save_3dm(objects, path, units, getattr(surfaces, "annotations", ()))
+        save_3dm(objects, path, units, getattr(surfaces, "annotations", ()), progress)
     elif ext in _CAD:
         require("OCP", "cad", f"writing {path.name!r}")
         from bsjax.io._occt import save_occt
 
-        save_occt(objects, path, units)
+        save_occt(objects, path, units, progress)
     elif ext in MESH_FORMATS:
         trimesh = require("trimesh", "mesh", f"writing {path.name!r}")
 
         if any(o.is_curve for o in objects):
             _checks.fail("surfaces", f"only surfaces for a mesh format ({ext})", "a BSplineCurve")
-        meshes = [_trimmed_mesh(o, m, n) for o in objects]
+        meshes = [_trimmed_mesh(o, m, n) for o in counted(objects, progress)]
         (meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)).export(str(path))
     else:
         _checks.fail(
@@ -300,8 +306,8 @@ def _json_item(obj: CadObject) -> dict:
     return item
 
 
-def _json_document(objects: list[CadObject], units: str) -> dict:
-    items = [_json_item(o) for o in objects]
+def _json_document(objects: list[CadObject], units: str, progress: Progress | None = None) -> dict:
+    items = [_json_item(o) for o in counted(objects, progress)]
     if len(items) == 1:
         return {**items[0], "units": units}
     if all(isinstance(o.geometry, BSplineSurface) for o in objects):

@@ -33,7 +33,7 @@ import numpy as np
 from bsjax import _checks
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
-from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, seam_moved, unit_scale
+from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, counted, seam_moved, unit_scale
 
 EDGE_SAMPLES = 33
 IGES_BREP_MODE = "BRep"
@@ -635,7 +635,7 @@ def _quiet() -> None:
     IGESControl_Controller.Init_s()
 
 
-def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
+def save_occt(objects: list[CadObject], path: Path, units: str, progress=None) -> None:
     """Write `objects` as STEP or IGES through an XCAF document (`_named_document`: each object
     a free shape carrying its name and layer); IGES in B-Rep mode (`IGES_BREP_MODE`)."""
     from OCP.IFSelect import IFSelect_RetDone
@@ -645,7 +645,7 @@ def save_occt(objects: list[CadObject], path: Path, units: str) -> None:
     if unit is None:
         _checks.fail("units", f"one of {', '.join(_OCCT_UNITS)} for STEP/IGES", repr(units))
     step = path.suffix.lower() in (".step", ".stp")
-    shapes = [_object_shape(obj) for obj in objects]
+    shapes = [_object_shape(obj) for obj in counted(objects, progress)]
     # IGES: B-Rep mode (faces with their loops and orientation in a 514 shell), not mode 0's 144
     settings = {"xstep.cascade.unit": unit, "write.step.unit" if step else "write.iges.unit": unit}
     if not step:

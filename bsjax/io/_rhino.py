@@ -39,7 +39,7 @@ from bsjax._optional import require
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points, periodic_knots
 from bsjax.io import _knots
 from bsjax.io._3dm_archive import trimmed_brep
-from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, seam_moved, unit_scale
+from bsjax.io._cad import CadList, CadObject, Trim, closed_directions, counted, seam_moved, unit_scale
 
 _RHINO_UNITS = {  # bsjax unit name → rhino3dm.UnitSystem member
     "nm": "Nanometers",
@@ -369,7 +369,7 @@ def _units_of(system) -> str | None:
 
 
 # --- writing ------------------------------------------------------------------------------
-def save_3dm(objects: list[CadObject], path: Path, units: str | None, annotations=()) -> None:
+def save_3dm(objects: list[CadObject], path: Path, units: str | None, annotations=(), progress=None) -> None:
     """Write `objects` and the carried `annotations` (`CadList.annotations`) to a `.3dm`."""
     rhino3dm = _rhino()
 
@@ -388,7 +388,7 @@ def save_3dm(objects: list[CadObject], path: Path, units: str | None, annotation
 
     for geometry, name, layer in annotations:
         model.Objects.Add(geometry, attributes_of(name, layer))
-    for obj in objects:
+    for obj in counted(objects, progress):
         attributes = attributes_of(obj.name, obj.layer)
         if isinstance(obj.geometry, tuple):
             model.Objects.AddCurve(_polycurve_to_rhino(obj), attributes)

@@ -209,8 +209,7 @@ def refit(
     """
     if not isinstance(solver, RefitSolver):
         raise TypeError(f"solver: expected a RefitSolver, got {type(solver).__name__}")
-    if progress is not None and not callable(progress):
-        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
+    _checks.check_progress(progress)
     _checks.check_count(solver.rounds, "solver.rounds")
     points = layout.points(ctrls)
     pu, pv = layout.merged.params_u, layout.merged.params_v

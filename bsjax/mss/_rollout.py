@@ -120,7 +120,7 @@ def _run(
     progress=None,
 ):
     n_steps = _checks.check_count(n_steps, "n_steps")
-    _check_progress(progress)
+    _checks.check_progress(progress)
     if checkpoint_every is not None:
         _checks.check_count(checkpoint_every, "checkpoint_every")
     if save_every is not None:
@@ -158,11 +158,6 @@ def _run(
 
 #: A rollout given a `progress` callback reports after each of at most this many chunks of steps.
 REPORTS = 100
-
-
-def _check_progress(progress) -> None:
-    if progress is not None and not callable(progress):
-        raise TypeError(f"progress: expected a callable progress(done, total) or None, got {progress!r}")
 
 
 def _scan(body, carry, xs, n_steps, checkpoint_every, progress=None):

@@ -48,7 +48,7 @@ from bsjax.mss._integrators import (
 )
 from bsjax.mss._lattice import Lattice, State, hex_lattice
 from bsjax.mss._materials import Material
-from bsjax.mss._rollout import _check_progress, _kernel, _scan
+from bsjax.mss._rollout import _kernel, _scan
 
 
 class Body(eqx.Module):
@@ -473,7 +473,7 @@ def simulate_scene(
     """
     states = _checked_states(scene, states)
     n_steps = _checks.check_count(n_steps, "n_steps")
-    _check_progress(progress)
+    _checks.check_progress(progress)
     methods = _methods(scene, method)
     cg_iterations = _checks.check_count(cg_iterations, "cg_iterations")
     if checkpoint_every is not None:
