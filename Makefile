@@ -30,9 +30,12 @@ test: $(PY)
 	$(MAKE) docs-build SITE=$(TEST_SITE)
 	# The 20 slowest tests are printed at the end (the suite's budget is 15 min on 2 cores).
 	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --durations=20
+	# the declared floors, once per run (~1 min: a second venv at constraints-min.txt, a smoke subset)
+	$(MAKE) test-min
 
 # The declared dependency floors hold: the core at the versions of constraints-min.txt, in its
-# own venv, and a smoke subset of the core's tests (no extras: no plot test).
+# own venv, and a smoke subset of the core's tests (no extras: no plot test). `make test` ends
+# with it, so CI checks the floors on every run.
 MIN_VENV ?= .venv-min
 MIN_PY := $(MIN_VENV)/bin/python
 SMOKE := tests/test_errors.py tests/test_boundary.py tests/test_bad_input.py \
