@@ -58,6 +58,7 @@ import jax
 import numpy as np
 
 from bsjax import _checks, _executables, _xla
+from bsjax._declared import check_declared, declared_kinds
 
 # equinox's EQX_ON_ERROR other than "raise" (nan, breakpoint, off) asks for its own handling of
 # failed checks: then every check stays an `eqx.error_if`.
@@ -212,6 +213,7 @@ class _Compiled:
         self._static = self._static_positions(fn, static)
         names = list(inspect.signature(fn).parameters)
         self._progress_at = names.index("progress") if "progress" in names else None
+        self._declared = None  # the checked argument kinds, read from the annotations on first call
         _registry.add(self)
 
     @staticmethod
@@ -273,6 +275,9 @@ class _Compiled:
         return core
 
     def __call__(self, *args, **kwargs):
+        if self._declared is None:
+            self._declared = declared_kinds(self._fn)
+        check_declared(self._declared, args, kwargs)
         if _checks.collecting_now():  # inside another compiled program's trace: inlined there,
             args, kwargs = as_arrays(args, kwargs)  # its checks become that program's
             return self._fn(*args, **kwargs)

@@ -207,6 +207,8 @@ def check_progress(progress: Any) -> None:
 def check_real(x: Any, name: str) -> None:
     """Refuse complex input (it would be truncated to its real part), booleans (not numbers) and
     anything that is not numbers at all (strings, objects, `None`)."""
+    if isinstance(x, (str, bytes)):  # numpy would read "0.5" as a string dtype, not a number
+        raise TypeError(f"{name}: expected real numbers, got {type(x).__name__} {_short(x)}")
     dtype = getattr(x, "dtype", None)  # tracers too (their dtype is known; their values are not)
     if dtype is None:
         try:
@@ -236,8 +238,16 @@ def vector3(x: Any, name: str, dtype) -> jax.Array:
     return x
 
 
+def array(x: Any, name: str, dtype=None) -> jax.Array:
+    """`x` as a JAX array (of `dtype`), after `check_real`: a string, an object, a complex or a
+    boolean value is refused naming `name` instead of failing inside JAX."""
+    check_real(x, name)
+    return jnp.asarray(x, dtype)
+
+
 def finite(x, name: str):
     """`x` with every entry finite."""
+    check_real(x, name)
     return check(x, ~xp(x).isfinite(x), name, "finite values", "NaN or inf")
 
 
@@ -257,6 +267,7 @@ def coordinates(x, name: str):
 def positive(x, name: str, strict: bool = True):
     """`x` with every entry finite and > 0 (≥ 0 when `strict=False`)."""
     sign = "> 0" if strict else ">= 0"
+    check_real(x, name)
     v = values(x)
     bad = (v <= 0) if strict else (v < 0)
     got = f"a value not {sign} (or NaN/inf)"
@@ -265,6 +276,7 @@ def positive(x, name: str, strict: bool = True):
 
 def in_range(x, name: str, lo: float, hi: float):
     """`x` with every entry in `[lo, hi]` (NaN fails)."""
+    check_real(x, name)
     v = values(x)
     bad = ~((v >= lo) & (v <= hi))
     return check(x, bad, name, f"values in [{lo}, {hi}]", "a value outside (or NaN)", _span)

@@ -38,6 +38,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from bsjax import _boundary, _checks
+from bsjax._declared import declared
 
 __all__ = ["gather", "initialize", "map", "mesh", "report_progress"]
 
@@ -282,6 +283,7 @@ def _run(mapped: Callable, inputs: tuple, wait: bool):
 
 
 # --- map -------------------------------------------------------------------------------------
+@declared
 def map(  # the name users expect, as `jax.lax.map`
     fn: Callable,
     *args: Any,
@@ -359,7 +361,10 @@ def map(  # the name users expect, as `jax.lax.map`
 
 
 # --- progress from inside compiled code ------------------------------------------------------
-def report_progress(progress: Callable[[int, int], Any] | None, done, total: int, after: Any = None) -> None:
+@declared
+def report_progress(
+    progress: Callable[[int, int], Any] | None, done: int | None, total: int, after: Any = None
+) -> None:
     """Call `progress(done, total)` on the host once the computation reaches this point.
 
     For the long computations of the library (`mss.simulate`, `vsofm.fit`, `merge.refit`): when
@@ -370,7 +375,8 @@ def report_progress(progress: Callable[[int, int], Any] | None, done, total: int
 
     **Arguments:**
     - `progress`: the callback, or None.
-    - `done`: an int, or a traced integer scalar (a loop counter); `total`: an int.
+    - `done`: an int, or a traced integer scalar (a loop counter; None where `progress` is None);
+      `total`: an int.
     - `after`: a pytree the report waits for (e.g. the loop's state), so that the call happens
       once that value is computed.
     """
@@ -407,6 +413,14 @@ def gather(tree: Any) -> Any:
     processes are fetched with `jax.experimental.multihost_utils.process_allgather`, a collective:
     every process must call `gather` on the same arrays.
     """
+    for leaf in jax.tree.leaves(tree):
+        dtype = getattr(leaf, "dtype", None) or np.asarray(leaf).dtype
+        if dtype.kind not in "biufc":
+            _checks.fail(
+                "tree",
+                "a pytree of arrays (numbers or booleans)",
+                f"a leaf {type(leaf).__name__} {leaf!r:.40}",
+            )
     return jax.tree.map(_to_host, tree)
 
 
@@ -424,6 +438,7 @@ _ENV = {
 }
 
 
+@declared
 def initialize(
     coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None
 ) -> bool:

@@ -38,6 +38,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
+from bsjax._declared import declared
 from bsjax._typing import ArrayLike
 from bsjax.basis import BSplineCurve, BSplineSurface, SplineDirection, change_of_basis
 
@@ -242,6 +243,7 @@ def _compatible(parts, plan: _AnyPlan, names):
     return tuple(out)
 
 
+@declared
 def ruled(c0: BSplineCurve, c1: BSplineCurve) -> BSplineSurface:
     """The ruled surface `S(u, v) = (1 − v) C0(u) + v C1(u)` between two curves.
 
@@ -283,6 +285,7 @@ def extrude(curve: BSplineCurve, vector: ArrayLike) -> BSplineSurface:
     return _surface(net, curve.direction, _linear(net.dtype), curve.weights is not None)
 
 
+@declared
 def revolve(
     profile: BSplineCurve, axis_point: ArrayLike, axis_dir: ArrayLike, angle: float = _TWO_PI
 ) -> BSplineSurface:
@@ -357,6 +360,7 @@ def _perpendicular(a):
     return _safe.unit(ref - (ref @ a) * a)
 
 
+@declared
 def coons(
     c_bottom: BSplineCurve,
     c_top: BSplineCurve,
@@ -411,6 +415,7 @@ def _coons(parts_u, parts_v, plan_u: _AnyPlan, plan_v: _AnyPlan, tol) -> BSpline
     return BSplineSurface.from_directions(across + along - bilinear, plan_u.direction, plan_v.direction)
 
 
+@declared
 def loft(curves: Sequence[BSplineCurve], degree: int = 3, ruled: bool = False) -> BSplineSurface:
     """Skinning: the surface interpolating section curves `C_0 … C_{K−1}` across v.
 
@@ -589,6 +594,7 @@ def _planar_to_3d(points):
     return jnp.concatenate([points, jnp.zeros_like(points[..., :1])], axis=-1)
 
 
+@declared
 def sweep(
     profile: BSplineCurve,
     path: BSplineCurve,
@@ -705,6 +711,7 @@ def _rotation_minimising(points, tangents, start):
     return jnp.concatenate([start[None], rest], axis=0)
 
 
+@declared
 def rail_rotation(
     rail_a: BSplineCurve, rail_b: BSplineCurve, profile: BSplineCurve, n_sections: int | None = None
 ) -> SurfaceFit:
@@ -783,6 +790,7 @@ def _chord_frames(chord, travel, name: str):
 _CIRCLE_KNOTS = (0.0, 0.0, 0.0, 0.25, 0.25, 0.5, 0.5, 0.75, 0.75, 1.0, 1.0, 1.0)
 
 
+@declared
 def boundary_rotation(left: BSplineCurve, right: BSplineCurve, plane_normal: ArrayLike) -> SurfaceFit:
     """The rotational blending surface of two outline curves (thesis §5.2.1, eqs. 5-4, 5-5;
     Cherlin, Samavati, Sousa & Jorge, *Sketch-based modeling with few strokes*, 2005).

@@ -30,6 +30,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from bsjax import _checks, _safe, sculpt
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax.basis import BSplineCurve
 
 __all__ = [
@@ -96,6 +97,7 @@ _GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(5)
 
 
 # --- symbol strings ---------------------------------------------------------------------------
+@declared
 def tokens(name: str) -> list[str]:
     """The symbols of a string, e.g. `tokens("M+0m-0") == ["M+", "0", "m-", "0"]`.
 
@@ -134,6 +136,7 @@ def _open_ends_ok(seq, extrema) -> bool:
     return lead <= 1 and trail <= 1 and (lead == 0 or a in ("M+", "m-")) and (trail == 0 or b in ("M+", "m-"))
 
 
+@declared
 def is_valid(name: str, closed: bool = True) -> bool:
     """Whether a symbol string can be the curvature string of a smooth planar curve.
 
@@ -152,6 +155,7 @@ def is_valid(name: str, closed: bool = True) -> bool:
     return not closed or seq.count("M+") >= 2
 
 
+@declared
 def canonical(name: str, closed: bool = True) -> str:
     """The canonical spelling of a shape name.
 
@@ -183,6 +187,7 @@ def _index(seq, index, name):
     return int(index)
 
 
+@declared
 def apply_rule(name: str, rule: str, index: int) -> str:
     """Apply one process of `RULES` at symbol `index` of `name` (counting every symbol, 0s too).
 
@@ -198,6 +203,7 @@ def apply_rule(name: str, rule: str, index: int) -> str:
     return "".join(seq[:i] + list(rhs) + seq[i + 1 :])
 
 
+@declared
 def apply_inverse(name: str, rule: str, index: int, closed: bool = True) -> str:
     """Undo `rule` on the three symbols starting at `index` (cyclically when `closed`):
     `apply_inverse(apply_rule(s, r, i), r, i) == s`. The inverse processes are the aesthetic
@@ -227,6 +233,7 @@ def _closed_shapes(pairs: int) -> Iterator[tuple[str, ...]]:
         yield tuple(seq)
 
 
+@declared
 def enumerate_shapes(max_extrema: int, closed: bool = True) -> list[str]:
     """Every closed shape the grammar allows with at most `max_extrema` curvature extrema, in
     canonical spelling, sorted by length then name.
@@ -288,6 +295,7 @@ def _finite(curve, name="curve") -> BSplineCurve:
     return eqx.tree_at(lambda c: c.ctrl, curve, _checks.finite(curve.ctrl, f"{name}.ctrl"))
 
 
+@declared
 def is_closed(curve: BSplineCurve, tol: float = 1e-9) -> bool:
     """The `closed=None` rule: a periodic curve, or a clamped one whose end points coincide and
     whose unit end tangents agree (within `tol` relative to the control polygon's size).
@@ -396,6 +404,7 @@ def _grid(n, closed, dtype):
     return jnp.linspace(0.0, 1.0, n, dtype=dtype), 0
 
 
+@declared
 def characteristic_points(
     curve: BSplineCurve, closed: bool | None = None, samples: int | None = None, capacity: int = 64
 ) -> CharacteristicPoints:
@@ -492,6 +501,7 @@ def _merge(found, found_kappa, counts, capacity, closed) -> CharacteristicPoints
 
 
 # --- merging spurious extrema and the symbol string -------------------------------------------
+@declared
 def simplify(points: CharacteristicPoints, rel: float = MERGE_REL) -> CharacteristicPoints:
     """Merge the spurious extrema of an approximating spline (host side, concrete input).
 
@@ -583,6 +593,7 @@ def _pack(entries, like: CharacteristicPoints) -> CharacteristicPoints:
     )
 
 
+@declared
 def symbols(
     curve: BSplineCurve,
     closed: bool | None = None,
@@ -710,6 +721,7 @@ class Measures(eqx.Module):
     d_min: Float[Array, ""]
 
 
+@declared
 def measures(curve: BSplineCurve, closed: bool | None = None, samples: int | None = None) -> Measures:
     """The aesthetic measures of a planar curve (thesis §7.3.3): acceleration, softness,
     flatness, convexity and tension, as defined in `Measures`.
@@ -1051,6 +1063,7 @@ def _normal_push(curve, closed, index, amount, sign, want, keep_tangents=False) 
     return _run(curve, closed, constraints + _ends(closed), kinds)
 
 
+@declared
 def continuation(
     curve: BSplineCurve, index: int, amount: float, closed: bool | None = None
 ) -> OperatorResult:
@@ -1068,6 +1081,7 @@ def continuation(
     return _normal_push(curve, closed, index, amount, sign, None)
 
 
+@declared
 def bifurcation(curve: BSplineCurve, index: int, amount: float, closed: bool | None = None) -> OperatorResult:
     """Leyton's bifurcation at characteristic point `index` (thesis eq. 7-2, §7.2): `BM+`
     (M+ → M+m+M+), `BM-` (M- → M-m-M-) lower κ at the point (`ΔP(u1) = +amount · n`),
@@ -1080,6 +1094,7 @@ def bifurcation(curve: BSplineCurve, index: int, amount: float, closed: bool | N
     return _normal_push(curve, closed, index, amount, sign, None)
 
 
+@declared
 def sharpen(curve: BSplineCurve, index: int, amount: float, closed: bool | None = None) -> OperatorResult:
     """Sharpness C*M+ (thesis §7.4): raise κ at extremum `index` by dragging it outwards,
     `ΔP(u) = −amount · n(u)`, with positions and tangents of the neighbouring extrema fixed (and
@@ -1088,12 +1103,14 @@ def sharpen(curve: BSplineCurve, index: int, amount: float, closed: bool | None 
     return _normal_push(curve, closed, index, amount, -1.0, ("M+", "m+", "M-", "m-"), keep_tangents=True)
 
 
+@declared
 def soften(curve: BSplineCurve, index: int, amount: float, closed: bool | None = None) -> OperatorResult:
     """Softness (thesis §7.4): lower κ at extremum `index`, `ΔP(u) = +amount · n(u)`, with the
     same fixed positions and tangents as `sharpen`."""
     return _normal_push(curve, closed, index, amount, 1.0, ("M+", "m+", "M-", "m-"), keep_tangents=True)
 
 
+@declared
 def straighten(
     curve: BSplineCurve, index: int, amount: float = 1.0, closed: bool | None = None
 ) -> OperatorResult:
@@ -1114,6 +1131,7 @@ def straighten(
     return _run(curve, closed, constraints + _ends(closed), kinds)
 
 
+@declared
 def convexify(curve: BSplineCurve, amount: float) -> OperatorResult:
     """Convexity (thesis §7.4) of an open curve: move its lowest-κ extremum by `amount` across
     the end chord, `ΔP(u_m) = amount · ν` with ν the chord's right unit normal (the side a
@@ -1145,6 +1163,7 @@ def _arc_table(curve: BSplineCurve, t):
     return _arc_length(curve, 256).at(curve, t)
 
 
+@declared
 def tension(
     curve: BSplineCurve, index: int, amount: float = 1.0, closed: bool | None = None
 ) -> OperatorResult:
@@ -1176,6 +1195,7 @@ def _newton_drag(curve: BSplineCurve, shift, u, goal):
     return jax.lax.fori_loop(0, 12, newton, jnp.zeros_like(goal))
 
 
+@declared
 def accelerate(curve: BSplineCurve, amount: float) -> OperatorResult:
     """Acceleration (thesis §7.4, Fig. 7-21) of an open curve: the end tangent at u = 1 grows by
     the factor `1 + amount` (`∂P/∂u(1) = β`), the tangent at u = 0 is frozen

@@ -299,8 +299,8 @@ def _check_common(max_steps, method, methods):
 
 
 def _tolerances(rtol, atol):
-    rtol = _checks.positive(jnp.asarray(rtol), "rtol", strict=False)
-    return rtol, _checks.positive(jnp.asarray(atol), "atol", strict=False)
+    rtol = _checks.positive(_checks.array(rtol, "rtol"), "rtol", strict=False)
+    return rtol, _checks.positive(_checks.array(atol, "atol"), "atol", strict=False)
 
 
 @compiled
@@ -352,7 +352,7 @@ def minimise(
     if autodiff_mode not in ("bwd", "fwd"):
         raise ValueError(f"autodiff_mode: expected 'bwd' or 'fwd', got {autodiff_mode!r}")
     problem = _problem(design, lower, upper, free)
-    penalty = _checks.positive(jnp.asarray(penalty), "penalty")
+    penalty = _checks.positive(_checks.array(penalty, "penalty"), "penalty")
 
     def fn(z, _):
         x = problem.design(z)
@@ -414,7 +414,7 @@ def least_squares(
     """
     _check_common(max_steps, method, ("levenberg_marquardt", "gauss_newton"))
     problem = _problem(design, lower, upper, free)
-    penalty = _checks.positive(jnp.asarray(penalty), "penalty")
+    penalty = _checks.positive(_checks.array(penalty, "penalty"), "penalty")
 
     def fn(z, _):
         x = problem.design(z)

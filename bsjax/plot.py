@@ -9,11 +9,13 @@ Needs the `plot` extra (`pip install 'bsjax[plot]'`); matplotlib is imported by 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
 from bsjax import _checks
+from bsjax._declared import declared
 from bsjax._optional import require
 
 __all__ = ["draw_surface", "equal_axes", "figure", "save_figure"]
@@ -32,6 +34,7 @@ def _grid(x, name: str, shape: tuple | None = None) -> np.ndarray:
     return a
 
 
+@declared
 def figure(n_panels: int, size: float = 4.0):
     """A row of `n_panels` 3-D axes: `(matplotlib.figure.Figure, axes)`, outside pyplot (module
     docstring; works headless, and leaves the process's backend as it is)."""
@@ -46,6 +49,7 @@ def figure(n_panels: int, size: float = 4.0):
     return fig, axes
 
 
+@declared
 def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str = "viridis"):
     """Draw an `(m, n, 3)` sample grid (coloured by `values (m, n)` if given) and its control net.
 
@@ -53,6 +57,7 @@ def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str 
     """
     matplotlib = require("matplotlib", "plot", "bsjax.plot.draw_surface")
 
+    _axes(ax)
     p = _grid(points, "points")
     c = None if ctrl is None else _grid(ctrl, "ctrl")
     colors = None
@@ -75,8 +80,20 @@ def draw_surface(ax, points, ctrl=None, values=None, title: str = "", cmap: str 
     ax.set_title(title, fontsize=9)
 
 
+def _axes(ax, name: str = "ax"):
+    if not hasattr(ax, "set_xlim"):
+        _checks.fail(name, "a matplotlib Axes", type(ax).__name__)
+    return ax
+
+
 def equal_axes(ax, xyz):
-    """Equal scale on the three axes, fitted to the `(N, 3)` points."""
+    """Equal scale on the three axes, fitted to the `(N, 3)` points (finite)."""
+    _axes(ax)
+    _checks.check_real(xyz, "xyz")
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or not len(xyz):
+        _checks.fail("xyz", "points of shape (N, 3), N >= 1", xyz.shape)
+    _checks.finite(xyz, "xyz")
     lo, hi = xyz.min(0), xyz.max(0)
     centre, half = (lo + hi) / 2, max((hi - lo).max() / 2, 1e-12)
     ax.set_xlim(centre[0] - half, centre[0] + half)
@@ -85,11 +102,14 @@ def equal_axes(ax, xyz):
     ax.set_box_aspect((1, 1, 1))
 
 
-def save_figure(fig, path) -> None:
+@declared
+def save_figure(fig, path: str | os.PathLike) -> None:
     """Write `fig` to `path` (PNG at 110 dpi, or the format of the extension) and close it.
 
     A missing folder or an extension matplotlib cannot write raises a `ValueError` naming `path`.
     """
+    if not hasattr(fig, "savefig"):
+        _checks.fail("fig", "a matplotlib Figure", type(fig).__name__)
     path = Path(path)
     if not path.parent.is_dir():
         _checks.fail("path", "a file in an existing folder", str(path))

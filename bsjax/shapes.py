@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsjax import _checks
+from bsjax._declared import declared
 from bsjax.basis import BSplineSurface, clamped_knots
 
 __all__ = ["plate", "sphere", "spoon_bowl", "spoon_handle", "teardrop"]
@@ -59,6 +60,7 @@ def teardrop(dtype=None) -> BSplineSurface:
     return _revolve(profile, 8, dtype)
 
 
+@declared
 def sphere(radius: float = 1.0, n_rows: int = 8, n_around: int = 8, dtype=None) -> BSplineSurface:
     """An approximate sphere: closed in v, poles at u = 0 (top) and u = 1 (bottom); `radius`
     finite > 0, `n_rows`, `n_around` ints ≥ 4."""
@@ -72,6 +74,7 @@ def sphere(radius: float = 1.0, n_rows: int = 8, n_around: int = 8, dtype=None) 
     return _revolve(profile, n_around, dtype)
 
 
+@declared
 def plate(r: int = 8, s: int = 8, size: float = 1.0, degree: int = 3, dtype=None) -> BSplineSurface:
     """A flat square plate `[0, size]²` at z = 0 (normal +z), `r × s` control points (ints
     > `degree`), `size` finite > 0."""

@@ -46,6 +46,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _linalg, _safe
 from bsjax._boundary import compiled, host_cache
+from bsjax._declared import declared
 from bsjax.batch import report_progress
 
 __all__ = ["Report", "Settings", "corner_jacobians", "fit", "report"]
@@ -87,6 +88,7 @@ def _boundary_mask(shape: tuple[int, int, int]) -> np.ndarray:
     return mask
 
 
+@declared
 def fit(
     points: Float[ArrayLike, "P 3"],
     shape: tuple[int, int, int],
@@ -423,7 +425,7 @@ def corner_jacobians(
     1 for a cube, ≤ 0 for an inverted/degenerate corner; Knupp, *Achieving finite element mesh
     quality via optimization of the Jacobian matrix norm and associated quantities*, 2000)."""
     _checks.check_ndim(nodes, "nodes", 4, last=3)
-    p = jnp.asarray(nodes)
+    p = _checks.finite(_checks.array(nodes, "nodes"), "nodes")
     a, b, c = (s - 1 for s in p.shape[:3])
     # the 8 corners of every cell as one leading axis, so the program computes one determinant
     # expression over (8, a, b, c), not eight copies of it
@@ -471,9 +473,12 @@ def report(points: Float[ArrayLike, "P 3"], nodes: Float[ArrayLike, "a b c 3"]) 
     """
     from scipy.spatial import cKDTree
 
+    _checks.check_real(points, "points")
+    _checks.check_real(nodes, "nodes")
     _checks.check_ndim(nodes, "nodes", 4, last=3)
+    _checks.check_ndim(points, "points", 2, last=3)
     nodes = np.asarray(nodes, dtype=np.float64)
-    pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0)
+    pts = np.unique(np.asarray(points, dtype=np.float64), axis=0)
     _checks.finite(pts, "points")
     _checks.finite(nodes, "nodes")
     b = nodes[_boundary_mask(nodes.shape[:3])]

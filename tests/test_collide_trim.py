@@ -54,7 +54,7 @@ def test_sample_mask_is_the_trim_on_the_grid():
     np.testing.assert_array_equal(mask[interior], ~_in_hole(u, v)[interior])
     untrimmed = io.CadObject(plate.surface)
     assert np.all(np.asarray(untrimmed.sample_mask(blending)))
-    with pytest.raises(TypeError, match="blending: expected a bsjax.basis.Blending"):
+    with pytest.raises(TypeError, match="blending: expected a Blending"):
         plate.sample_mask(plate.surface)
     other = BSplineSurface(jnp.zeros((4, 4, 3)), clamped_knots(4, 2), clamped_knots(4, 2), 2, 2)
     with pytest.raises(ValueError, match=r"blending: expected a blending of this surface"):

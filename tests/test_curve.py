@@ -351,8 +351,11 @@ def test_bad_parameters_and_orders():
     raises_both(lambda t: curve.blending(params=t).a, np.array([0.0, 0.5, 2.0]), match="params: expected")
     closed = BSplineCurve(CTRL, None, 3, periodic=True)
     raises_both(lambda t: closed.evaluate(t), np.array([0.2, np.inf]), match="t: expected finite")
-    for nu in (3, -1, 1.0, True):
+    for nu in (3, -1):
         with pytest.raises(ValueError, match="nu: expected a derivative order in 0..2"):
+            curve.evaluate(0.5, nu)
+    for nu in (1.0, True):  # not an int: a TypeError
+        with pytest.raises(TypeError, match="nu: expected an int"):
             curve.evaluate(0.5, nu)
     b = curve.blending(20)
     with pytest.raises(ValueError, match="nu: expected a derivative order"):

@@ -211,7 +211,7 @@ def test_load_of_a_file_without_surfaces_says_what_it_held(tmp_path):
 def test_bad_options_are_named():
     with pytest.raises(ValueError, match="on_unsupported: expected 'raise' or 'skip', got 'ignore'"):
         io.load_all("x.3dm", on_unsupported="ignore")
-    with pytest.raises(ValueError, match="trims: expected True or False"):
+    with pytest.raises(TypeError, match="trims: expected True or False"):
         io.load_all("x.3dm", trims="yes")
     with pytest.raises(FileNotFoundError, match="absent.step"):
         io.load_all("absent.step")

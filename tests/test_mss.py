@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from bsjax import collide, mss, shapes
+from bsjax.mss._forces import spring_forces
 from bsjax.mss._lattice import hex_volume
 from tests.helpers import check_grad, raises_both
 
@@ -293,7 +294,7 @@ def test_grid_and_edge_list_kernels_agree():
     k = np.linspace(1, 2, n_edges)
     lat = mss.hex_lattice(grid((3, 4, 2)), k, 0.3, 0.2)
     plain = mss.Lattice(lat.rest_positions, lat.edges, k, 0.3, 0.2)
-    forces = jax.jit(mss.spring_forces)
+    forces = jax.jit(spring_forces)
     np.testing.assert_allclose(forces(lat, x, v), forces(plain, x, v), atol=1e-12)
     # the grid kernel's own derivative rule (a custom JVP, transposed for reverse mode) against
     # plain autodiff of the edge-list kernel, forward and reverse, in x, v and the stiffness
@@ -301,7 +302,7 @@ def test_grid_and_edge_list_kernels_agree():
     dx, dv, dk, w = (rng.normal(size=s) for s in (x.shape, x.shape, k.shape, x.shape))
 
     def derivatives(make):
-        f = jax.jit(lambda x, v, k: mss.spring_forces(make(k), x, v))
+        f = jax.jit(lambda x, v, k: spring_forces(make(k), x, v))
         tangent = jax.jvp(f, (x, v, k), (dx, dv, dk))[1]
         cotangents = jax.vjp(f, x, v, k)[1](jnp.asarray(w))
         return tangent, cotangents
@@ -336,17 +337,17 @@ def test_spring_forces_match_loop_reference_and_grad():
     lat = mss.Lattice(x + 0.1 * rng.normal(size=x.shape), edges, k, c, 1.0)
     v = rng.normal(size=x.shape)
     ref = spring_force_reference(x, v, edges, np.asarray(lat.rest_length), k, c)
-    np.testing.assert_allclose(mss.spring_forces(lat, x, v), ref, atol=1e-12)
-    np.testing.assert_allclose(jax.jit(mss.spring_forces)(lat, x, v), ref, atol=1e-12)
-    check_grad(lambda y: jnp.sum(mss.spring_forces(lat, y.reshape(7, 3), v) ** 2), x.reshape(-1))
+    np.testing.assert_allclose(spring_forces(lat, x, v), ref, atol=1e-12)
+    np.testing.assert_allclose(jax.jit(spring_forces)(lat, x, v), ref, atol=1e-12)
+    check_grad(lambda y: jnp.sum(spring_forces(lat, y.reshape(7, 3), v) ** 2), x.reshape(-1))
 
 
 def test_zero_length_spring_is_finite_with_finite_gradient():
     lat = mss.Lattice(np.zeros((2, 3)), np.array([[0, 1]]), 10.0, 1.0, 1.0)
     x = jnp.zeros((2, 3))
-    f = mss.spring_forces(lat, x, x)
+    f = spring_forces(lat, x, x)
     assert np.all(np.asarray(f) == 0)
-    g = jax.grad(lambda y: jnp.sum(mss.spring_forces(lat, y, y) ** 2))(x)
+    g = jax.grad(lambda y: jnp.sum(spring_forces(lat, y, y) ** 2))(x)
     assert np.all(np.isfinite(np.asarray(g)))
 
 

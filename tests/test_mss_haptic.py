@@ -8,6 +8,7 @@ import pytest
 
 from bsjax import _safe, collide, mss
 from bsjax.device._physics import SculptModel
+from bsjax.mss._forces import spring_forces
 from tests.helpers import check_grad, raises_both
 
 
@@ -28,7 +29,7 @@ def _reference_tick(model, carry, inputs, sphere):
     tools = (tool,) if pressing > 0 else ()
     contact = mss.Penalty(model.tool_stiffness * pressing, 0.0)
     for _ in range(model.substeps):
-        seam = mss.spring_forces(model.seam, state.position, state.velocity, rest_seam)
+        seam = spring_forces(model.seam, state.position, state.velocity, rest_seam)
         state, ctrl = mss.coupled_step(
             model.lattice,
             model.coupling,
@@ -130,14 +131,14 @@ def test_edge_lengths_errors():
 
 
 def test_seam_forces_by_slices_equal_the_edge_list(small_model):
-    """The seam springs of a body closed in v, summed by slices, equal `mss.spring_forces` of
+    """The seam springs of a body closed in v, summed by slices, equal `spring_forces` of
     the seam's edge-list lattice (non-square grid, stretched rest lengths, random velocities)."""
     model = small_model
     rng = np.random.default_rng(0)
     x = model._initial[0].position + 0.01 * rng.standard_normal((model.n_nodes, 3))
     v = jnp.asarray(rng.standard_normal((model.n_nodes, 3)))
     rest = model.seam.rest_length * (1 + 0.1 * rng.random(model.seam.n_edges))
-    expected = mss.spring_forces(model.seam, x, v, rest)
+    expected = spring_forces(model.seam, x, v, rest)
     got = jax.jit(model._seam_forces)(x, v, rest)
     np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=0, atol=1e-13)
     assert float(jnp.max(jnp.abs(expected))) > 0.1

@@ -324,5 +324,5 @@ def test_curve_refine_argument_errors():
     closed = BSplineCurve(curve.ctrl, None, 3, periodic=True)
     with pytest.raises(ValueError, match="insert_knots: curve: expected a clamped direction"):
         insert_knots(closed, [0.5])
-    with pytest.raises(ValueError, match="spline"):
+    with pytest.raises(TypeError, match="spline: expected a BSplineSurface or a BSplineCurve"):
         elevate_degree(np.zeros((4, 3)))

@@ -263,7 +263,7 @@ def test_bad_input():
         factor.drag([None, None])
     with pytest.raises(ValueError, match="order: expected a derivative order 1 or 2"):
         sculpt.Derivative(0.5, [1.0, 0.0], order=3)
-    with pytest.raises(TypeError, match=r"constraints\[0\]: expected Position"):
+    with pytest.raises(TypeError, match=r"constraints\[0\]: expected an AbstractConstraint"):
         sculpt.min_norm(c, ["Position(0.5)"])
 
 

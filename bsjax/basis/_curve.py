@@ -105,7 +105,7 @@ class BSplineCurve(eqx.Module):
         _checks.check_real(ctrl, "ctrl")
         if np.shape(ctrl) != self.ctrl.shape:
             _checks.fail("ctrl", f"shape {self.ctrl.shape}", np.shape(ctrl))
-        ctrl = _checks.finite(jnp.asarray(ctrl, self.ctrl.dtype), "ctrl")
+        ctrl = _checks.finite(_checks.array(ctrl, "ctrl", self.ctrl.dtype), "ctrl")
         return eqx.tree_at(lambda curve: curve.ctrl, self, ctrl)
 
     # --- evaluation --------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, _safe
+from bsjax._declared import declared
 from bsjax._typing import ArrayLike, HostArray
 from bsjax.basis._knots import periodic_knots
 
@@ -52,9 +53,11 @@ def _host_or_traced(*arrays):
     return xp, tuple(xp.asarray(a) for a in arrays)
 
 
+@declared
 def basis_functions(knots: Float[HostArray, " L"], degree: int, t: Float[HostArray, "..."], nu: int = 0):
-    """The nu-th derivative of all `L − degree − 1` basis functions at parameters `t` (a kernel:
-    no checks; callers validate).
+    """The nu-th derivative of all `L − degree − 1` basis functions at parameters `t`: `knots`
+    a finite 1-D array of at least `degree + 2` values, `t` finite (checked; the knots' order is
+    the caller's — `blending_matrix` checks it too).
 
     Parameters are clipped to the domain `[t_k, t_{n}]` (by `where`, so the derivative in `t` at
     the domain ends is the one-sided derivative, not halved as `clip`'s would be); the right end
@@ -64,6 +67,13 @@ def basis_functions(knots: Float[HostArray, " L"], degree: int, t: Float[HostArr
     **Returns:** `(..., L − degree − 1)` (one row per parameter); at most `degree + 1` entries of
     a row are non-zero.
     """
+    check_order(nu)
+    _checks.check_real(knots, "knots")
+    _checks.check_real(t, "t")
+    _checks.check_ndim(knots, "knots", 1)
+    _checks.check_degree(degree, "degree", np.shape(knots)[0] - degree - 1, "the knot vector")
+    xp = _checks.xp(knots, t)
+    knots, t = _checks.finite(xp.asarray(knots), "knots"), _checks.finite(xp.asarray(t), "t")
     return _checks.on_device(basis_derivatives(knots, degree, t, (nu,))[0])
 
 
@@ -162,13 +172,14 @@ def _fold(unwrapped, n_ctrl: int):
 def _blending_matrix(knots, degree: int, params, nu: int):
     knots = _checks.monotone(knots, "knots")
     n_ctrl = knots.shape[0] - degree - 1
-    outside = (params < knots[degree]) | (params > knots[n_ctrl])
+    outside = ~((params >= knots[degree]) & (params <= knots[n_ctrl]))  # NaN is outside
     params = _checks.check(
         params, outside, "params", "parameters in the knot domain", "a value outside (or NaN)"
     )
     return _checks.on_device(rows(knots, degree, params, (nu,))[0])
 
 
+@declared
 def blending_matrix(
     knots: ArrayLike, degree: int, params: ArrayLike, nu: int = 0
 ) -> Float[Array, "m n_ctrl"]:
@@ -184,6 +195,8 @@ def blending_matrix(
     (numpy, no program compiled); traced ones inside the caller's program.
     """
     check_order(nu)
+    _checks.check_real(knots, "knots")
+    _checks.check_real(params, "params")
     dtype = _checks.float_dtype(knots, params)
     knots, params = jnp.asarray(knots, dtype), jnp.asarray(params, dtype)
     _checks.check_ndim(knots, "knots", 1)
@@ -197,6 +210,7 @@ def _periodic_blending_matrix(n_ctrl: int, degree: int, params, nu: int):
     return _checks.on_device(periodic_rows(n_ctrl, degree, params, (nu,))[0])
 
 
+@declared
 def periodic_blending_matrix(
     n_ctrl: int, degree: int, params: ArrayLike, nu: int = 0
 ) -> Float[Array, "m n_ctrl"]:
@@ -210,6 +224,7 @@ def periodic_blending_matrix(
     _checks.check_count(n_ctrl, "n_ctrl", 2)
     _checks.check_degree(degree, "degree", n_ctrl, "the periodic direction")
     check_order(nu)
+    _checks.check_real(params, "params")
     params = jnp.asarray(params, _checks.float_dtype(params))
     _checks.check_ndim(params, "params", 1)
     return _periodic_blending_matrix(n_ctrl, degree, params, nu)

@@ -8,6 +8,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from bsjax import _checks
+from bsjax._declared import declared
 from bsjax._typing import ArrayLike
 
 
@@ -16,6 +17,7 @@ def _check_dtype(dtype, name: str = "dtype"):
         _checks.fail(name, "a floating dtype (float32 or float64)", jnp.dtype(dtype).name)
 
 
+@declared
 def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     """Clamped (open) uniform knot vector on [0, 1].
 
@@ -34,6 +36,7 @@ def clamped_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     return jnp.asarray(knots, dtype=dtype or _checks.float_dtype())
 
 
+@declared
 def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     """The unclamped uniform knot vector behind the periodic basis: `(j − k) / n`, j = 0…n+2k.
 
@@ -47,6 +50,7 @@ def periodic_knots(n_ctrl: int, degree: int, dtype=None) -> Float[Array, " L"]:
     return jnp.asarray((j - degree) / n_ctrl, dtype=dtype or _checks.float_dtype())
 
 
+@declared
 def greville(knots: ArrayLike, degree: int) -> np.ndarray:
     """Greville abscissae `(t_{i+1} + … + t_{i+k}) / k` (The NURBS Book eq. 9.8), one per control
     point; host-side (numpy), for planning fits."""

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _checks
+from bsjax._declared import declared
 from bsjax.basis import _tensor
 from bsjax.basis._curve import BSplineCurve
 from bsjax.basis._direction import SplineDirection
@@ -24,6 +25,7 @@ from bsjax.basis._surface import BSplineSurface
 Spline = BSplineSurface | BSplineCurve
 
 
+@declared
 def insert_knots(spline: Spline, direction=None, values=None) -> Spline:
     """Insert knot `values` (strictly inside (0, 1)); the geometry is unchanged (NURBS Book §5.2).
 
@@ -43,6 +45,7 @@ def insert_knots(spline: Spline, direction=None, values=None) -> Spline:
     return _rebase(spline, direction, new, degree)
 
 
+@declared
 def elevate_degree(spline: Spline, direction=None, times: int | None = None) -> Spline:
     """Raise the degree by `times` (default 1), geometry unchanged (NURBS Book §5.5).
 
@@ -58,6 +61,7 @@ def elevate_degree(spline: Spline, direction=None, times: int | None = None) -> 
     return _rebase(spline, direction, new, degree + times)
 
 
+@declared
 def reduce_degree(spline: Spline, direction=None, times: int | None = None) -> tuple[Spline, float]:
     """Lower the degree by `times` (default 1) as a least-squares approximation.
 
@@ -115,6 +119,7 @@ def _check_times(times):
         _checks.fail("times", "an int >= 1", times)
 
 
+@declared
 def change_of_basis(old: SplineDirection, new: SplineDirection) -> np.ndarray:
     """The matrix `T (n_new, n_old)` with `B_old = B_new T`: control points in the basis `old`
     become `T P` in the basis `new` (rational splines: apply it to homogeneous points `[w P, w]`).

@@ -31,6 +31,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax.basis import Blending
 from bsjax.collide import _soa
 from bsjax.collide._broad import _blocks, _hulls_apart, _parametric_window, support_start, unless_apart
@@ -405,10 +406,11 @@ def _point_contact(blending, ctrl, tool: Point, use_window: bool) -> Contact:
     )
 
 
+@declared
 def surface_contacts(
-    blending_a,
+    blending_a: Blending,
     ctrl_a: Float[Array, "ra sa 3"],
-    blending_b,
+    blending_b: Blending,
     ctrl_b: Float[Array, "rb sb 3"],
     *,
     capacity: int | None = None,

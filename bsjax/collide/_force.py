@@ -41,7 +41,7 @@ def _coefficient(value, name: str, dtype):
     _checks.check_real(value, name)
     if np.ndim(value) != 0:
         _checks.fail(name, "a scalar", f"shape {np.shape(value)}")
-    return _checks.positive(jnp.asarray(value, dtype), name, strict=False)
+    return _checks.positive(_checks.array(value, name, dtype), name, strict=False)
 
 
 def _direction(contact, method: str):
@@ -63,7 +63,7 @@ def _magnitudes(contact, stiffness, damping, velocity, direction):
     _checks.check_real(velocity, "velocity")
     if np.shape(velocity) != (3,):
         _checks.fail("velocity", "shape (3,)", np.shape(velocity))
-    v = _checks.finite(jnp.asarray(velocity, dtype), "velocity")
+    v = _checks.finite(_checks.array(velocity, "velocity", dtype), "velocity")
     # ṡ_i: the depth grows while the tool moves against ê; the damper resists that motion
     # (the paper's `F = k s − d ṡ` with s measured along the spring from the tool side).
     closing = -jnp.dot(v, direction)

@@ -45,6 +45,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks, _safe, basis, sculpt, shapes
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax.basis import Blending, BSplineSurface
 from bsjax.device._model import AbstractHapticModel
 from bsjax.device._protocol import DeviceSample, positive_number
@@ -74,6 +75,7 @@ def _grab(surface: BSplineSurface, free, uv0: Float[Array, " 2"], centre: Float[
     return factor, uv, point
 
 
+@declared
 def border_free(surface: BSplineSurface, border: int = 1) -> np.ndarray:
     """`(r, s)` mask: every control point free except `border` rows at each end of a clamped
     direction (a periodic direction has no border)."""

@@ -41,6 +41,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bsjax._declared import declared
+
 START = 0xA5
 MAX_PAYLOAD = 64
 KIND_POSE = 1
@@ -87,6 +89,7 @@ def crc16(data: bytes) -> int:
     return binascii.crc_hqx(data, 0xFFFF)
 
 
+@declared
 def encode_frame(seq: int, kind: int, payload: bytes) -> bytes:
     """One frame: `START | LEN | SEQ | KIND | PAYLOAD | CRC16` (see the module docstring).
 
@@ -155,6 +158,7 @@ def decode_frames(buffer: bytes | bytearray | memoryview) -> Decoded:
     return Decoded(frames, data[i:], crc_errors, truncated, malformed, skipped)
 
 
+@declared
 def encode_pose(
     seq: int, position, orientation=(1.0, 0.0, 0.0, 0.0), buttons: int = 0, timestamp_us: int = 0
 ) -> bytes:
@@ -171,6 +175,7 @@ def encode_pose(
     return encode_frame(seq, KIND_POSE, payload)
 
 
+@declared
 def encode_force(seq: int, force, torque=(0.0, 0.0, 0.0)) -> bytes:
     """A FORCE frame (host → device): `force (3,)` newtons and `torque (3,)` newton-metres, finite
     and within the float32 range (`ValueError`/`TypeError` naming the argument otherwise)."""

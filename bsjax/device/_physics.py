@@ -309,7 +309,7 @@ class SculptModel(AbstractHapticModel):
         return mss.State(_position_step(lattice, x, v, dt), v)
 
     def _seam_forces(self, x, v, rest_seam):
-        """`mss.spring_forces` of the seam lattice, `(N, 3)`, by `mss`'s grid kernel: columns
+        """The seam lattice's spring forces, `(N, 3)`, by `mss`'s grid kernel: columns
         `n − 1` and `0` side by side form an `(m, 2, layers)` grid whose springs across its two
         columns (`db ≠ 0`) are exactly the seam's, in the order of `seam_edges`; its springs
         within a column get zero parameters (they belong to the main lattice). No gather or

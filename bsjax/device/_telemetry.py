@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from bsjax._declared import declared
 from bsjax._optional import require
 
 log = logging.getLogger("bsjax.device")
@@ -100,6 +101,7 @@ def percentiles(values_ns: np.ndarray) -> tuple[float, float, float]:
     return float(p50) * 1e-6, float(p99) * 1e-6, float(values_ns.max()) * 1e-6
 
 
+@declared
 def plot_recording(recording, path: str | os.PathLike, title: str = "haptic session") -> None:
     """Write a PNG: stylus position, force written, and tick period over a recorded session
     (the `plot` extra)."""

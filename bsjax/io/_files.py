@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from bsjax import _checks, collide
+from bsjax._declared import declared
 from bsjax._optional import require
 from bsjax.basis import BSplineCurve, BSplineSurface
 from bsjax.io._cad import CadList, CadObject, Progress, Trim, check_units, counted, unit_scale
@@ -26,6 +28,7 @@ def _listed(x):
     return None if x is None else np.asarray(x).tolist()
 
 
+@declared
 def to_dict(spline: BSplineSurface | BSplineCurve) -> dict:
     """A JSON-ready dict holding every field of a surface or curve exactly (floats round-trip by repr)."""
     if not isinstance(spline, (BSplineSurface, BSplineCurve)):
@@ -57,6 +60,7 @@ def to_dict(spline: BSplineSurface | BSplineCurve) -> dict:
     }
 
 
+@declared
 def from_dict(data: dict, source: str = "data") -> BSplineSurface | BSplineCurve:
     """Inverse of `to_dict`; errors name `source` and the field at fault."""
     if isinstance(data, dict) and data.get("format") == _CURVE_FORMAT:
@@ -164,6 +168,7 @@ def _json_type(value) -> str:
 
 
 # --- meshes -------------------------------------------------------------------------------
+@declared
 def tessellate(surface: BSplineSurface, m: int = 82, n: int = 82, mask=None):
     """Triangle mesh of the `m × n` sample grid as a `trimesh.Trimesh`: `collide.grid_mesh`'s
     triangulation (two triangles per cell, split along the shorter diagonal).
@@ -226,7 +231,8 @@ def _polycurve(item) -> bool:
 def _objects(items) -> list[CadObject]:
     """`save`'s items as `CadObject`s; an item that is itself a list of curves is a polycurve."""
     splines = (BSplineSurface, BSplineCurve)
-    listed = [items] if isinstance(items, (*splines, CadObject)) else list(items)
+    listed = [items] if isinstance(items, (*splines, CadObject)) else items
+    listed = list(listed) if isinstance(listed, (list, tuple)) else []
     if not listed or not all(isinstance(s, (*splines, CadObject)) or _polycurve(s) for s in listed):
         _checks.fail(
             "surfaces",
@@ -239,8 +245,15 @@ def _objects(items) -> list[CadObject]:
     return [s if isinstance(s, CadObject) else CadObject(tuple(s) if _polycurve(s) else s) for s in listed]
 
 
+@declared
 def save(
-    surfaces, path, m: int = 82, n: int = 82, units: str | None = None, *, progress: Progress | None = None
+    surfaces,
+    path: str | os.PathLike,
+    m: int = 82,
+    n: int = 82,
+    units: str | None = None,
+    *,
+    progress: Progress | None = None,
 ) -> Path:
     """Write one surface or curve, or a list of them; the format follows the extension of `path`.
 
@@ -315,8 +328,9 @@ def _json_document(objects: list[CadObject], units: str, progress: Progress | No
     return {"format": _MIXED_FORMAT, "units": units, "splines": items}
 
 
+@declared
 def load_all(
-    path,
+    path: str | os.PathLike,
     kind: str | None = None,
     *,
     units: str | None = None,
@@ -431,7 +445,8 @@ def _read_json(path: Path):
         raise ValueError(f"{path}: not a bsjax JSON file ({err})") from None
 
 
-def load(path, kind: str | None = None, **options) -> BSplineSurface | BSplineCurve:
+@declared
+def load(path: str | os.PathLike, kind: str | None = None, **options) -> BSplineSurface | BSplineCurve:
     """The single surface or curve in a file (use `load_all` for several); `kind="surface"` or
     `"curve"` looks only at those; `options` as for `load_all` (`units`, `on_unsupported`)."""
     items = load_all(path, kind, **options)

@@ -15,6 +15,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax._optional import require
 from bsjax.basis import BSplineSurface, ProjectionSolver, closest_points
 
@@ -149,6 +150,7 @@ def summarize(dists: Sequence[Float[Array, "m n"]], tolerance: float) -> Deviati
     )
 
 
+@declared
 def plot_deviation(report: Deviation, ax=None, title: str | None = None):
     """Heat map of the deviation, one panel strip per original patch side by side (matplotlib).
 

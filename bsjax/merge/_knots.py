@@ -12,6 +12,7 @@ import jax
 import numpy as np
 
 from bsjax import _checks
+from bsjax._declared import declared
 from bsjax.basis import clamped_knots
 
 CROSS_MODES = ("average", "uniform")
@@ -99,6 +100,7 @@ def combine_knots(
     return np.concatenate(parts)
 
 
+@declared
 def merge_knots(knots_a, knots_b, degree: int, continuity: int) -> np.ndarray:
     """Merged knot vector of two patches joined in one direction (thesis §4.3.3).
 
@@ -135,6 +137,7 @@ def average_knots(knots_a, knots_b) -> np.ndarray:
     return 0.5 * (a + b)
 
 
+@declared
 def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "average") -> np.ndarray:
     """Knot vector across the merge direction for `n_ctrl` control points (thesis §4.3.3, §6.3.1.3).
 
@@ -149,6 +152,8 @@ def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "aver
     n_ctrl = _checks.check_count(n_ctrl, "n_ctrl", degree + 1)
     if mode == "uniform":
         return np.asarray(clamped_knots(n_ctrl, degree, np.float64))
+    if not isinstance(knot_list, (list, tuple)):
+        _checks.fail("knot_list", "a list of knot vectors", type(knot_list).__name__)
     ts = [_as_knots(t, degree, f"knot_list[{i}]") for i, t in enumerate(knot_list)]
     if not ts:
         _checks.fail("knot_list", "at least one knot vector", "none")

@@ -31,6 +31,7 @@ from jaxtyping import Array, Float
 
 from bsjax import _boundary, _checks
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax.basis import Blending, BSplineSurface, SplineDirection, reduce_degree
 from bsjax.merge import _knots, _nonlinear, _orient, _overlap
 
@@ -64,6 +65,8 @@ class MergeLayout(eqx.Module):
         return len(self.patches), len(self.patches[0])
 
     def _rows(self, ctrls):
+        if not isinstance(ctrls, (list, tuple)):
+            _checks.fail("ctrls", "a list of control nets (rows of them for a grid)", type(ctrls).__name__)
         ctrls = list(ctrls)
         rows = (
             [ctrls]
@@ -262,7 +265,10 @@ def _affine(p, lo, hi, a, b):
     return a + (b - a) * (p - lo) / (hi - lo)
 
 
-def merged_knots(oriented, continuity=2, *, cross="average", degrees=None, windows=None):
+@declared
+def merged_knots(
+    oriented: Sequence[Sequence[BSplineSurface]], continuity=2, *, cross="average", degrees=None, windows=None
+):
     """Degrees and knot vectors of the merged surface of an `R × C` grid of oriented patches
     (thesis §4.3.3, §4.4.2, §4.4.3) — the merged basis, without building any matrix.
 
@@ -518,6 +524,7 @@ def _check_seams(continuity, surfaces, ops, direction, degrees, seams: int):
 
 
 # --- plan ---------------------------------------------------------------------------------------
+@declared
 def plan(
     surfaces: Sequence[BSplineSurface],
     direction: str = "u",
@@ -670,6 +677,7 @@ def grid_orientations(rows, orient="auto", samples=82):
     return _explicit_orientations(orient, R, C)
 
 
+@declared
 def plan_grid(
     rows: Sequence[Sequence[BSplineSurface]],
     continuity=2,
@@ -757,6 +765,7 @@ def _merged_surface(layout: MergeLayout, ctrls, refine: bool, progress=None) -> 
     return layout.surface(ctrl)
 
 
+@declared
 def merge(
     surfaces: Sequence[BSplineSurface],
     direction: str = "u",
@@ -802,6 +811,7 @@ def merge(
     return _merged_surface(layout, [s.ctrl for s in surfaces], bool(refine), progress)
 
 
+@declared
 def merge_grid(
     rows: Sequence[Sequence[BSplineSurface]],
     continuity=2,

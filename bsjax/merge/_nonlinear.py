@@ -189,6 +189,12 @@ def _refit(
     return RefitSolution(ctrl=ctrl, params=uv, rms=hist, rounds=i, result=result, projection_result=status)
 
 
+def _check_layout(layout) -> None:
+    # a MergeLayout, known by what this module uses of it (its module imports this one)
+    if not all(hasattr(layout, a) for a in ("points", "merged", "grid_shape")):
+        _checks.fail("layout", "a MergeLayout from merge.plan or merge.plan_grid", type(layout).__name__)
+
+
 @compiled
 def refit(
     layout, ctrls, solver: RefitSolver = RefitSolver(), progress: Callable[[int, int], object] | None = None
@@ -211,13 +217,16 @@ def refit(
         raise TypeError(f"solver: expected a RefitSolver, got {type(solver).__name__}")
     _checks.check_progress(progress)
     _checks.check_count(solver.rounds, "solver.rounds")
+    _check_layout(layout)
     points = layout.points(ctrls)
     pu, pv = layout.merged.params_u, layout.merged.params_v
     uv = jnp.stack(jnp.meshgrid(pu, pv, indexing="ij"), -1).reshape(-1, 2)
     ctrl = layout.merged.refit(points)
     # the linear fit's RMS at the grid parameters, with the stored blending matrices
     rms0 = _rms(jnp.linalg.norm(layout.merged.points(ctrl) - points, axis=-1))
-    rtol = _checks.positive(jnp.asarray(solver.rtol, points.dtype), "solver.rtol", strict=False)
+    rtol = _checks.positive(
+        _checks.array(solver.rtol, "solver.rtol", points.dtype), "solver.rtol", strict=False
+    )
     return _refit(
         layout.surface(ctrl),
         points.reshape(-1, 3),
@@ -244,6 +253,7 @@ def refine(
 
     **Returns:** `(r, s, 3)` control net on the layout's merged basis.
     """
+    _check_layout(layout)
     iterations = _checks.check_count(iterations, "iterations")
     steps = _checks.check_count(steps, "steps")
     solver = RefitSolver(rounds=iterations, projection=ProjectionSolver(max_steps=steps))

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bsjax import _boundary, _checks
+from bsjax._declared import declared
 from bsjax.basis import BSplineSurface, SplineDirection
 
 Orientation = tuple[bool, bool, bool]
@@ -45,8 +46,11 @@ def _flip(direction: SplineDirection) -> SplineDirection:
     return SplineDirection(1.0 - direction.knots[::-1], direction.degree)
 
 
+@declared
 def orient_surface(surface: BSplineSurface, op: Orientation) -> BSplineSurface:
-    """`surface` reparametrised by `op` (same geometry)."""
+    """`surface` reparametrised by `op` (same geometry): `op = (transpose, flip_u, flip_v)`."""
+    if not (isinstance(op, tuple) and len(op) == 3 and all(isinstance(b, (bool, np.bool_)) for b in op)):
+        _checks.fail("op", "an orientation (transpose, flip_u, flip_v) of three bools", repr(op))
     if op == IDENTITY:
         return surface
     transpose, flip_u, flip_v = op
@@ -182,6 +186,7 @@ def _orient_row(surfaces, direction: str) -> list[Orientation]:
     return ops
 
 
+@declared
 def orient_grid(rows: list[list[BSplineSurface]], samples=None) -> list[list[Orientation]]:
     """Orientations of an `R × C` grid of patches (thesis §4.4.3) so that patch `(i, j)`'s `u = 1`
     edge meets `(i+1, j)`'s `u = 0` edge and its `v = 1` edge meets `(i, j+1)`'s `v = 0` edge.

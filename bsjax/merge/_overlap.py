@@ -11,8 +11,12 @@ cheaper to compile, and it also catches patches that overlap without crossing.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
+from bsjax import _checks
+from bsjax._declared import declared
 from bsjax.basis import BSplineSurface
 
 
@@ -63,8 +67,13 @@ def collide_masks(a: BSplineSurface, b: BSplineSurface, samples: int = 82, capac
 _TOUCH = 2  # contact confined to this many rows either side of the seam is touching, kept
 
 
+@declared
 def overlap_trims(
-    surfaces, direction: str, samples: int = 82, tolerance: float | None = None, method: str = "collide"
+    surfaces: Sequence[BSplineSurface],
+    direction: str,
+    samples: int = 82,
+    tolerance: float | None = None,
+    method: str = "collide",
 ):
     """Per-patch `(lo, hi)` windows along `direction` that leave out the intersecting rows.
 
@@ -75,6 +84,8 @@ def overlap_trims(
     """
     if method not in ("collide", "dense"):
         raise ValueError(f"method: expected 'collide' or 'dense', got {method!r}")
+    if direction not in ("u", "v"):
+        _checks.fail("direction", "'u' or 'v'", repr(direction))
     axis = 0 if direction == "u" else 1
     params = np.linspace(0.0, 1.0, samples)
     step = params[1]

@@ -17,7 +17,6 @@ from bsjax.mss._coupling import (
 from bsjax.mss._forces import (
     behind_plane,
     edge_lengths,
-    spring_forces,
     tool_forces,
 )
 from bsjax.mss._integrators import (
@@ -99,7 +98,6 @@ __all__ = [
     "simulate_plastic",
     "simulate_scene",
     "spring_damping",
-    "spring_forces",
     "spring_stiffness",
     "stable_dt",
     "step",

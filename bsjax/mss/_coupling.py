@@ -19,6 +19,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax.basis import Blending
 from bsjax.mss._integrators import Penalty, _check_method, implicit_step, step
 from bsjax.mss._lattice import Lattice, State, from_material, grid_edges, merge_coincident
@@ -278,6 +279,7 @@ def coupled_step(
     return state, coupling.ctrl(state.position)
 
 
+@declared
 def surface_lattice(
     blending: Blending,
     ctrl: Float[Array, "r s 3"],

@@ -96,7 +96,7 @@ def edge_lengths(lattice: Lattice, x: Float[Array, "N 3"]) -> Float[Array, " E"]
     """
     if np.shape(x) != (lattice.n_nodes, 3):
         _checks.fail("x", f"node positions of shape ({lattice.n_nodes}, 3)", f"shape {np.shape(x)}")
-    x = _checks.finite(jnp.asarray(x), "x")
+    x = _checks.finite(_checks.array(x, "x"), "x")
     if lattice.grid_shape is None:
         return _safe.norm(x[lattice.edges[:, 0]] - x[lattice.edges[:, 1]])
     shape = lattice.grid_shape
@@ -238,7 +238,9 @@ def tool_contacts(tools, x: Float[Array, "N 3"]) -> list[tuple[Array, Array]]:
 
 @compiled
 def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
-    """Sum of the penalty forces of rigid `bsjax.collide` tools on the nodes, `(N, 3)`.
+    """Sum of the penalty forces of rigid `bsjax.collide` tools on the nodes, `(N, 3)`: positions
+    `x (N, 3)` and velocities `v (N, 3)` finite, `stiffness` k and `damping` c finite and ≥ 0
+    (checked; `_tool_forces` is the unchecked kernel the integrators call).
 
     Each tool's `push` gives the depth `δ_i` and outward normal `n_i` of every node inside it;
     `f_i = k δ_i n_i − c min(v_i·n_i, 0) n_i` (damping only while a node moves into the tool),
@@ -246,6 +248,20 @@ def tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
     shaped tool of implicit surface*, §4.2. Accepts `Sphere`, `Ellipsoid`, `Plane`, `Implicit`,
     `TriangleMesh`; a `Point` (no volume) raises `TypeError`.
     """
+    if not isinstance(tools, (list, tuple)):
+        _checks.fail("tools", "a sequence of bsjax.collide tools", type(tools).__name__)
+    x = _checks.finite(_checks.array(x, "x"), "x")
+    _checks.check_ndim(x, "x", 2, last=3)
+    v = _checks.finite(_checks.array(v, "v", x.dtype), "v")
+    if v.shape != x.shape:
+        _checks.fail("v", f"the shape of x {x.shape}", v.shape)
+    stiffness = _checks.positive(_checks.array(stiffness, "stiffness", x.dtype), "stiffness", strict=False)
+    damping = _checks.positive(_checks.array(damping, "damping", x.dtype), "damping", strict=False)
+    return _tool_forces(tools, x, v, stiffness, damping)
+
+
+def _tool_forces(tools, x, v, stiffness, damping=0.0) -> Float[Array, "N 3"]:
+    """`tool_forces` without its checks (the integrators' kernel)."""
     f = jnp.zeros_like(x)
     for depth, normal in tool_contacts(tools, x):
         f = f + _penalty(depth, normal, v, stiffness, damping)
@@ -266,14 +282,14 @@ def contact_tangent(tools, x, stiffness) -> Float[Array, "N 3 3"]:
 def sphere_penalty(x, v, center, radius, stiffness, damping=0.0):
     """Penalty force pushing nodes out of a rigid sphere, `(N, 3)`: `tool_forces` with a
     `collide.Sphere(center, radius)` (depth `max(r − |x − c|, 0)` along `(x − c)/|x − c|`)."""
-    return tool_forces((collide.Sphere(center, radius),), x, v, stiffness, damping)
+    return _tool_forces((collide.Sphere(center, radius),), x, v, stiffness, damping)
 
 
 @compiled
 def plane_penalty(x, v, point, normal, stiffness, damping=0.0):
     """Penalty force pushing nodes to the `normal` side of a rigid plane (a table), `(N, 3)`:
     `tool_forces` with a `collide.Plane(point, normal)`."""
-    return tool_forces((collide.Plane(point, normal),), x, v, stiffness, damping)
+    return _tool_forces((collide.Plane(point, normal),), x, v, stiffness, damping)
 
 
 def _penalty(depth, n, v, stiffness, damping):
@@ -284,7 +300,7 @@ def _penalty(depth, n, v, stiffness, damping):
 
 
 @compiled
-def behind_plane(positions: Float[Array, "N 3"], point, normal) -> Array:
+def behind_plane(positions: Float[Array, "... 3"], point, normal) -> Array:
     """Boolean mask of nodes on the solid side of a plane (`(x − p)·n ≤ 0`) — e.g. the nodes a
     clamp holds, for `Lattice(fixed=...)`."""
     plane = collide.Plane(point, normal)  # a plane tool's checks: (3,) finite, a non-zero normal

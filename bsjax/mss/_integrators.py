@@ -18,7 +18,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _linalg, _safe
 from bsjax._boundary import compiled
-from bsjax.mss._forces import _dot3, _inv_length, contact_tangent, edge_sum, spring_forces, tool_forces
+from bsjax.mss._forces import _dot3, _inv_length, _tool_forces, contact_tangent, edge_sum, spring_forces
 from bsjax.mss._lattice import Lattice, State
 
 METHODS = ("semi_implicit", "implicit", "linear_implicit")
@@ -41,8 +41,8 @@ class Penalty(eqx.Module):
     damping: Float[Array, ""]
 
     def __init__(self, stiffness: ArrayLike = 1e3, damping: ArrayLike = 0.0):
-        self.stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness", strict=False)
-        self.damping = _checks.positive(jnp.asarray(damping), "damping", strict=False)
+        self.stiffness = _checks.positive(_checks.array(stiffness, "stiffness"), "stiffness", strict=False)
+        self.damping = _checks.positive(_checks.array(damping, "damping"), "damping", strict=False)
 
 
 class Plasticity(eqx.Module):
@@ -56,14 +56,14 @@ class Plasticity(eqx.Module):
     center: Float[Array, " 3"] | None
 
     def __init__(self, yield_strain: ArrayLike, radius: ArrayLike = jnp.inf, center: ArrayLike | None = None):
-        self.yield_strain = _checks.positive(jnp.asarray(yield_strain), "yield_strain")
+        self.yield_strain = _checks.positive(_checks.array(yield_strain, "yield_strain"), "yield_strain")
         radius = jnp.asarray(radius)
         self.radius = _checks.check(
             radius, ~(radius >= 0), "radius", "a radius >= 0 (inf allowed)", "< 0 or NaN"
         )
         if center is not None:
             _checks.check_ndim(center, "center", 1, last=3)
-            center = _checks.finite(jnp.asarray(center), "center")
+            center = _checks.finite(_checks.array(center, "center"), "center")
         self.center = center
 
 
@@ -83,11 +83,11 @@ def _checked_inputs(lattice: Lattice, state: State, external_force=None, gravity
     if external_force is not None:
         if np.shape(external_force) != (n, 3):
             _checks.fail("external_force", f"shape ({n}, 3)", np.shape(external_force))
-        external_force = _checks.finite(jnp.asarray(external_force), "external_force")
+        external_force = _checks.finite(_checks.array(external_force, "external_force"), "external_force")
     if gravity is not None:
         if np.shape(gravity) != (3,):
             _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
-        gravity = _checks.finite(jnp.asarray(gravity), "gravity")
+        gravity = _checks.finite(_checks.array(gravity, "gravity"), "gravity")
     return _checked_state(state), external_force, gravity
 
 
@@ -107,7 +107,7 @@ def _net_force(lattice, state, external_force=None, gravity=None, tools=(), cont
         f = f + lattice.mass[:, None] * jnp.asarray(gravity, dtype=x.dtype)[None]
     if tools:
         c = Penalty() if contact is None else contact
-        f = f + tool_forces(tools, x, v, c.stiffness.astype(x.dtype), c.damping.astype(x.dtype))
+        f = f + _tool_forces(tools, x, v, c.stiffness.astype(x.dtype), c.damping.astype(x.dtype))
     return f
 
 
@@ -212,8 +212,12 @@ def stable_dt(
     stiffness `k_c/m_i`, and returns the largest `h` with `h²ω² + 2hc ≤ 4`, the stability
     condition of symplectic Euler on `ẍ = −ω²x − cẋ`: `h = (√(c² + 4ω²) − c) / ω²`.
     """
-    contact_stiffness = _checks.positive(jnp.asarray(contact_stiffness), "contact_stiffness", strict=False)
-    contact_damping = _checks.positive(jnp.asarray(contact_damping), "contact_damping", strict=False)
+    contact_stiffness = _checks.positive(
+        _checks.array(contact_stiffness, "contact_stiffness"), "contact_stiffness", strict=False
+    )
+    contact_damping = _checks.positive(
+        _checks.array(contact_damping, "contact_damping"), "contact_damping", strict=False
+    )
     h = _stable_dt(lattice, contact_stiffness, contact_damping)
     return _checks.check(
         h,
@@ -237,7 +241,7 @@ def _checked_dt(
     """`dt` as an array of the lattice's dtype, checked finite and > 0, and (`stability`) not above
     the semi-implicit Euler limit `_stable_dt` (of the contact terms alone, `springs=False`) —
     raised at once when concrete, `eqx.error_if` when traced."""
-    dt = _checks.positive(jnp.asarray(dt, dtype=lattice.mass.dtype), "dt")
+    dt = _checks.positive(_checks.array(dt, "dt", dtype=lattice.mass.dtype), "dt")
     if np.ndim(dt) != 0:
         _checks.fail("dt", "a scalar time step", f"shape {np.shape(dt)}")
     if stability:
@@ -260,7 +264,9 @@ def check_dt(lattice: Lattice, dt: Float[ArrayLike, ""], contact_stiffness: Floa
     """`dt` (an array), after checking that it is finite, > 0 and at most `stable_dt(lattice,
     contact_stiffness)`: a `ValueError` when called directly, an `eqx.error_if` runtime error with
     the same message inside the caller's `jit`."""
-    contact_stiffness = _checks.positive(jnp.asarray(contact_stiffness), "contact_stiffness", strict=False)
+    contact_stiffness = _checks.positive(
+        _checks.array(contact_stiffness, "contact_stiffness"), "contact_stiffness", strict=False
+    )
     return _checked_dt(lattice, dt, contact_stiffness)
 
 

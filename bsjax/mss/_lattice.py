@@ -16,6 +16,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
+from bsjax._declared import declared
 from bsjax.mss._materials import Material, _damping, _stiffness
 
 # The 13 half-directions of a 26-neighbour hexahedral lattice: 3 edges, 6 face diagonals,
@@ -176,7 +177,7 @@ def _per(value, count: int, name: str, count_name: str, dtype, strict: bool):
     if shape not in ((), (count,)):
         _checks.fail(name, f"a scalar or shape ({count},) (one per {count_name})", shape)
     _checks.check_real(value, name)
-    value = _checks.positive(jnp.asarray(value, dtype=dtype), name, strict=strict)
+    value = _checks.positive(_checks.array(value, name, dtype=dtype), name, strict=strict)
     return jnp.broadcast_to(value, (count,))
 
 
@@ -199,6 +200,10 @@ def hex_edges(shape: tuple[int, int, int]) -> np.ndarray:
     dense force kernel relies on this order. Returns `(E, 2)` int32 (read-only: the topology is
     built once per `shape` and cached; `_hex_edges.cache_clear()` forgets it).
     """
+    if not isinstance(shape, (tuple, list)) or not all(
+        isinstance(s, (int, np.integer)) and not isinstance(s, bool) for s in shape
+    ):
+        _checks.fail("shape", "three lattice sizes (ints >= 1)", repr(shape))
     shape = tuple(int(s) for s in shape)  # pyright: ignore[reportAssignmentType]  (length checked next)
     if len(shape) != 3 or min(shape) < 1:
         _checks.fail("shape", "three sizes >= 1", shape)
@@ -255,7 +260,7 @@ def hex_lattice(
     """
     _checks.check_ndim(positions, "positions", 4, last=3)
     _checks.check_real(positions, "positions")
-    p = _checks.finite(jnp.asarray(positions), "positions")
+    p = _checks.finite(_checks.array(positions, "positions"), "positions")
     shape = p.shape[:3]
     edges = hex_edges(shape)
     if fixed is not None:
@@ -279,6 +284,7 @@ def _enclosed_volume(p):
     return _checks.check(volume, bad, "positions", expected, "a zero, negative or non-finite volume")
 
 
+@declared
 def from_material(
     rest_positions, edges, material: Material, volume, fixed=None, *, node_damping=0.0, grid_shape=None
 ) -> Lattice:
@@ -291,8 +297,10 @@ def from_material(
     **Arguments:** `rest_positions (N, 3)`, `edges (E, 2)`, `material`, `volume` (m³, > 0),
     `fixed (N,)`, `node_damping`, `grid_shape` as `Lattice`.
     """
+    _checks.check_real(rest_positions, "rest_positions")
+    _checks.check_real(edges, "edges")
     _checks.check_ndim(rest_positions, "rest_positions", 2, last=3)
-    volume = _checks.positive(jnp.asarray(volume), "volume")
+    volume = _checks.positive(_checks.array(volume, "volume"), "volume")
     x = jnp.asarray(rest_positions)
     n = x.shape[0]
     e = _check_edges(edges, n)

@@ -31,9 +31,13 @@ class Material(eqx.Module):
     damping_ratio: Float[Array, "..."]
 
     def __init__(self, youngs_modulus: ArrayLike, density: ArrayLike, damping_ratio: ArrayLike = 0.1):
-        self.youngs_modulus = _checks.positive(jnp.asarray(youngs_modulus), "youngs_modulus")
-        self.density = _checks.positive(jnp.asarray(density), "density")
-        self.damping_ratio = _checks.positive(jnp.asarray(damping_ratio), "damping_ratio", strict=False)
+        self.youngs_modulus = _checks.positive(
+            _checks.array(youngs_modulus, "youngs_modulus"), "youngs_modulus"
+        )
+        self.density = _checks.positive(_checks.array(density, "density"), "density")
+        self.damping_ratio = _checks.positive(
+            _checks.array(damping_ratio, "damping_ratio"), "damping_ratio", strict=False
+        )
 
 
 #: Plasticine as in thesis Fig. 5.9: "spring stiffness 13 MN/m², density 2500 kg/m³"; heavily damped.
@@ -58,8 +62,8 @@ def _damping(material, stiffness, mass):
 def spring_stiffness(material: Material, rest_length, area) -> Float[Array, "..."]:
     """`K = E A / L` in N/m (thesis eq. 5.1) for springs of rest length `L > 0` (m) and
     cross-section `area ≥ 0` (m²)."""
-    rest_length = _checks.positive(jnp.asarray(rest_length), "rest_length")
-    area = _checks.positive(jnp.asarray(area), "area", strict=False)
+    rest_length = _checks.positive(_checks.array(rest_length, "rest_length"), "rest_length")
+    area = _checks.positive(_checks.array(area, "area"), "area", strict=False)
     return _stiffness(material, rest_length, area)
 
 
@@ -67,23 +71,23 @@ def spring_stiffness(material: Material, rest_length, area) -> Float[Array, "...
 def spring_damping(material: Material, stiffness, mass) -> Float[Array, "..."]:
     """`D = 2 ζ √(K m)` in N·s/m, eq. 5.7 solved for D; `stiffness ≥ 0` (N/m) and the spring's
     node `mass > 0` (kg)."""
-    stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness", strict=False)
-    mass = _checks.positive(jnp.asarray(mass), "mass")
+    stiffness = _checks.positive(_checks.array(stiffness, "stiffness"), "stiffness", strict=False)
+    mass = _checks.positive(_checks.array(mass, "mass"), "mass")
     return _damping(material, stiffness, mass)
 
 
 @compiled
 def natural_frequency(stiffness, mass) -> Float[Array, "..."]:
     """`ω₀ = √(K/m)` in rad/s (thesis eq. 5.6), `stiffness ≥ 0`, `mass > 0`."""
-    stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness", strict=False)
-    mass = _checks.positive(jnp.asarray(mass), "mass")
+    stiffness = _checks.positive(_checks.array(stiffness, "stiffness"), "stiffness", strict=False)
+    mass = _checks.positive(_checks.array(mass, "mass"), "mass")
     return jnp.sqrt(stiffness / mass)
 
 
 @compiled
 def damping_ratio(damping, stiffness, mass) -> Float[Array, "..."]:
     """`ζ = D / (2 √(K m))` (thesis eq. 5.7), `damping ≥ 0`, `stiffness > 0`, `mass > 0`."""
-    damping = _checks.positive(jnp.asarray(damping), "damping", strict=False)
-    stiffness = _checks.positive(jnp.asarray(stiffness), "stiffness")
-    mass = _checks.positive(jnp.asarray(mass), "mass")
+    damping = _checks.positive(_checks.array(damping, "damping"), "damping", strict=False)
+    stiffness = _checks.positive(_checks.array(stiffness, "stiffness"), "stiffness")
+    mass = _checks.positive(_checks.array(mass, "mass"), "mass")
     return damping / (2.0 * jnp.sqrt(stiffness * mass))

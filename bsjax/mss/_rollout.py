@@ -61,7 +61,7 @@ def yield_rest_lengths(
     if np.shape(position) != (lattice.n_nodes, 3):
         _checks.fail("position", f"shape ({lattice.n_nodes}, 3)", np.shape(position))
     rest = lattice.rest_length if rest_length is None else rest_length
-    return _yield(lattice, _checks.finite(jnp.asarray(position), "position"), plasticity, rest)
+    return _yield(lattice, _checks.finite(_checks.array(position, "position"), "position"), plasticity, rest)
 
 
 def _per_step_force(external_force, n_steps, n_nodes):
@@ -70,7 +70,7 @@ def _per_step_force(external_force, n_steps, n_nodes):
         return None, None
     shape = np.shape(external_force)
     if shape in ((n_nodes, 3), (n_steps, n_nodes, 3)):
-        external_force = _checks.finite(jnp.asarray(external_force), "external_force")
+        external_force = _checks.finite(_checks.array(external_force, "external_force"), "external_force")
     if shape == (n_nodes, 3):
         return external_force, None
     if shape == (n_steps, n_nodes, 3):
@@ -131,7 +131,7 @@ def _run(
         if np.shape(gravity) != (3,):
             _checks.fail("gravity", "an acceleration of shape (3,)", np.shape(gravity))
         _checks.check_real(gravity, "gravity")
-        gravity = _checks.finite(jnp.asarray(gravity), "gravity")
+        gravity = _checks.finite(_checks.array(gravity, "gravity"), "gravity")
     tools = tuple(tools)
     path_tools = () if tool_path is None else tuple(tool_path)
     state, dt, contact = _prepare(
@@ -392,7 +392,7 @@ def relax(
     max_steps = _checks.check_count(max_steps, "max_steps")
     check_every = _checks.check_count(check_every, "check_every")
     external_force, gravity = _checked_inputs(lattice, state, external_force, gravity)[1:]
-    tol = _checks.positive(jnp.asarray(tol, dtype=lattice.mass.dtype), "tol", strict=False)
+    tol = _checks.positive(_checks.array(tol, "tol", dtype=lattice.mass.dtype), "tol", strict=False)
     tools = tuple(tools)
     state, dt, contact = _prepare(lattice, state, dt, method, cg_iterations, tools, contact, True)
     advance = _kernel(method, cg_iterations, lattice, dt)

@@ -128,7 +128,7 @@ class Body(eqx.Module):
         _checks.check_real(ctrl, "ctrl")
         if np.shape(ctrl) != want:
             _checks.fail("ctrl", f"a control net of shape {want}", np.shape(ctrl))
-        ctrl = _checks.finite(jnp.asarray(ctrl, self.surface.ctrl.dtype), "ctrl")
+        ctrl = _checks.finite(_checks.array(ctrl, "ctrl", self.surface.ctrl.dtype), "ctrl")
         shape = self.lattice.grid_shape
         assert shape is not None
         layers = self.lattice.rest_positions.reshape(shape + (3,))
@@ -194,7 +194,7 @@ def _parameter(t, name: str, dtype) -> Array:
     _checks.check_real(t, name)
     if np.shape(t) != ():
         _checks.fail(name, "a scalar parameter", np.shape(t))
-    return _checks.in_range(jnp.asarray(t, dtype), name, 0.0, 1.0)
+    return _checks.in_range(_checks.array(t, name, dtype), name, 0.0, 1.0)
 
 
 def _is_closed(surface: BSplineSurface) -> bool:
@@ -257,7 +257,7 @@ class Scene(eqx.Module):
             _checks.check_real(gravity, "gravity")
             if np.shape(gravity) != (3,):
                 _checks.fail("gravity", "shape (3,)", np.shape(gravity))
-            gravity = _checks.finite(jnp.asarray(gravity, dtype), "gravity")
+            gravity = _checks.finite(_checks.array(gravity, "gravity", dtype), "gravity")
         self.gravity = gravity
         contact = collide.DistributedSprings(1e3) if contact is None else contact
         if not isinstance(contact, collide.DistributedSprings):
@@ -265,7 +265,7 @@ class Scene(eqx.Module):
         self.contact = contact
         if reach is None:
             reach = min((_thickness(b) for b in bodies), default=1.0)
-        self.reach = _checks.positive(jnp.asarray(reach, dtype), "reach")
+        self.reach = _checks.positive(_checks.array(reach, "reach", dtype), "reach")
 
 
 def _thickness(body: Body) -> float:

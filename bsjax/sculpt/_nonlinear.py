@@ -89,7 +89,7 @@ class Distance(AbstractNonlinear):
     def prepare(self, shape, name):
         u1, v1 = _point(shape, self.u1, self.v1, name + "[1]")
         u2, v2 = _point(shape, self.u2, self.v2, name + "[2]")
-        d = _checks.positive(jnp.asarray(self.d, shape.ctrl.dtype), f"{name}.d", strict=False)
+        d = _checks.positive(_checks.array(self.d, f"{name}.d", shape.ctrl.dtype), f"{name}.d", strict=False)
         _checks.check_ndim(d, f"{name}.d", 0)
         return {"rows": point_rows(shape, u1, v1, 0, "u") - point_rows(shape, u2, v2, 0, "u"), "d": d}
 
@@ -139,7 +139,9 @@ class NormalAngle(AbstractNonlinear):
         u, v = _point(shape, self.u, self.v, name)
         normal = checked_value(shape, _Vec(0.0, None), self.normal, 1, f"{name}.normal")
         normal = _checks.check(normal, _safe.norm(normal) == 0, f"{name}.normal", "a non-zero vector", "zero")
-        angle = _checks.in_range(jnp.asarray(self.angle, shape.ctrl.dtype), f"{name}.angle", 0.0, np.pi)
+        angle = _checks.in_range(
+            _checks.array(self.angle, f"{name}.angle", shape.ctrl.dtype), f"{name}.angle", 0.0, np.pi
+        )
         return {**_normal_rows(shape, u, v), "normal": _safe.unit(normal), "cos": jnp.cos(angle)}
 
     def residual(self, plan, ctrl):

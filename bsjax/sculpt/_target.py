@@ -167,7 +167,7 @@ def target_sculpt(
         _checks.fail("target_curve", "a 3-D BSplineCurve", type(target_curve).__name__)
     relax = _checks.check_count(relax, "relax", 0)
     dtype = surface.ctrl.dtype
-    lam = _checks.in_range(jnp.asarray(lam, dtype), "lam", 0.0, 1.0)
+    lam = _checks.in_range(_checks.array(lam, "lam", dtype), "lam", 0.0, 1.0)
     _checks.check_ndim(lam, "lam", 0)
     r, s = surface.shape
     mask = _bound(surface, bound)

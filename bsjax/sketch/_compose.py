@@ -41,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bsjax import construct
+from bsjax._declared import declared
 from bsjax.basis import BSplineCurve, BSplineSurface
 from bsjax.sketch._recognise import KINDS, POLYGONS, Recognised
 from bsjax.sketch._relations import RELATIONS, relations
@@ -303,6 +304,7 @@ def compose(strokes: Sequence[Recognised], tree: DecisionTree | None = None) -> 
     return Construction(path[-1].name, CONSTRUCTIONS[path[-1].construction](strokes), path, found)
 
 
+@declared
 def adapt(strokes: Sequence[Recognised], name: str, construction: str, tree: DecisionTree | None = None):
     """The user-adaptation step (thesis Table 3-1 STEP 5, §3.1.3, Fig. 3-6; INSERT of Table
     3-2): strokes that matched no composite, confirmed by the user as `construction` named

@@ -23,13 +23,13 @@ import math
 from typing import NamedTuple
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax._declared import declared
 from bsjax._typing import ArrayLike
 from bsjax.basis import (
     BSplineCurve,
@@ -192,8 +192,10 @@ def corners(
     k = _checks.check_count(k, "k", 1)
     times = None if times is None else _times(times, points)
     f = _features(points, times, k)
-    curvature_factor = _checks.positive(jnp.asarray(curvature_factor, points.dtype), "curvature_factor")
-    speed_factor = _checks.positive(jnp.asarray(speed_factor, points.dtype), "speed_factor")
+    curvature_factor = _checks.positive(
+        _checks.array(curvature_factor, "curvature_factor", points.dtype), "curvature_factor"
+    )
+    speed_factor = _checks.positive(_checks.array(speed_factor, "speed_factor", points.dtype), "speed_factor")
     return _corner_mask(f, curvature_factor, speed_factor, times is not None, k)
 
 
@@ -232,6 +234,7 @@ class Resampled(NamedTuple):
     index: np.ndarray
 
 
+@declared
 def resample(
     points: ArrayLike,
     times: ArrayLike | None = None,
@@ -362,7 +365,7 @@ def _fit_arrays(points, n_ctrl, n_max: int, degree: int, params_method: str, fix
     n_ctrl = jnp.asarray(n_ctrl).astype(column.dtype)
     params = _data_params(points, params_method)
     knots = _averaged_knots(params, n_ctrl, n_max, degree)
-    a = jax.vmap(lambda t: basis_functions(knots, degree, t))(params)
+    a = basis_functions(knots, degree, params)  # (samples, n_max): one row per parameter
     last = n_ctrl - 1
     if fix_ends:
         ends = jnp.where((column == 0)[:, None], points[:1], 0) + jnp.where(
@@ -422,6 +425,7 @@ def fit_curve(
     return _fit(points, n_ctrl, degree, params, bool(fix_ends))
 
 
+@declared
 def fit_stroke(
     points: ArrayLike,
     times: ArrayLike | None = None,
@@ -486,6 +490,7 @@ class Oversketch(NamedTuple):
 _SAMPLES = 1024  # dense samples of the original curve for the projections
 
 
+@declared
 def oversketch(curve: BSplineCurve, stroke_curve: BSplineCurve, scale: float = 1.0) -> Oversketch:
     """Replace the span of `curve` under a new stroke by the stroke (thesis §4.2, Figs. 4-4…4-7).
 
@@ -688,7 +693,7 @@ class Camera(eqx.Module):
         angle = jnp.asarray(fov, dtype)
         bad = ~((angle > 0) & (angle < math.pi))
         self.fov = _checks.check(angle, bad, "fov", "an angle in (0, π)", "a value outside (or NaN)")
-        self.aspect = _checks.positive(jnp.asarray(aspect, dtype), "aspect")
+        self.aspect = _checks.positive(_checks.array(aspect, "aspect", dtype), "aspect")
 
     def frame(self):
         """`(forward, right, up)` unit vectors of the view."""

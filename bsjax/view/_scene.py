@@ -12,6 +12,8 @@ import time
 
 import numpy as np
 
+from bsjax._declared import declared
+
 _REPLAY_HZ = 100.0  # recordings are sent to the page at this rate (the slider's resolution)
 
 
@@ -39,6 +41,7 @@ class SurfaceMesh:
         return {"shape": list(self.shape), "points": pts.reshape(-1).tolist()}
 
 
+@declared
 def live(loop, model, title: str = "bsjax haptics"):
     """`(scene, frame)` callables for a running `ServoLoop` and its physics model."""
     surface0 = getattr(model, "surface0", None)
@@ -77,6 +80,7 @@ def live(loop, model, title: str = "bsjax haptics"):
     return scene, frame
 
 
+@declared
 def from_file(path: str | os.PathLike, tool_radius: float = 0.25):
     """The scene of a saved surface (`.json`, `.3dm`, …: every surface `bsjax.io.load_all`
     finds), or of a recorded session (`.npz`: the tool path, played with a time slider)."""
