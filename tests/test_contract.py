@@ -111,6 +111,7 @@ def _stroke():
     return sketch.recognise(np.stack([np.cos(t), np.sin(t)], 1))
 
 
+@functools.cache
 def _axes():
     import matplotlib
 
