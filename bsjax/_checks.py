@@ -223,6 +223,14 @@ def check_real(x: Any, name: str) -> None:
         raise TypeError(f"{name}: expected real numbers, got booleans")
 
 
+def check_integer(x: Any, name: str, what: str) -> None:
+    """Refuse an array-like `x` that is not of an integer dtype (indices: `what` names them),
+    before JAX sees it (a string or an object array has no JAX dtype)."""
+    dtype = np.dtype(x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype)
+    if dtype.kind not in "iu":
+        fail(name, what, f"dtype {dtype}")
+
+
 def _short(x) -> str:
     text = repr(x)
     return text if len(text) <= 60 else text[:57] + "..."
@@ -316,13 +324,14 @@ def _span(a):
     return f"[{np.nanmin(a)}, {np.nanmax(a)}]" if a.size else "[]"
 
 
-def float_dtype(*xs):
+def float_dtype(*xs, names: tuple[str, ...] = ()):
     """The floating dtype to work in: that of the inputs, else JAX's default float.
 
-    Complex inputs are refused (they would be truncated to their real part)."""
+    Non-numeric and complex inputs are refused (complex would be truncated to its real part),
+    naming `names[i]` for input i (`argument i` where none is given)."""
     for i, x in enumerate(xs):
-        if x is not None and np.iscomplexobj(x):
-            raise TypeError(f"argument {i}: expected real numbers, got complex dtype {np.asarray(x).dtype}")
+        if x is not None:
+            check_real(x, names[i] if i < len(names) else f"argument {i}")
     given = [np.asarray(x) if isinstance(x, (list, tuple)) else x for x in xs if x is not None]
     dtype = jnp.result_type(*given) if given else None
     if dtype is None or not jnp.issubdtype(dtype, jnp.floating):

@@ -82,7 +82,9 @@ def _member(hint) -> _Kind | None:
         article = "an" if hint.__name__[0] in "AEIOU" else "a"
         return _Kind(f"{article} {hint.__name__}", lambda v: isinstance(v, hint))
     items = typing.get_args(hint)
-    if typing.get_origin(hint) in (collections.abc.Sequence, list) and len(items) == 1:
+    if typing.get_origin(hint) is tuple and len(items) == 2 and items[1] is Ellipsis:
+        items = items[:1]  # `tuple[X, ...]`: a sequence of X
+    if typing.get_origin(hint) in (collections.abc.Sequence, list, tuple) and len(items) == 1:
         inner = _declared_kind(items[0])
         if inner is not None:
             test = inner.test
@@ -144,6 +146,32 @@ def check_declared(declared, args, kwargs) -> None:
             kind.check(args[position], name)
         elif name in kwargs:
             kind.check(kwargs[name], name)
+
+
+def check_fields(module) -> None:
+    """`__check_init__` of a public `eqx.Module` built by users: each field annotated with a
+    checked kind is checked as an argument would be (`name: expected …`), and each field
+    annotated as an array holds real numbers (`_checks.check_real`: no string, object, complex or
+    boolean array); None passes where the annotation allows it. Values (NaN, ranges) are the
+    class's own checks."""
+    import dataclasses
+
+    from bsjax import _checks
+
+    namespace = vars(inspect.getmodule(type(module)))
+    for field in dataclasses.fields(module):
+        value = getattr(module, field.name)
+        hint = field.type
+        if isinstance(hint, str):
+            try:
+                hint = eval(hint, namespace)
+            except Exception:
+                continue
+        kind = _declared_kind(hint)
+        if kind is not None:
+            kind.check(value, field.name)
+        elif "Array" in str(hint) and value is not None and not _bsjax_class(type(value)):
+            _checks.check_real(value, field.name)
 
 
 def declared(fn: Callable) -> Callable:

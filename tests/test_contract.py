@@ -251,10 +251,90 @@ VALID: dict[str, Callable[[], object]] = {
         [0.0, 0.0, 5.0], [0.0, 0.0, 0.0]
     ),
     "plane": lambda: collide.Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+    # constructors
+    "knots_u": lambda: np.asarray(basis.clamped_knots(6, 3)),
+    "knots_v": lambda: np.asarray(basis.clamped_knots(6, 3)),
+    "degree_u": lambda: 3,
+    "degree_v": lambda: 3,
+    "center": lambda: np.array([0.5, 0.5, 0.1]),
+    "radius": lambda: 0.25,
+    "radii": lambda: np.array([0.2, 0.3, 0.1]),
+    "vertices": lambda: np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+    "faces": lambda: np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]),
+    "youngs_modulus": lambda: 1e4,
+    "density": lambda: 1000.0,
+    "yield_strain": lambda: 0.1,
+    "bodies": lambda: [_scene().bodies[0]],
+    "State.position": lambda: np.asarray(_state().position),
+    "velocity": lambda: np.asarray(_state().velocity),
+    "sculpt.u": lambda: 0.5,
+    "u1": lambda: 0.2,
+    "u2": lambda: 0.8,
+    "d": lambda: 0.1,
+    "sculpt.target": lambda: np.array([0.5, 0.2, 0.1]),
+    "sculpt.value": lambda: np.array([1.0, 0.0, 0.0]),
+    "sculpt.delta": lambda: np.array([0.0, 0.0, 0.1]),
+    "sculpt.surface": _plate,
+    "sculpt.direction": lambda: np.array([1.0, 0.0, 0.0]),
+    "eye": lambda: np.array([0.0, 0.0, 5.0]),
+    "sketch.target": lambda: np.zeros(3),
+    "geometry": _plate,
+    "segments": lambda: np.array(
+        [
+            [[0.2, 0.2], [0.8, 0.2]],
+            [[0.8, 0.2], [0.8, 0.8]],
+            [[0.8, 0.8], [0.2, 0.8]],
+            [[0.2, 0.8], [0.2, 0.2]],
+        ]
+    ),
+    "loop_sizes": lambda: (4,),
+    "outer": lambda: (True,),
+    "SplineDirection.knots": lambda: np.asarray(basis.clamped_knots(6, 3)),
+    "BSplineCurve.ctrl": lambda: np.asarray(_curve3().ctrl),
+    "BSplineCurve.knots": lambda: np.asarray(basis.clamped_knots(6, 3)),
 }
 
-# public functions the generator does not call, and why
+# public names the generator does not call, and why
+RESULT = "a result type: returned by the library, its fields not checked at construction"
 NOT_GENERATED = {
+    **{
+        f"bsjax.{name}": RESULT
+        for name in (
+            "basis:Blending",
+            "basis:CurveBlending",
+            "basis:Projection",
+            "collide:Contact",
+            "collide:FaceTree",
+            "collide:Penetration",
+            "collide:SurfaceContact",
+            "construct:SurfaceFit",
+            "grammar:CharacteristicPoints",
+            "grammar:Measures",
+            "grammar:OperatorResult",
+            "grammar:PointParameters",
+            "merge:Deviation",
+            "merge:MergeLayout",
+            "merge:RefitSolution",
+            "mss:SurfaceCoupling",
+            "optimise:OptimiseResult",
+            "sculpt:Edit",
+            "sculpt:Factor",
+            "sculpt:SculptResult",
+            "sketch:Construction",
+            "sketch:CurveFit",
+            "sketch:DecisionTree",
+            "sketch:Features",
+            "sketch:Oversketch",
+            "sketch:Recognised",
+            "sketch:Resampled",
+            "sketch:Rule",
+            "vsofm:Report",
+        )
+    },
+    "bsjax.collide:AbstractTool": "abstract",
+    "bsjax.sculpt:AbstractConstraint": "abstract",
+    "bsjax.sculpt:AbstractNonlinear": "abstract",
+    "bsjax.io:CadList": "a list (its items are checked where it is saved)",
     "bsjax.batch:initialize": "no arguments to spoil (its options are checked in tests/test_batch.py)",
     "bsjax.batch:mesh": "no required argument",
     "bsjax.merge:cache_info": "no arguments",
@@ -291,7 +371,7 @@ def _functions() -> list[tuple[str, Callable]]:
         if module.startswith(NOT_COVERED_PACKAGES) or module == "bsjax":
             continue
         obj = getattr(importlib.import_module(module), name)
-        if callable(obj) and not inspect.isclass(obj):
+        if callable(obj):
             found.append((f"{module}:{name}", obj))
     return found
 
@@ -373,9 +453,18 @@ VALUES = ("nan", "inf")  # bad values a compiled function sees only inside its p
 VALUE_EXAMPLES = int(os.environ.get("BSJAX_CONTRACT_VALUES", "25"))
 
 
+# classes whose field values and shapes (not types) are checked where they are used
+VALUES_AT_USE = {
+    "bsjax.sculpt:": "a constraint's values are checked where it is solved (constraints[i].u: …)",
+    "bsjax.mss:State": "a state's values are checked where it enters a step or a rollout",
+}
+
+
 def _wanted(key: str, name: str, kind: str) -> bool:
     """Whether the spoiled value of `kind` must be refused for this argument."""
     if kind == "rank" and (key, name) in ANY_SHAPE:
+        return False
+    if kind in (*VALUES, "rank") and key.startswith(tuple(VALUES_AT_USE)):
         return False
     return (key, name, kind) not in VALID_THERE
 

@@ -54,7 +54,7 @@ class BSplineCurve(eqx.Module):
         weights: ArrayLike | None = None,
     ):
         _checks.check_real(ctrl, "ctrl")
-        dtype = _checks.float_dtype(ctrl)
+        dtype = _checks.float_dtype(ctrl, names=("ctrl",))
         ctrl = jnp.asarray(ctrl, dtype=dtype)
         _checks.check_ndim(ctrl, "ctrl", 2)
         if ctrl.shape[1] not in (2, 3):
@@ -165,7 +165,7 @@ def _check_nu(nu) -> None:
 
 def _weights(weights, ctrl):
     _checks.check_real(weights, "weights")
-    weights = jnp.asarray(weights, dtype=_checks.float_dtype(weights, ctrl))
+    weights = jnp.asarray(weights, dtype=_checks.float_dtype(weights, ctrl, names=("weights", "ctrl")))
     if weights.shape != ctrl.shape[:1]:
         _checks.fail("weights", f"shape {ctrl.shape[:1]}", weights.shape)
     return _checks.positive(weights, "weights")

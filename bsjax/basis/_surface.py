@@ -76,7 +76,8 @@ class BSplineSurface(eqx.Module):
         periodic_v: bool = False,
         weights: ArrayLike | None = None,
     ):
-        dtype = _checks.float_dtype(ctrl)
+        _checks.check_real(ctrl, "ctrl")
+        dtype = _checks.float_dtype(ctrl, names=("ctrl",))
         ctrl = jnp.asarray(ctrl, dtype=dtype)
         _checks.check_ndim(ctrl, "ctrl", 3, last=3)
         r, s, _ = ctrl.shape
@@ -201,7 +202,7 @@ def _evaluate(surface: BSplineSurface, u, v, nu: int, nv: int):
 
 
 def _weights(weights, ctrl, r: int, s: int):
-    weights = jnp.asarray(weights, dtype=_checks.float_dtype(weights, ctrl))
+    weights = jnp.asarray(weights, dtype=_checks.float_dtype(weights, ctrl, names=("weights", "ctrl")))
     if weights.shape != (r, s):
         _checks.fail("weights", f"shape {(r, s)}", weights.shape)
     return _checks.positive(weights, "weights")
@@ -255,7 +256,7 @@ class Blending(eqx.Module):
         grid `params_u (m,)` × `params_v (n,)` (any sorted parameters in the domain — e.g. the
         stacked sample parameters of a merge): basis and derivative matrices (eq. 3.6) and the
         refit factors `A^+` (eq. 3.7), in one compiled call."""
-        dtype = _checks.float_dtype(params_u, params_v)
+        dtype = _checks.float_dtype(params_u, params_v, names=("params_u", "params_v"))
         pu, pv = jnp.asarray(params_u, dtype), jnp.asarray(params_v, dtype)
         _checks.check_ndim(pu, "params_u", 1)
         _checks.check_ndim(pv, "params_v", 1)

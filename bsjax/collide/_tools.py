@@ -666,11 +666,10 @@ class TriangleMesh(AbstractTool):
         vertices = _float(vertices, "vertices")
         _checks.check_ndim(vertices, "vertices", 2, last=3)
         self.vertices = _checks.finite(vertices, "vertices")
+        _checks.check_integer(faces, "faces", "integer vertex indices")
         faces = jnp.asarray(faces)
         if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0:
             _checks.fail("faces", "an (F, 3) integer array with F >= 1", faces.shape)
-        if not jnp.issubdtype(faces.dtype, jnp.integer):
-            _checks.fail("faces", "integer vertex indices", faces.dtype)
         n = vertices.shape[0]
         self.faces = _checks.check(
             faces.astype(jnp.int32),

@@ -29,6 +29,7 @@ from jaxtyping import Array, Bool, Float
 
 from bsjax import _checks
 from bsjax._boundary import compiled
+from bsjax._declared import check_fields
 from bsjax.basis import Blending, BSplineCurve, BSplineSurface
 
 Progress = Callable[[int, int], object]
@@ -95,6 +96,13 @@ class Trim(eqx.Module):
     loop_sizes: tuple[int, ...] = eqx.field(static=True)
     outer: tuple[bool, ...] = eqx.field(static=True)
     closed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
+
+    def __check_init__(self):
+        check_fields(self)
+        if np.ndim(self.segments) != 3 or np.shape(self.segments)[1:] != (2, 2):
+            _checks.fail("segments", "loop edges of shape (S, 2, 2)", np.shape(self.segments))
+        if _checks.is_concrete(self.segments) and not np.all(np.isfinite(self.segments)):
+            _checks.fail("segments", "finite (u, v) values", "NaN or inf")
 
     @classmethod
     def from_loops(cls, loops, outer, closed=(False, False)) -> Trim:

@@ -16,7 +16,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled, host_cache
-from bsjax._declared import declared
+from bsjax._declared import check_fields, declared
 from bsjax.mss._materials import Material, _damping, _stiffness
 
 # The 13 half-directions of a 26-neighbour hexahedral lattice: 3 edges, 6 face diagonals,
@@ -43,6 +43,9 @@ class State(eqx.Module):
 
     position: Float[Array, "N 3"]
     velocity: Float[Array, "N 3"]
+
+    def __check_init__(self):
+        check_fields(self)  # real arrays (values: checked where a state enters a step)
 
 
 class Lattice(eqx.Module):
@@ -152,9 +155,8 @@ def init(
 
 def _check_edges(edges, n: int) -> Int[Array, "E 2"]:
     _checks.check_ndim(edges, "edges", 2, last=2)
+    _checks.check_integer(edges, "edges", "integer node indices")
     e = jnp.asarray(edges)
-    if not jnp.issubdtype(e.dtype, jnp.integer):
-        _checks.fail("edges", "integer node indices", f"dtype {e.dtype}")
     e = _checks.check(
         e, (e < 0) | (e >= n), "edges", f"node indices in [0, {n})", "an index outside", _index_range
     )

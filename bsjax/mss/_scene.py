@@ -36,6 +36,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, collide, vsofm
 from bsjax._boundary import compiled
+from bsjax._declared import check_fields, declared
 from bsjax.basis import BSplineSurface
 from bsjax.mss._coupling import SurfaceCoupling, pole_sides
 from bsjax.mss._forces import tool_contacts
@@ -58,6 +59,9 @@ class Body(eqx.Module):
     lattice: Lattice
     surface: BSplineSurface
     coupling: SurfaceCoupling
+
+    def __check_init__(self):
+        check_fields(self)
 
     @classmethod
     def from_surface(
@@ -245,6 +249,7 @@ class Scene(eqx.Module):
     contact: collide.DistributedSprings
     reach: Float[Array, ""]
 
+    @declared
     def __init__(self, bodies: Sequence[Body], tools=(), gravity=None, contact=None, reach=None):
         bodies = tuple(bodies)
         for i, body in enumerate(bodies):

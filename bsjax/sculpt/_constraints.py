@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from bsjax import _checks, _safe
+from bsjax._declared import check_fields
 from bsjax.basis import BSplineCurve, BSplineSurface, SplineDirection
 
 Shape = BSplineCurve | BSplineSurface
@@ -29,6 +30,9 @@ class AbstractConstraint(eqx.Module):
 
     u: ArrayLike
     v: ArrayLike | None
+
+    def __check_init__(self):
+        check_fields(self)  # types at construction; values where the constraint is solved
 
     def goal(self):
         """The constraint's value (target point, displacement, derivative or amount); None if none."""

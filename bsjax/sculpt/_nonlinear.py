@@ -23,6 +23,7 @@ from jaxtyping import Array, ArrayLike
 
 from bsjax import _checks, _safe
 from bsjax._boundary import compiled
+from bsjax._declared import check_fields
 from bsjax.basis import BSplineCurve, BSplineSurface, closest_points
 from bsjax.sculpt._constraints import (
     AbstractConstraint,
@@ -37,6 +38,9 @@ from bsjax.sculpt._min_norm import Edit, _column_scale, _describe, _pinv, _rank
 
 class AbstractNonlinear(eqx.Module):
     """A nonlinear constraint `c(P + d) = 0` on a curve's or surface's control points."""
+
+    def __check_init__(self):
+        check_fields(self)  # types at construction; values where the constraint is solved
 
     def prepare(self, shape: Shape, name: str):
         """Checked values and constant basis rows (a pytree) for `residual`."""

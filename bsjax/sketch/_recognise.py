@@ -417,7 +417,7 @@ def recognise(points: ArrayLike, times: ArrayLike | None = None) -> Recognised:
     `corners` call of fixed shape `(_SAMPLES, d)`, and `fit_stroke` for a free stroke.
     """
     pts, t = _inputs(points, times)
-    dtype = _checks.float_dtype(np.asarray(points))
+    dtype = _checks.float_dtype(np.asarray(points), names=("points",))
     span = None if t is None else (float(t[0]), float(t[-1]))
     pts, t = _clean(pts, t)
     cut = _closure(pts)

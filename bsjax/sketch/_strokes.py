@@ -84,7 +84,7 @@ class Features(eqx.Module):
 
 def _stroke(points, name: str = "points", minimum: int = 3):
     _checks.check_real(points, name)
-    points = jnp.asarray(points, _checks.float_dtype(points))
+    points = jnp.asarray(points, _checks.float_dtype(points, names=("points",)))
     _checks.check_ndim(points, name, 2)
     if points.shape[1] not in (2, 3):
         _checks.fail(name, "stroke samples of dimension 2 or 3, shape (N, d)", f"shape {points.shape}")
@@ -685,7 +685,7 @@ class Camera(eqx.Module):
     aspect: Float[Array, ""]
 
     def __init__(self, eye, target, up=(0.0, 0.0, 1.0), fov: float = math.pi / 3, aspect: float = 1.0):
-        dtype = _checks.float_dtype(eye, target)
+        dtype = _checks.float_dtype(eye, target, names=("eye", "target"))
         self.eye, self.target, self.up = (
             _checks.finite(_checks.vector3(v, name, dtype), name)
             for v, name in ((eye, "eye"), (target, "target"), (up, "up"))
