@@ -30,7 +30,7 @@ test: $(PY)
 	$(MAKE) docs-build SITE=$(TEST_SITE)
 	# The 20 slowest tests are printed at the end (the suite's budget is 15 min on 2 cores).
 	ulimit -s 65536 2>/dev/null; $(PY) -m pytest -q -n 2 --durations=20
-	# the declared floors, once per run (~1 min: a second venv at constraints-min.txt, a smoke subset)
+	# the declared floors, once per run (~40 s: a second venv at constraints-min.txt, a smoke subset)
 	$(MAKE) test-min
 
 # The declared dependency floors hold: the core at the versions of constraints-min.txt, in its
@@ -38,14 +38,13 @@ test: $(PY)
 # with it, so CI checks the floors on every run.
 MIN_VENV ?= .venv-min
 MIN_PY := $(MIN_VENV)/bin/python
-SMOKE := tests/test_errors.py tests/test_boundary.py tests/test_bad_input.py \
+SMOKE := tests/test_errors.py tests/test_boundary.py \
 	tests/test_batch.py::test_map_equals_vmap_and_a_loop \
 	tests/test_batch.py::test_map_accepts_lists_and_works_inside_jit_and_grad \
 	tests/test_merge_refit.py::test_closest_points_plane_and_clamped_edges \
 	tests/test_merge_refit.py::test_closest_points_periodic_crosses_the_seam \
 	tests/test_merge_refit.py::test_projection_bad_input_eager_and_jit \
-	tests/test_optimise.py::test_least_squares_matches_scipy \
-	--deselect tests/test_bad_input.py::test_plot_bad_input_names_the_argument
+	tests/test_optimise.py::test_least_squares_matches_scipy
 
 $(MIN_PY):
 	$(PYTHON) -m venv $(MIN_VENV)

@@ -450,7 +450,7 @@ FUNCTIONS = dict(COVERED)
 VALUES = ("nan", "inf")  # bad values a compiled function sees only inside its program
 # The value kinds compile each function's program once: `make test` draws this many arguments
 # per run (a different draw each run); BSJAX_CONTRACT_VALUES=1000 runs them all (~40 s).
-VALUE_EXAMPLES = int(os.environ.get("BSJAX_CONTRACT_VALUES", "25"))
+VALUE_EXAMPLES = int(os.environ.get("BSJAX_CONTRACT_VALUES", "15"))
 
 
 # classes whose field values and shapes (not types) are checked where they are used
