@@ -127,13 +127,17 @@ def declared_kinds(fn) -> tuple[tuple[int, str, _Kind], ...]:
 
 
 def _resolved(fn, name: str):
-    """The annotation of parameter `name` of `fn`, evaluated in `fn`'s module (None when it has
-    none or it does not evaluate there, e.g. a name imported only for type checkers)."""
-    hint = getattr(fn, "__annotations__", {}).get(name)
+    """The annotation of parameter `name` of `fn`, evaluated in `fn`'s module."""
+    return _evaluated(getattr(fn, "__annotations__", {}).get(name), getattr(fn, "__globals__", {}))
+
+
+def _evaluated(hint, namespace: dict):
+    """An annotation, evaluated in `namespace` when it is a string (None when it is missing or
+    does not evaluate there, e.g. a name imported only for type checkers)."""
     if not isinstance(hint, str):
         return hint
     try:
-        return eval(hint, getattr(fn, "__globals__", {}))
+        return eval(hint, namespace)  # the library's own annotations
     except Exception:
         return None
 
@@ -154,24 +158,30 @@ def check_fields(module) -> None:
     annotated as an array holds real numbers (`_checks.check_real`: no string, object, complex or
     boolean array); None passes where the annotation allows it. Values (NaN, ranges) are the
     class's own checks."""
-    import dataclasses
-
     from bsjax import _checks
 
-    namespace = vars(inspect.getmodule(type(module)))
-    for field in dataclasses.fields(module):
-        value = getattr(module, field.name)
-        hint = field.type
-        if isinstance(hint, str):
-            try:
-                hint = eval(hint, namespace)
-            except Exception:
-                continue
-        kind = _declared_kind(hint)
+    for name, kind in _field_kinds(type(module)):
+        value = getattr(module, name)
         if kind is not None:
-            kind.check(value, field.name)
-        elif "Array" in str(hint) and value is not None and not _bsjax_class(type(value)):
-            _checks.check_real(value, field.name)
+            kind.check(value, name)
+        elif value is not None and not _bsjax_class(type(value)):
+            _checks.check_real(value, name)
+
+
+@functools.cache
+def _field_kinds(cls: type) -> tuple[tuple[str, _Kind | None], ...]:
+    """`(name, kind)` of each checked field of `cls`, read once per class: the field's declared
+    kind, or None for a field annotated as an array (checked for real numbers)."""
+    import dataclasses
+
+    namespace = vars(inspect.getmodule(cls))
+    found = []
+    for field in dataclasses.fields(cls):
+        hint = _evaluated(field.type, namespace)
+        kind = None if hint is None else _declared_kind(hint)
+        if kind is not None or "Array" in str(hint):
+            found.append((field.name, kind))
+    return tuple(found)
 
 
 def declared(fn: Callable) -> Callable:
