@@ -48,16 +48,18 @@ def boundary_options() -> dict[str, bool] | None:
     return options or None
 
 
-def prefer_quick_compilation(environ: MutableMapping[str, str] = os.environ) -> str:
-    """Add `QUICK_FLAGS` to `environ["XLA_FLAGS"]`, each unless a flag of the same name is there.
+def prefer_quick_compilation(
+    environ: MutableMapping[str, str] = os.environ, flags: tuple[str, ...] = QUICK_FLAGS
+) -> str:
+    """Add `flags` (default `QUICK_FLAGS`) to `environ["XLA_FLAGS"]`, each unless a flag of the
+    same name is there.
 
     Takes effect only if called before JAX's first computation in this process (XLA reads its
     flags once, when the backend starts); subprocesses inherit `environ`.
 
     **Returns:** the resulting `XLA_FLAGS`.
     """
-    flags = environ.get("XLA_FLAGS", "").split()
-    names = {flag.split("=")[0] for flag in flags}
-    flags += [flag for flag in QUICK_FLAGS if flag.split("=")[0] not in names]
-    environ["XLA_FLAGS"] = " ".join(flags)
+    present = environ.get("XLA_FLAGS", "").split()
+    names = {flag.split("=")[0] for flag in present}
+    environ["XLA_FLAGS"] = " ".join(present + [flag for flag in flags if flag.split("=")[0] not in names])
     return environ["XLA_FLAGS"]

@@ -327,6 +327,10 @@ def test_quick_compilation_adds_its_flags_and_never_overrides_the_users():
     assert prefer_quick_compilation(env).split() == ["--xla_force_host_platform_device_count=4", *QUICK_FLAGS]
     env = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}  # the user's choice wins
     assert prefer_quick_compilation(env) == "--xla_cpu_use_fusion_emitters=true"
+    assert prefer_quick_compilation(env, flags=("--xla_backend_optimization_level=0",)).split() == [
+        "--xla_cpu_use_fusion_emitters=true",
+        "--xla_backend_optimization_level=0",
+    ]  # other flags (the suite's TEST_FLAGS)
     assert set(QUICK_FLAGS) <= set(os.environ["XLA_FLAGS"].split())  # this run's (tests/conftest.py)
 
 

@@ -9,8 +9,9 @@ domain names: `ctrl`, `blending`, `lattice`, `curve`, `degree`, …; `VALID`, wi
 meanings where a name means another thing there), so a new public function whose arguments have
 known names is covered without a line here; one with an argument of an unknown name fails
 `test_every_public_function_is_covered` until `VALID` (or `NOT_GENERATED`, with the reason)
-names it. Only the bad call runs: a value check raises before anything compiles, so the whole
-file costs seconds.
+names it. Only the bad call runs: a structure check raises before anything compiles, so those
+cases cost seconds; a NaN/inf case is called directly, inside the caller's `jax.jit` or under
+`jax.vmap` (drawn; the traced variants for the array arguments of functions that trace them).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import equinox as eqx
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -382,10 +384,15 @@ def _required(fn) -> list[inspect.Parameter]:
     return [p for p in params if p.default is p.empty and p.kind in (*kinds, inspect.Parameter.KEYWORD_ONLY)]
 
 
-def _call(key: str, fn, replace: str, bad):
+def _call(key: str, fn, replace: str, bad, given: dict | None = None):
+    """`fn` called with valid values of its required arguments (`given`'s where it names them),
+    argument `replace` replaced by `bad`."""
     args, kwargs = [], {}
     for p in _required(fn):
-        value = bad if p.name == replace else _valid(key, p.name)()  # pyright: ignore[reportOptionalCall]
+        if given is not None and p.name in given:
+            value = given[p.name]
+        else:
+            value = bad if p.name == replace else _valid(key, p.name)()  # pyright: ignore[reportOptionalCall]
         if p.kind is inspect.Parameter.KEYWORD_ONLY:
             kwargs[p.name] = value
         else:
@@ -469,22 +476,55 @@ def _wanted(key: str, name: str, kind: str) -> bool:
     return (key, name, kind) not in VALID_THERE
 
 
-def _refused(key: str, name: str, draw, kinds) -> None:
+def _traced(key: str, name: str, how: str, bad):
+    """The call with its array arguments traced (as in a caller's compiled code, where nothing
+    is folded as a constant): inside the caller's `jax.jit`, or `jax.vmap` over the batch
+    `[valid, bad]` of argument `name`; None when that argument is not an array, or the function
+    cannot trace its arrays (a host-side function: files, recognition), where only the direct
+    call applies; so for a constructor, whose traced fields are checked by the functions they
+    enter (a module cannot replace its fields by their checked values in `__check_init__`)."""
+    import jax
+
+    fn = FUNCTIONS[key]
+    values = {p.name: bad if p.name == name else _valid(key, p.name)() for p in _required(fn)}  # pyright: ignore[reportOptionalCall]
+    valid = _valid(key, name)()  # pyright: ignore[reportOptionalCall]
+    if inspect.isclass(fn) or not isinstance(valid, (np.ndarray, float)):
+        return None
+    arrays = {k: v for k, v in values.items() if isinstance(v, (np.ndarray, float))}
+
+    def call(traced: dict):
+        return _call(key, fn, "", None, {**values, **traced})
+
+    try:
+        jax.eval_shape(call, {**arrays, name: valid})
+    except Exception:  # not traceable in these arguments
+        return None
+    if how == "jit":
+        return lambda: jax.jit(call)(arrays)
+    batch = {k: np.stack([np.asarray(v)] * 2) for k, v in arrays.items()}
+    batch[name] = np.stack([np.asarray(valid, float), np.asarray(bad)])
+    return lambda: jax.vmap(call)(batch)
+
+
+def _refused(key: str, name: str, draw, kinds, how: str = "direct") -> None:
     """Each spoiled value of the argument whose kind is in `kinds` raises `ValueError` or
-    `TypeError` naming the argument (no result, no other exception)."""
+    `TypeError` naming the argument (no result, no other exception); `how`: called directly,
+    or traced in the caller's `jit` or `vmap` (`_traced`), where a value check's failure is a
+    runtime error carrying the same message."""
     import jax
 
     fn = FUNCTIONS[key]
     for kind, bad in _spoiled(_valid(key, name)(), draw):  # pyright: ignore[reportOptionalCall]
         if kind not in kinds or not _wanted(key, name, kind):
             continue
+        run = (how != "direct" and _traced(key, name, how, bad)) or (lambda: _call(key, fn, name, bad))
         try:
-            out = _call(key, fn, name, bad)
+            out = run()
             jax.block_until_ready(out)
-        except (ValueError, TypeError) as err:
-            assert name in str(err), f"{key}({name}={kind}): {type(err).__name__}: {err}"
+        except (ValueError, TypeError, jax.errors.JaxRuntimeError, eqx.EquinoxRuntimeError) as err:
+            assert name in str(err), f"{key}({name}={kind}, {how}): {type(err).__name__}: {err}"
         else:
-            raise AssertionError(f"{key}({name}={kind} {bad!r:.60}) returned {out!r:.80}")
+            raise AssertionError(f"{key}({name}={kind} {bad!r:.60}, {how}) returned {out!r:.80}")
 
 
 STRUCTURE = ("fraction", "bool", "string", "complex", "object", "rank", "option", "number", "type", "array")
@@ -503,5 +543,6 @@ def test_a_badly_typed_or_shaped_argument_is_refused_by_name(key, name, data):
 @given(argument=st.sampled_from(ARGUMENTS), data=st.data())
 def test_a_non_finite_argument_is_refused_by_name(argument, data):
     """NaN and ±inf at a drawn position of a drawn argument (a drawn sample of the arguments
-    per run: each compiles its function's program)."""
-    _refused(*argument, data.draw, VALUES)
+    per run: each compiles its function's program), called directly, inside `jax.jit` or under
+    `jax.vmap` (drawn too)."""
+    _refused(*argument, data.draw, VALUES, data.draw(st.sampled_from(["direct", "jit", "vmap"])))
