@@ -54,6 +54,7 @@ class _Kind(typing.NamedTuple):
     what: str
     test: Callable[[object], bool]
     items: _Kind | None = None
+    options: tuple = ()  # a `Literal`'s values: another value of their type is a ValueError
 
     def check(self, value, name: str) -> None:
         if self.test(value):
@@ -61,7 +62,8 @@ class _Kind(typing.NamedTuple):
         if self.items is not None and isinstance(value, (list, tuple)):
             for i, item in enumerate(value):
                 self.items.check(item, f"{name}[{i}]")
-        raise TypeError(f"{name}: expected {self.what}, got {_shown(value)}")
+        wrong_value = any(type(value) is type(option) for option in self.options)
+        raise (ValueError if wrong_value else TypeError)(f"{name}: expected {self.what}, got {_shown(value)}")
 
 
 def _shown(value) -> str:
@@ -74,6 +76,10 @@ def _member(hint) -> _Kind | None:
         return _Kind("None", lambda v: v is None)
     if hint in _SCALARS:
         return _Kind(*_SCALARS[hint])
+    if typing.get_origin(hint) is typing.Literal:
+        options = typing.get_args(hint)
+        what = "one of " + ", ".join(map(repr, options))
+        return _Kind(what, lambda v: any(type(v) is type(o) and v == o for o in options), options=options)
     if hint in (os.PathLike, pathlib.Path):
         return _Kind("a path", lambda v: isinstance(v, os.PathLike))
     if hint is collections.abc.Callable or typing.get_origin(hint) is collections.abc.Callable:
@@ -108,9 +114,12 @@ def _declared_kind(hint) -> _Kind | None:
     if len(members) == 1:
         return members[0]
     tests = [m.test for m in members]
+    options = tuple(o for m in members for o in m.options)
     sequences = [m.items for m in members if m.items is not None]
     items = sequences[0] if len(sequences) == 1 else None
-    return _Kind(" or ".join(m.what for m in members), lambda v: any(test(v) for test in tests), items)
+    return _Kind(
+        " or ".join(m.what for m in members), lambda v: any(test(v) for test in tests), items, options
+    )
 
 
 def declared_kinds(fn) -> tuple[tuple[int, str, _Kind], ...]:

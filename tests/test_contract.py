@@ -539,6 +539,73 @@ def test_a_badly_typed_or_shaped_argument_is_refused_by_name(key, name, data):
     _refused(key, name, data.draw, STRUCTURE)
 
 
+# --- optional arguments -------------------------------------------------------------------------
+# functions whose call from the required arguments' VALID values is not itself valid, so that
+# a spoiled optional argument cannot be told from the invalid rest (VALID does not build them yet)
+OPTIONAL_NOT_GENERATED = {
+    "bsjax.collide:Point": "VALID's position is a set of points, a Point takes one",
+    "bsjax.grammar:point_parameters": "VALID's points are an array, not CharacteristicPoints",
+    "bsjax.grammar:simplify": "VALID's points are an array, not CharacteristicPoints",
+    "bsjax.mss:hex_lattice": "VALID's positions are a point set, not a (nx, ny, nz, 3) grid",
+    "bsjax.mss:surface_lattice": "needs a material or all three spring constants",
+}
+
+
+def _optional(fn) -> list[tuple[str, object]]:
+    """`(name, default)` of the optional arguments whose default is a number, a bool or text."""
+    params = inspect.signature(fn).parameters.values()
+    return [
+        (p.name, p.default)
+        for p in params
+        if p.default is not p.empty and type(p.default) in (float, int, bool, str)
+    ]
+
+
+def _option(fn, name: str) -> bool:
+    """Whether argument `name` is declared as a set of options (`Literal[...]`): only then is an
+    unknown text wrong; a plain `str` is free text (a name, a title, a label)."""
+    return "Literal" in str(inspect.signature(fn).parameters[name].annotation)
+
+
+OPTIONAL = [
+    (key, name, default)
+    for key, fn in COVERED
+    if key not in OPTIONAL_NOT_GENERATED and not key.startswith(tuple(VALUES_AT_USE))
+    for name, default in _optional(fn)
+]
+
+
+@pytest.mark.parametrize("key, name, default", OPTIONAL, ids=[f"{k}-{n}" for k, n, _ in OPTIONAL])
+@settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_a_badly_typed_optional_argument_is_refused_by_name(key, name, default, data):
+    """Every optional number, flag or option of every public function: a wrong type, complex, a
+    fraction or a flag for a count, an unknown option (`Literal`) — refused naming it."""
+    import jax
+
+    fn = FUNCTIONS[key]
+    for kind, bad in _spoiled(default, data.draw):
+        if kind in VALUES or (kind == "option" and not _option(fn, name)):
+            continue
+        try:
+            out = fn(*_positional(key, fn), **{**_keywords(key, fn), name: bad})
+            jax.block_until_ready(out)
+        except (ValueError, TypeError) as err:
+            assert name in str(err), f"{key}({name}={kind}): {type(err).__name__}: {err}"
+        else:
+            raise AssertionError(f"{key}({name}={kind} {bad!r:.60}) returned {out!r:.80}")
+
+
+def _positional(key: str, fn) -> list:
+    kinds = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    return [_valid(key, p.name)() for p in _required(fn) if p.kind in kinds]  # pyright: ignore[reportOptionalCall]
+
+
+def _keywords(key: str, fn) -> dict:
+    only = inspect.Parameter.KEYWORD_ONLY
+    return {p.name: _valid(key, p.name)() for p in _required(fn) if p.kind is only}  # pyright: ignore[reportOptionalCall]
+
+
 @settings(max_examples=VALUE_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(argument=st.sampled_from(ARGUMENTS), data=st.data())
 def test_a_non_finite_argument_is_refused_by_name(argument, data):

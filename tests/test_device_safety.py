@@ -88,8 +88,6 @@ class StampingModel:
 
 STAMPS = {
     "time.time": time.time,  # another clock: ~1.7e9 s, "in the future" for perf_counter
-    "inf": lambda: math.inf,
-    "nan": lambda: math.nan,
     "stale": lambda: 0.0,
     "future": lambda: time.perf_counter() + 1e6,
 }
@@ -115,6 +113,14 @@ def test_physics_death_zeroes_force_whatever_the_proxy_stamp(stamp, mode):
     dead = t < fault + 0.19  # (a hung physics comes back when released)
     assert_zero_after(t[dead], force[dead], fault, TIMEOUT)
     assert stats.watchdog_trips >= 1 and (mode == "hang" or stats.physics_errors == 1)
+
+
+@pytest.mark.parametrize("stamp", [math.nan, math.inf, -math.inf])
+def test_a_proxy_refuses_a_stamp_that_is_not_a_time(stamp):
+    with pytest.raises(ValueError, match="stamp: expected a finite time in s, got"):
+        Proxy.plane((0, 0, 0), (0, 0, 1), 100.0, stamp=stamp)
+    with pytest.raises(TypeError, match="stamp: expected a real number, got str"):
+        Proxy("none", stamp="now")  # pyright: ignore[reportArgumentType]
 
 
 class WrongClockDevice:

@@ -228,3 +228,25 @@ def test_blending_params_outside_the_domain_are_refused():
     surface = random_surface(np.random.default_rng(2), 6, 5, 3, 2)
     with pytest.raises(ValueError, match="^params_u"):
         surface.blending(params_u=np.array([-0.5, 0.5, 1.5]), n=9)
+
+
+def test_a_literal_annotation_is_a_set_of_options():
+    """`bsjax._declared`: `Literal[...]` accepts its values only — another value of their type is
+    a `ValueError` listing them, another type a `TypeError`; with `| None`, None too."""
+    from typing import Literal
+
+    from bsjax._declared import declared
+
+    @declared
+    def pick(mode: Literal["u", "v"], order: Literal[1, 2] | None = None):
+        return mode, order
+
+    assert pick("v", 2) == ("v", 2) and pick("u") == ("u", None)
+    with pytest.raises(ValueError, match="mode: expected one of 'u', 'v', got 'w'"):
+        pick("w")
+    with pytest.raises(TypeError, match="mode: expected one of 'u', 'v', got 1"):
+        pick(1)  # pyright: ignore[reportArgumentType]
+    with pytest.raises(ValueError, match="order: expected one of 1, 2 or None, got 3"):
+        pick("u", 3)  # pyright: ignore[reportArgumentType]
+    with pytest.raises(TypeError, match="order: expected one of 1, 2 or None, got True"):
+        pick("u", True)  # pyright: ignore[reportArgumentType]

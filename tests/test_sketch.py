@@ -249,7 +249,9 @@ def test_bad_strokes():
         sketch.fit_curve(points[:1], 2, 1)
     with pytest.raises(ValueError, match="n_ctrl: expected at most the 5 stroke samples"):
         sketch.fit_curve(points[:5], 8)
-    with pytest.raises(ValueError, match="params: expected one of chord"):
+    with pytest.raises(
+        ValueError, match="params: expected one of 'chord', 'centripetal', 'uniform', got 'arc'"
+    ):
         sketch.fit_curve(points, N_CTRL, params="arc")
     with pytest.raises(ValueError, match="points: expected at least 3 samples"):
         sketch.features(points[:2])

@@ -43,8 +43,11 @@ class SplineDirection(eqx.Module):
         name: str = "knots",
         dtype=None,
     ):
+        if not isinstance(name, str):
+            raise TypeError(f"name: expected a str (the knots' name in messages), got {name!r}")
         if not isinstance(periodic, (bool, np.bool_)):
-            raise TypeError(f"periodic: expected a bool, got {type(periodic).__name__} {periodic!r}")
+            kind = f"{type(periodic).__name__} {periodic!r}"
+            raise TypeError(f"periodic{name[5:]}: expected a bool, got {kind}")
         if periodic:
             if knots is not None:
                 _checks.fail(name, "None for a periodic direction (uniform closed basis)", "an array")

@@ -37,7 +37,8 @@ class Proxy:
     - `stiffness` (N per model unit), `damping` (N·s per model unit), both ≥ 0.
     - `stamp`: `time.perf_counter()` when the physics made it — informational only (recordings,
       debugging): the servo's watchdog never reads it, it times each proxy's *arrival* on its
-      own monotonic clock, so a stamp on another clock, in the future or non-finite is harmless.
+      own monotonic clock, so a stamp on another clock or in the future is harmless. A finite
+      real number (NaN or inf is not a time: refused).
     """
 
     kind: str = NONE
@@ -62,6 +63,10 @@ class Proxy:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: expected a finite number >= 0, got {value}")
             object.__setattr__(self, name, value)
+        stamp = _real(self.stamp, "stamp")
+        if not math.isfinite(stamp):
+            raise ValueError(f"stamp: expected a finite time in s, got {stamp}")
+        object.__setattr__(self, "stamp", stamp)
         if self.kind == PLANE:
             n = math.hypot(*self.normal)  # scaled: (1e300, 1e300, 0) and (1e-160, 0, 0) normalise
             if n == 0:

@@ -252,14 +252,14 @@ class CadObject(eqx.Module):
 
     def __check_init__(self):
         g = self.geometry
-        if isinstance(g, tuple) and g and all(isinstance(c, BSplineCurve) for c in g):
-            return
-        if not isinstance(g, (BSplineSurface, BSplineCurve)):
+        polycurve = isinstance(g, tuple) and g and all(isinstance(c, BSplineCurve) for c in g)
+        if not polycurve and not isinstance(g, (BSplineSurface, BSplineCurve)):
             _checks.fail(
                 "geometry",
                 "a BSplineSurface, a BSplineCurve or a non-empty tuple of BSplineCurves (a polycurve)",
                 type(g).__name__ if not isinstance(g, tuple) else f"a tuple of {len(g)} items",
             )
+        check_fields(self)  # name, layer, reversed, trim: their declared kinds
 
     @property
     def item(self) -> BSplineSurface | BSplineCurve | list[BSplineCurve]:

@@ -138,6 +138,13 @@ def average_knots(knots_a, knots_b) -> np.ndarray:
 
 
 @declared
+def check_cross(value, name: str) -> None:
+    """`value` must be one of `CROSS_MODES` (the rule across the merge direction; each public
+    caller names its own argument: `cross_knots=`, `cross=`, `mode=`)."""
+    if not isinstance(value, str) or value not in CROSS_MODES:
+        _checks.fail(name, f"one of {CROSS_MODES}", repr(value))
+
+
 def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "average") -> np.ndarray:
     """Knot vector across the merge direction for `n_ctrl` control points (thesis §4.3.3, §6.3.1.3).
 
@@ -146,8 +153,7 @@ def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "aver
     interior knots of all vectors pooled and `n_ctrl − degree − 1` of them picked at evenly
     spaced quantiles, so the distribution of the knots survives.
     """
-    if mode not in CROSS_MODES:
-        _checks.fail("cross_knots", f"one of {CROSS_MODES}", repr(mode))  # merge(cross_knots=)
+    check_cross(mode, "mode")
     _checks.check_degree(degree, "degree")
     n_ctrl = _checks.check_count(n_ctrl, "n_ctrl", degree + 1)
     if mode == "uniform":

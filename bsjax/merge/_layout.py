@@ -274,6 +274,7 @@ def merged_knots(
 
     **Returns:** `(k, l, knots_u, knots_v)` (float64 knot vectors).
     """
+    _knots.check_cross(cross, "cross")
     R, C = len(oriented), len(oriented[0])
     o_flat = [s for row in oriented for s in row]
     k, l, ku, kv = common_degree(o_flat, degrees)
@@ -570,6 +571,7 @@ def plan(
     """
     if direction not in ("u", "v"):
         _checks.fail("direction", "'u' or 'v'", repr(direction))
+    _knots.check_cross(cross_knots, "cross_knots")
     surfaces = list(surfaces)
     if len(surfaces) < 2:
         _checks.fail("surfaces", "a list of 2 or more patches", len(surfaces))
@@ -644,6 +646,9 @@ def _check_orient_mode(orient):
 
 def _explicit_orientations(orient, R: int, C: int):
     """Validate rows of explicit `(transpose, flip_u, flip_v)` orientations."""
+    expected = f"'auto', 'as_given' or {R} rows of {C} (transpose, flip_u, flip_v) orientations"
+    if not isinstance(orient, (list, tuple)) or not all(isinstance(r, (list, tuple)) for r in orient):
+        _checks.fail("orient", expected, type(orient).__name__)
     rows = [list(r) for r in orient]
     if len(rows) != R or any(len(r) != C for r in rows):
         _checks.fail(

@@ -38,6 +38,7 @@ from jaxtyping import Array, Float, Int
 
 from bsjax import _checks, batch
 from bsjax._boundary import compiled
+from bsjax._declared import check_fields
 from bsjax.basis import BSplineSurface, ProjectionSolver, closest_points
 
 
@@ -54,6 +55,11 @@ class RefitSolver(eqx.Module):
     rounds: int = eqx.field(static=True, default=8)
     rtol: float = 1e-2  # a leaf: traced by the compiled boundary, a new value does not recompile
     projection: ProjectionSolver = eqx.field(static=True, default=ProjectionSolver(max_steps=3))
+
+    def __check_init__(self):
+        check_fields(self)
+        _checks.check_count(self.rounds, "rounds")
+        _checks.positive(self.rtol, "rtol", strict=False)
 
 
 class RefitSolution(eqx.Module):

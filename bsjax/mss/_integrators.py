@@ -57,7 +57,7 @@ class Plasticity(eqx.Module):
 
     def __init__(self, yield_strain: ArrayLike, radius: ArrayLike = jnp.inf, center: ArrayLike | None = None):
         self.yield_strain = _checks.positive(_checks.array(yield_strain, "yield_strain"), "yield_strain")
-        radius = jnp.asarray(radius)
+        radius = _checks.array(radius, "radius")
         self.radius = _checks.check(
             radius, ~(radius >= 0), "radius", "a radius >= 0 (inf allowed)", "< 0 or NaN"
         )

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -315,7 +315,7 @@ class CurveFit(eqx.Module):
     max_error: Float[Array, ""]
 
 
-_PARAMS = ("chord", "centripetal", "uniform")
+Parameters = Literal["chord", "centripetal", "uniform"]  # the rules of `_data_params`
 
 
 def _data_params(points, method: str):
@@ -392,7 +392,12 @@ def _fit(points, n_ctrl: int, degree: int, params_method: str, fix_ends: bool) -
 
 @compiled
 def fit_curve(
-    points: Float[Array, "N d"], n_ctrl: int, degree: int = 3, *, params: str = "chord", fix_ends: bool = True
+    points: Float[Array, "N d"],
+    n_ctrl: int,
+    degree: int = 3,
+    *,
+    params: Parameters = "chord",
+    fix_ends: bool = True,
 ) -> CurveFit:
     """The least-squares B-spline of `n_ctrl` control points through a stroke, ends interpolated.
 
@@ -418,8 +423,6 @@ def fit_curve(
     _checks.check_degree(degree, "degree", n_ctrl, "the fitted curve")
     if n_ctrl > points.shape[0]:
         _checks.fail("n_ctrl", f"at most the {points.shape[0]} stroke samples", n_ctrl)
-    if params not in _PARAMS:
-        _checks.fail("params", f"one of {', '.join(_PARAMS)}", repr(params))
     if not isinstance(fix_ends, (bool, np.bool_)):
         raise TypeError(f"fix_ends: expected a bool, got {type(fix_ends).__name__}")
     return _fit(points, n_ctrl, degree, params, bool(fix_ends))
@@ -433,7 +436,7 @@ def fit_stroke(
     *,
     degree: int = 3,
     split: bool = True,
-    params: str = "chord",
+    params: Parameters = "chord",
 ) -> list[BSplineCurve]:
     """A stroke as B-spline curves split at its corners, each with the fewest control points whose
     fit meets `tol` (thesis §4.1: corners split the stroke, each part is fitted with fixed ends,
@@ -690,7 +693,7 @@ class Camera(eqx.Module):
             _checks.finite(_checks.vector3(v, name, dtype), name)
             for v, name in ((eye, "eye"), (target, "target"), (up, "up"))
         )
-        angle = jnp.asarray(fov, dtype)
+        angle = _checks.array(fov, "fov", dtype)
         bad = ~((angle > 0) & (angle < math.pi))
         self.fov = _checks.check(angle, bad, "fov", "an angle in (0, π)", "a value outside (or NaN)")
         self.aspect = _checks.positive(_checks.array(aspect, "aspect", dtype), "aspect")
