@@ -1146,7 +1146,12 @@ def convexify(curve: BSplineCurve, amount: float) -> OperatorResult:
         _checks.fail("curve", "an open curve with a curvature extremum", f"symbols {''.join(kinds)!r}")
     middle = min(extrema, key=lambda i: values[i])
     a, b = np.asarray(curve.evaluate(jnp.asarray([0.0, 1.0])))
-    chord = (b - a) / np.linalg.norm(b - a)
+    length = float(np.linalg.norm(b - a))
+    if not length > 0:
+        _checks.fail(
+            "curve", "an open curve whose ends differ (ν is the end chord's normal)", "coincident ends"
+        )
+    chord = (b - a) / length
     nu = np.array([chord[1], -chord[0]])
     s = np.asarray(_arc_table(curve, jnp.asarray([0.0, t[middle], 1.0] + t)))
     constraints = [sculpt.Displacement(t[middle], step * nu)]

@@ -292,6 +292,27 @@ VALID: dict[str, Callable[[], object]] = {
     "loop_sizes": lambda: (4,),
     "outer": lambda: (True,),
     "SplineDirection.knots": lambda: np.asarray(basis.clamped_knots(6, 3)),
+    # where a name means something particular to one function
+    "basis.spline": _curve3,  # a curve: no `direction` needed
+    "Point.position": lambda: np.zeros(3),
+    "grid_mesh.points": lambda: np.asarray(_blending().points(_plate().ctrl)),
+    "interpolate_grid.points": lambda: np.asarray(_blending().points(_plate().ctrl)),
+    "convexify.curve": lambda: basis.BSplineCurve(
+        np.asarray(_curve3().ctrl)[:, :2], basis.clamped_knots(6, 3), 3
+    ),
+    "apply_rule.index": lambda: 1,  # the m+ of M+m+M+m+
+    "point_parameters.points": lambda: __import__("bsjax.grammar", fromlist=["g"]).characteristic_points(
+        _curve3(closed=True)
+    ),
+    "simplify.points": lambda: __import__("bsjax.grammar", fromlist=["g"]).characteristic_points(
+        _curve3(closed=True)
+    ),
+    "hex_lattice.positions": lambda: np.asarray(_lattice().rest_positions).reshape(3, 3, 3, 3),
+    "Scene.bodies": lambda: [mss.Body.from_surface(_plate(), (6, 6, 2), mss.JELLY, thickness=0.01)],
+    "apply_inverse.name": lambda: "M+0m-0m+",
+    "apply_inverse.index": lambda: 1,  # its 0m-0
+    "adapt.name": lambda: "ring",  # a new name adapt teaches the tree
+    "compose.strokes": lambda: [_stroke(), _stroke()],
     "BSplineCurve.ctrl": lambda: np.asarray(_curve3().ctrl),
     "BSplineCurve.knots": lambda: np.asarray(basis.clamped_knots(6, 3)),
 }
@@ -397,7 +418,17 @@ def _call(key: str, fn, replace: str, bad, given: dict | None = None):
             kwargs[p.name] = value
         else:
             args.append(value)
-    return fn(*args, **kwargs)
+    more_args, more_kwargs = NEEDED.get(key, lambda: ((), {}))()
+    return fn(*args, *more_args, **{**more_kwargs, **kwargs})
+
+
+# what a valid call of these functions needs beyond their required arguments: `*args`, keywords
+NEEDED: dict[str, Callable[[], tuple[tuple, dict]]] = {
+    "bsjax.basis:insert_knots": lambda: ((), {"values": np.array([0.3, 0.6])}),
+    "bsjax.batch:map": lambda: ((np.ones((2, 3)),), {}),
+    "bsjax.mss:hex_lattice": lambda: ((), {"material": mss.JELLY}),
+    "bsjax.mss:surface_lattice": lambda: ((), {"material": mss.JELLY}),
+}
 
 
 COVERED = [
@@ -539,16 +570,18 @@ def test_a_badly_typed_or_shaped_argument_is_refused_by_name(key, name, data):
     _refused(key, name, data.draw, STRUCTURE)
 
 
+# --- the valid calls ------------------------------------------------------------------------------
+@settings(max_examples=VALUE_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(key=st.sampled_from(sorted(FUNCTIONS)))
+def test_the_valid_call_of_a_public_function_runs(key):
+    """The call a spoiled argument starts from is valid (a drawn sample of the functions per run:
+    each compiles), so a refusal names a fault of the spoiled argument, not of the rest."""
+    import jax
+
+    jax.block_until_ready(_call(key, FUNCTIONS[key], "", None))
+
+
 # --- optional arguments -------------------------------------------------------------------------
-# functions whose call from the required arguments' VALID values is not itself valid, so that
-# a spoiled optional argument cannot be told from the invalid rest (VALID does not build them yet)
-OPTIONAL_NOT_GENERATED = {
-    "bsjax.collide:Point": "VALID's position is a set of points, a Point takes one",
-    "bsjax.grammar:point_parameters": "VALID's points are an array, not CharacteristicPoints",
-    "bsjax.grammar:simplify": "VALID's points are an array, not CharacteristicPoints",
-    "bsjax.mss:hex_lattice": "VALID's positions are a point set, not a (nx, ny, nz, 3) grid",
-    "bsjax.mss:surface_lattice": "needs a material or all three spring constants",
-}
 
 
 def _optional(fn) -> list[tuple[str, object]]:
@@ -570,7 +603,7 @@ def _option(fn, name: str) -> bool:
 OPTIONAL = [
     (key, name, default)
     for key, fn in COVERED
-    if key not in OPTIONAL_NOT_GENERATED and not key.startswith(tuple(VALUES_AT_USE))
+    if not key.startswith(tuple(VALUES_AT_USE))
     for name, default in _optional(fn)
 ]
 
@@ -588,7 +621,8 @@ def test_a_badly_typed_optional_argument_is_refused_by_name(key, name, default, 
         if kind in VALUES or (kind == "option" and not _option(fn, name)):
             continue
         try:
-            out = fn(*_positional(key, fn), **{**_keywords(key, fn), name: bad})
+            more_args, more_kwargs = NEEDED.get(key, lambda: ((), {}))()
+            out = fn(*_positional(key, fn), *more_args, **{**more_kwargs, **_keywords(key, fn), name: bad})
             jax.block_until_ready(out)
         except (ValueError, TypeError) as err:
             assert name in str(err), f"{key}({name}={kind}): {type(err).__name__}: {err}"

@@ -269,18 +269,20 @@ class Scene(eqx.Module):
             raise TypeError(f"contact: expected a collide.DistributedSprings, got {type(contact).__name__}")
         self.contact = contact
         if reach is None:
-            reach = min((_thickness(b) for b in bodies), default=1.0)
+            reach = min((_thickness(b, f"bodies[{i}]") for i, b in enumerate(bodies)), default=1.0)
         self.reach = _checks.positive(_checks.array(reach, "reach", dtype), "reach")
 
 
-def _thickness(body: Body) -> float:
+def _thickness(body: Body, name: str) -> float:
     """How deep another body may reach into `body`: a shell's thickness (the rest distance from
-    its surface node to the innermost one); half the smallest extent of a volume body."""
+    its surface node to the innermost one); half the smallest extent of a volume body. A shell
+    of one layer (`mss.surface_lattice`) has neither: the scene's `reach` must be given."""
     x = np.asarray(body.lattice.rest_positions)
     if body.coupling.node_map.shape[-1] > 1:  # an embedded surface: a volume lattice
         return 0.5 * float(np.ptp(x, 0).min())
     shape = body.lattice.grid_shape
-    assert shape is not None
+    if shape is None:
+        _checks.fail("reach", f"a value: {name} is a shell of one layer, without a thickness", None)
     grid = x.reshape(shape + (3,))
     return float(np.linalg.norm(grid[0, 0, 0] - grid[0, 0, -1]))
 
