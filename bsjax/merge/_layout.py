@@ -665,11 +665,9 @@ def _explicit_orientations(orient, R: int, C: int):
     return out
 
 
-def grid_orientations(rows, orient="auto", samples=82):
+def grid_orientations(rows, orient="auto"):
     """Orientations of a grid of patches: `"auto"` (`_orient.orient_grid`, from the nets'
-    edges), `"as_given"`, or explicit rows of `(transpose, flip_u, flip_v)` (validated).
-    `samples` is accepted for compatibility (the edges are evaluated exactly)."""
-    del samples
+    edges), `"as_given"`, or explicit rows of `(transpose, flip_u, flip_v)` (validated)."""
     R, C = len(rows), len(rows[0])
     if isinstance(orient, str):
         _check_orient_mode(orient)
