@@ -407,8 +407,8 @@ def _required(fn) -> list[inspect.Parameter]:
 
 def _call(key: str, fn, replace: str, bad, given: dict | None = None):
     """`fn` called with valid values of its required arguments (`given`'s where it names them),
-    argument `replace` replaced by `bad`."""
-    args, kwargs = [], {}
+    argument `replace` replaced by `bad` (an optional one passed as a keyword)."""
+    args, kwargs = [], {} if replace in {p.name for p in _required(fn)} or not replace else {replace: bad}
     for p in _required(fn):
         if given is not None and p.name in given:
             value = given[p.name]
@@ -537,15 +537,16 @@ def _traced(key: str, name: str, how: str, bad):
     return lambda: jax.vmap(call)(batch)
 
 
-def _refused(key: str, name: str, draw, kinds, how: str = "direct") -> None:
+def _refused(key: str, name: str, draw, kinds, how: str = "direct", valid=None) -> None:
     """Each spoiled value of the argument whose kind is in `kinds` raises `ValueError` or
     `TypeError` naming the argument (no result, no other exception); `how`: called directly,
     or traced in the caller's `jit` or `vmap` (`_traced`), where a value check's failure is a
-    runtime error carrying the same message."""
+    runtime error carrying the same message. `valid`: the value spoiled (default: `VALID`'s)."""
     import jax
 
     fn = FUNCTIONS[key]
-    for kind, bad in _spoiled(_valid(key, name)(), draw):  # pyright: ignore[reportOptionalCall]
+    valid = _valid(key, name)() if valid is None else valid  # pyright: ignore[reportOptionalCall]
+    for kind, bad in _spoiled(valid, draw):
         if kind not in kinds or not _wanted(key, name, kind):
             continue
         run = (how != "direct" and _traced(key, name, how, bad)) or (lambda: _call(key, fn, name, bad))
@@ -614,30 +615,8 @@ OPTIONAL = [
 def test_a_badly_typed_optional_argument_is_refused_by_name(key, name, default, data):
     """Every optional number, flag or option of every public function: a wrong type, complex, a
     fraction or a flag for a count, an unknown option (`Literal`) — refused naming it."""
-    import jax
-
-    fn = FUNCTIONS[key]
-    for kind, bad in _spoiled(default, data.draw):
-        if kind in VALUES or (kind == "option" and not _option(fn, name)):
-            continue
-        try:
-            more_args, more_kwargs = NEEDED.get(key, lambda: ((), {}))()
-            out = fn(*_positional(key, fn), *more_args, **{**more_kwargs, **_keywords(key, fn), name: bad})
-            jax.block_until_ready(out)
-        except (ValueError, TypeError) as err:
-            assert name in str(err), f"{key}({name}={kind}): {type(err).__name__}: {err}"
-        else:
-            raise AssertionError(f"{key}({name}={kind} {bad!r:.60}) returned {out!r:.80}")
-
-
-def _positional(key: str, fn) -> list:
-    kinds = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
-    return [_valid(key, p.name)() for p in _required(fn) if p.kind in kinds]  # pyright: ignore[reportOptionalCall]
-
-
-def _keywords(key: str, fn) -> dict:
-    only = inspect.Parameter.KEYWORD_ONLY
-    return {p.name: _valid(key, p.name)() for p in _required(fn) if p.kind is only}  # pyright: ignore[reportOptionalCall]
+    kinds = [k for k in STRUCTURE if k != "option" or _option(FUNCTIONS[key], name)]
+    _refused(key, name, data.draw, kinds, valid=default)
 
 
 @settings(max_examples=VALUE_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])

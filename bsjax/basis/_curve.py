@@ -53,7 +53,6 @@ class BSplineCurve(eqx.Module):
         periodic: bool = False,
         weights: ArrayLike | None = None,
     ):
-        _checks.check_real(ctrl, "ctrl")
         dtype = _checks.float_dtype(ctrl, names=("ctrl",))
         ctrl = jnp.asarray(ctrl, dtype=dtype)
         _checks.check_ndim(ctrl, "ctrl", 2)
@@ -164,7 +163,6 @@ def _check_nu(nu) -> None:
 
 
 def _weights(weights, ctrl):
-    _checks.check_real(weights, "weights")
     weights = jnp.asarray(weights, dtype=_checks.float_dtype(weights, ctrl, names=("weights", "ctrl")))
     if weights.shape != ctrl.shape[:1]:
         _checks.fail("weights", f"shape {ctrl.shape[:1]}", weights.shape)

@@ -59,7 +59,7 @@ class SplineDirection(eqx.Module):
         else:
             if knots is None:
                 _checks.fail(name, "a knot vector for a non-periodic direction", None)
-            _checks.check_real(knots, name)
+            _checks.check_real(knots, name)  # also when `dtype` is given (the surface's)
             knots = jnp.asarray(knots, dtype or _checks.float_dtype(knots, names=(name,)))
             _checks.check_ndim(knots, name, 1)
             count = knots.shape[0] - int(degree) - 1 if isinstance(degree, (int, np.integer)) else 0

@@ -40,7 +40,6 @@ from jaxtyping import Array, Float
 
 from bsjax import _checks
 from bsjax._boundary import compiled
-from bsjax._declared import check_fields
 from bsjax.basis import _tensor
 from bsjax.basis._surface import BSplineSurface
 
@@ -59,7 +58,6 @@ class ProjectionSolver(eqx.Module):
     max_steps: int = eqx.field(static=True, default=8)
 
     def __check_init__(self):
-        check_fields(self)
         for name in ("rtol", "atol"):
             _checks.positive(getattr(self, name), name, strict=False)
         _checks.check_count(self.max_steps, "max_steps")

@@ -76,7 +76,6 @@ class BSplineSurface(eqx.Module):
         periodic_v: bool = False,
         weights: ArrayLike | None = None,
     ):
-        _checks.check_real(ctrl, "ctrl")
         dtype = _checks.float_dtype(ctrl, names=("ctrl",))
         ctrl = jnp.asarray(ctrl, dtype=dtype)
         _checks.check_ndim(ctrl, "ctrl", 3, last=3)

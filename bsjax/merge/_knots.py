@@ -137,7 +137,6 @@ def average_knots(knots_a, knots_b) -> np.ndarray:
     return 0.5 * (a + b)
 
 
-@declared
 def check_cross(value, name: str) -> None:
     """`value` must be one of `CROSS_MODES` (the rule across the merge direction; each public
     caller names its own argument: `cross_knots=`, `cross=`, `mode=`)."""
@@ -145,6 +144,7 @@ def check_cross(value, name: str) -> None:
         _checks.fail(name, f"one of {CROSS_MODES}", repr(value))
 
 
+@declared
 def cross_knots(knot_list: Sequence, degree: int, n_ctrl: int, mode: str = "average") -> np.ndarray:
     """Knot vector across the merge direction for `n_ctrl` control points (thesis §4.3.3, §6.3.1.3).
 

@@ -83,8 +83,7 @@ class Features(eqx.Module):
 
 
 def _stroke(points, name: str = "points", minimum: int = 3):
-    _checks.check_real(points, name)
-    points = jnp.asarray(points, _checks.float_dtype(points, names=("points",)))
+    points = jnp.asarray(points, _checks.float_dtype(points, names=(name,)))
     _checks.check_ndim(points, name, 2)
     if points.shape[1] not in (2, 3):
         _checks.fail(name, "stroke samples of dimension 2 or 3, shape (N, d)", f"shape {points.shape}")
